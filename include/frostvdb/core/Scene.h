@@ -1,0 +1,45 @@
+#pragma once
+/// @file Scene.h
+/// @brief A parsed scene: a TOML file with one section per effect (plus the core sections
+/// `scene`, `domain`, `region`, `output`), with `--set section.key=value` overrides applied.
+/// The simulation never sees text: it reads ParamDicts.
+#include <frostvdb/core/Params.h>
+
+#include <map>
+#include <string>
+#include <vector>
+
+namespace frostvdb {
+
+class Scene {
+public:
+    /// Parses a scene file. Throws SceneError with file and line on a syntax error.
+    static Scene load(const std::string& path);
+    /// Parses scene text; @a label is used as the file name in messages.
+    static Scene fromString(const std::string& text, const std::string& label);
+    /// The built-in default scene (a growing dendrite).
+    static Scene builtinDefault();
+    static const char* builtinDefaultText();
+
+    /// Applies "section.key=value"; the value is parsed as TOML (numbers, booleans, strings,
+    /// arrays; a bare word is taken as a string).
+    void applyOverride(const std::string& assignment);
+
+    const std::string& label() const { return mLabel; }
+    const std::string& text() const { return mText; }
+    /// Sections in file order.
+    const std::vector<std::string>& sectionNames() const { return mOrder; }
+    bool hasSection(const std::string& name) const { return mSections.count(name) > 0; }
+    /// The section's parameters; an absent section yields an empty dict (all defaults).
+    ParamDict& section(const std::string& name);
+    int sectionLine(const std::string& name) const;
+
+private:
+    std::string mLabel;
+    std::string mText;
+    std::vector<std::string> mOrder;
+    std::map<std::string, ParamDict> mSections;
+    std::map<std::string, int> mSectionLines;
+};
+
+} // namespace frostvdb

@@ -1,0 +1,30 @@
+#!/usr/bin/env bash
+# Installs what a fresh Debian 12 machine lacks (as root, via apt) and configures + builds frostvdb.
+# Used by scripts/run.sh and scripts/test.sh; safe to call again: it only installs what is missing
+# and the build is incremental (ccache is used when present).
+set -euo pipefail
+here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+cd "$here"
+
+packages=(build-essential cmake ccache pkg-config
+          libopenvdb-dev libboost-iostreams-dev libboost-program-options-dev
+          libtbb-dev libeigen3-dev catch2 libtomlplusplus-dev libpng-dev
+          python3-openvdb libopenvdb-tools)
+missing=()
+for p in "${packages[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if [ ${#missing[@]} -gt 0 ]; then
+  echo "frostvdb: installing ${missing[*]}" >&2
+  sudo_cmd=""
+  [ "$(id -u)" -ne 0 ] && sudo_cmd="sudo"
+  $sudo_cmd apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $sudo_cmd apt-get install -y -qq --no-install-recommends "${missing[@]}" >&2
+fi
+
+build_type="${FROSTVDB_BUILD_TYPE:-Release}"
+if [ ! -f build/CMakeCache.txt ]; then
+  cmake -S . -B build -DCMAKE_BUILD_TYPE="$build_type" >&2
+fi
+jobs="$(nproc 2>/dev/null || echo 2)"
+cmake --build build -j "$jobs" >&2

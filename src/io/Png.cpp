@@ -1,0 +1,101 @@
+#include <frostvdb/io/Png.h>
+#include <frostvdb/io/VdbIO.h>
+
+#include <png.h>
+
+#include <algorithm>
+#include <cstdio>
+#include <stdexcept>
+
+namespace frostvdb {
+
+namespace {
+
+uint8_t to8(float v) { return uint8_t(std::clamp(v, 0.0f, 1.0f) * 255.0f + 0.5f); }
+
+struct PngWriter {
+    FILE* fp = nullptr;
+    png_structp png = nullptr;
+    png_infop info = nullptr;
+    ~PngWriter()
+    {
+        if (png) png_destroy_write_struct(&png, info ? &info : nullptr);
+        if (fp) std::fclose(fp);
+    }
+};
+
+void writePng(const std::string& path, int w, int h, int colorType, int bitDepth,
+              const std::vector<uint8_t>& rows, size_t rowBytes)
+{
+    const std::string tmp = temporaryPathFor(path);
+    {
+        PngWriter pw;
+        pw.fp = std::fopen(tmp.c_str(), "wb");
+        if (!pw.fp) throw std::runtime_error(path + ": cannot open for writing");
+        pw.png = png_create_write_struct(PNG_LIBPNG_VER_STRING, nullptr, nullptr, nullptr);
+        pw.info = png_create_info_struct(pw.png);
+        if (setjmp(png_jmpbuf(pw.png))) throw std::runtime_error(path + ": PNG write failed");
+        png_init_io(pw.png, pw.fp);
+        png_set_IHDR(pw.png, pw.info, w, h, bitDepth, colorType, PNG_INTERLACE_NONE,
+                     PNG_COMPRESSION_TYPE_DEFAULT, PNG_FILTER_TYPE_DEFAULT);
+        png_write_info(pw.png, pw.info);
+        for (int y = 0; y < h; ++y)
+            png_write_row(pw.png, const_cast<png_bytep>(rows.data() + size_t(y) * rowBytes));
+        png_write_end(pw.png, nullptr);
+    }
+    commitTemporary(tmp, path);
+}
+
+} // namespace
+
+void ImageRGB::set(int x, int y, float r, float g, float b)
+{
+    if (x < 0 || y < 0 || x >= width || y >= height) return;
+    uint8_t* p = &rgb[(size_t(y) * width + x) * 3];
+    p[0] = to8(r);
+    p[1] = to8(g);
+    p[2] = to8(b);
+}
+
+void writePngRGB(const std::string& path, const ImageRGB& image)
+{
+    writePng(path, image.width, image.height, PNG_COLOR_TYPE_RGB, 8, image.rgb, size_t(image.width) * 3);
+}
+
+void writePngGray(const std::string& path, int width, int height, const std::vector<float>& values,
+                  int bitDepth)
+{
+    if (bitDepth != 8 && bitDepth != 16) throw std::invalid_argument("bit depth must be 8 or 16");
+    const size_t rowBytes = size_t(width) * (bitDepth / 8);
+    std::vector<uint8_t> rows(rowBytes * height);
+    for (size_t i = 0; i < size_t(width) * height; ++i) {
+        const float v = std::clamp(values[i], 0.0f, 1.0f);
+        if (bitDepth == 8) {
+            rows[i] = uint8_t(v * 255.0f + 0.5f);
+        } else { // PNG stores 16-bit samples big-endian
+            const uint16_t s = uint16_t(v * 65535.0f + 0.5f);
+            rows[2 * i] = uint8_t(s >> 8);
+            rows[2 * i + 1] = uint8_t(s & 0xff);
+        }
+    }
+    writePng(path, width, height, PNG_COLOR_TYPE_GRAY, bitDepth, rows, rowBytes);
+}
+
+std::vector<float> readPngGray(const std::string& path, int& width, int& height)
+{
+    png_image image{};
+    image.version = PNG_IMAGE_VERSION;
+    if (!png_image_begin_read_from_file(&image, path.c_str()))
+        throw std::runtime_error(path + ": cannot read PNG (" + image.message + ")");
+    image.format = PNG_FORMAT_LINEAR_Y; // 16-bit linear grey
+    std::vector<uint16_t> buf(PNG_IMAGE_SIZE(image) / 2);
+    if (!png_image_finish_read(&image, nullptr, buf.data(), 0, nullptr))
+        throw std::runtime_error(path + ": cannot decode PNG (" + image.message + ")");
+    width = int(image.width);
+    height = int(image.height);
+    std::vector<float> out(buf.size());
+    for (size_t i = 0; i < buf.size(); ++i) out[i] = buf[i] / 65535.0f;
+    return out;
+}
+
+} // namespace frostvdb
