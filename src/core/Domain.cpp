@@ -20,8 +20,8 @@ Domain Domain::fromParams(ParamDict& d)
         "cell lattice of the plane; hexagonal gives six-fold DLA and stencils (box domains use square)");
     const auto size = d.getFloatArray("size", {256, 256}, {2, 3}, 1, 1 << 20, "cells",
         "cells along x, y (and z for a box)");
-    const double voxelSize = d.getFloatArray("voxel_size", {0.0001}, {1}, 1e-9, 1e3, "m",
-        "world size of one cell in metres (what DCC tools see)").front();
+    const double voxelSize = d.getFloat("voxel_size", 0.0001, 1e-9, 1e3, "m",
+        "world size of one cell in metres (what DCC tools see)");
     const double spacing = d.getFloat("spacing", 3.0 / 64.0, 1e-4, 10.0, "",
         "dimensionless grid spacing h of the PDEs (the ice paper uses 3/64)");
     if (kind == "box" && size.size() != 3) d.fail("size", "a box domain needs [nx, ny, nz]");
@@ -30,7 +30,7 @@ Domain Domain::fromParams(ParamDict& d)
         d.fail("lattice", "box domains use the cubic (square) lattice");
     for (double s : size)
         if (s != double(int(s))) d.fail("size", "sizes must be whole numbers of cells");
-    const openvdb::Coord n(int(size[0]), int(size[1]), size.size() > 2 ? int(size[2]) : 1);
+    const openvdb::Coord n{int(size[0]), int(size[1]), size.size() > 2 ? int(size[2]) : 1};
     return Domain(kind == "box" ? DomainKind::Box : DomainKind::Plane,
                   Lattice(Lattice::parseKind(lattice), spacing), n, voxelSize);
 }

@@ -30,6 +30,7 @@ struct RunOptions {
 struct OutputSettings {
     bool vdb = true;
     bool preview = true;
+    bool previewEvery = false; ///< a PNG for every frame, not only the last
     std::string previewGrid; ///< "" -> first of ice, density, cells
     bool halfFloat = false;
 };

@@ -1,0 +1,160 @@
+#pragma once
+/// @file Kobayashi.h
+/// @brief The Kobayashi phase-field model of the ice paper (Kim, Henson & Lin 2004, eqs. 1-5):
+///
+///   tau dp/dt = div(eps^2 grad p) - d/dx(eps eps' dp/dy) + d/dy(eps eps' dp/dx) + n(p, T)
+///   dT/dt     = lap T + K dp/dt
+///   eps(theta) = eps_bar (1 + delta cos(j (theta0 - theta))),  theta = atan2(p_y, p_x)
+///   n(p, T)    = p (1 - p) (p - 1/2 + m(T) + a chi),  m(T) = alpha/pi atan(gamma (T_e - T))
+///
+/// (a chi is Kobayashi's optional noise, chi uniform in [-1/2, 1/2], off by default.)
+///
+/// The per-cell arithmetic lives here as inline functions over flat arrays with precomputed
+/// neighbour offsets, so the sparse VDB kernel (per leaf, on a padded block) and the plain
+/// dense-array reference loop run literally the same code.
+#include <frostvdb/core/Lattice.h>
+
+#include <cmath>
+#include <cstddef>
+#include <cstdint>
+
+namespace frostvdb {
+
+struct KobayashiParams {
+    double tau = 0.0003;
+    double epsBar = 0.01;
+    double delta = 0.1;
+    double anisotropyMode = 6.0; ///< j
+    double theta0 = M_PI / 2.0;
+    double alpha = 0.9;
+    double gamma = 10.0;
+    double meltTemperature = 1.0; ///< T_e
+    double latentHeat = 1.5;      ///< K
+    double farTemperature = 0.0;  ///< T_inf: initial and far-field temperature
+    double noise = 0.0;           ///< a
+    double dt = 0.0002;
+
+    /// Largest stable forward-Euler dt for a stencil: the heat equation needs dt <= 1/|w0| and
+    /// the phase equation dt <= tau / (eps_max^2 |w0|), w0 the Laplacian's centre weight.
+    double explicitStabilityLimit(const Stencil& s) const
+    {
+        const double w0 = std::fabs(s.wLapCentre);
+        const double epsMax = epsBar * (1.0 + std::fabs(delta));
+        return std::fmin(1.0 / w0, tau / (epsMax * epsMax * w0));
+    }
+};
+
+/// A stencil flattened for one array layout: neighbour k of cell i is at i + off[k].
+struct FlatStencil {
+    static constexpr int kMaxTaps = 8;
+    int n = 0;
+    std::ptrdiff_t off[kMaxTaps];
+    double ex[kMaxTaps], ey[kMaxTaps], ez[kMaxTaps], wGrad[kMaxTaps], wLap[kMaxTaps];
+
+    /// @a strideY, @a strideZ: distance between rows and slices of the layout.
+    FlatStencil(const Stencil& s, std::ptrdiff_t strideY, std::ptrdiff_t strideZ)
+    {
+        for (const auto& t : s.taps) {
+            off[n] = t.offset.x() + t.offset.y() * strideY + t.offset.z() * strideZ;
+            ex[n] = t.ex;
+            ey[n] = t.ey;
+            ez[n] = t.ez;
+            wGrad[n] = t.wGrad;
+            wLap[n] = t.wLap;
+            ++n;
+        }
+    }
+};
+
+/// Precomputed per-run constants of the anisotropy.
+struct Anisotropy {
+    double epsBar, delta, j, theta0, cj0, sj0;
+    int integerMode; ///< j as an integer >= 0, or -1 when j is fractional
+    explicit Anisotropy(const KobayashiParams& k)
+        : epsBar(k.epsBar), delta(k.delta), j(k.anisotropyMode), theta0(k.theta0),
+          cj0(std::cos(k.anisotropyMode * k.theta0)), sj0(std::sin(k.anisotropyMode * k.theta0)),
+          integerMode(std::floor(k.anisotropyMode) == k.anisotropyMode ? int(k.anisotropyMode) : -1)
+    {
+    }
+
+    /// eps(theta) and d eps / d theta for the gradient direction (gx, gy). Integer j avoids
+    /// trigonometry: e^{i j theta} is the j-th power of the unit gradient as a complex number.
+    inline void operator()(double gx, double gy, double& eps, double& epsPrime) const
+    {
+        double c, s; // cos and sin of j (theta0 - theta)
+        if (integerMode >= 0) {
+            double wr = 1.0, wi = 0.0;
+            const double r2 = gx * gx + gy * gy;
+            if (r2 > 1e-30) {
+                const double inv = 1.0 / std::sqrt(r2);
+                const double zr = gx * inv, zi = gy * inv;
+                for (int q = 0; q < integerMode; ++q) {
+                    const double t = wr * zr - wi * zi;
+                    wi = wr * zi + wi * zr;
+                    wr = t;
+                }
+            }
+            c = cj0 * wr + sj0 * wi;
+            s = sj0 * wr - cj0 * wi;
+        } else {
+            const double theta = std::atan2(gy, gx);
+            c = std::cos(j * (theta0 - theta));
+            s = std::sin(j * (theta0 - theta));
+        }
+        eps = epsBar * (1.0 + delta * c);
+        epsPrime = epsBar * delta * j * s;
+    }
+};
+
+/// Pass 1 at cell i: the gradient of p and the anisotropic coefficients the update needs at
+/// the neighbours: a = eps^2, cx = eps eps' p_x, cy = eps eps' p_y.
+inline void kobayashiAux(const float* p, std::size_t i, const FlatStencil& st, const Anisotropy& an,
+                         float* a, float* cx, float* cy, float* gx, float* gy, float* gz)
+{
+    const double p0 = p[i];
+    double sx = 0, sy = 0, sz = 0;
+    for (int q = 0; q < st.n; ++q) {
+        const double d = st.wGrad[q] * (double(p[i + st.off[q]]) - p0);
+        sx += d * st.ex[q];
+        sy += d * st.ey[q];
+        sz += d * st.ez[q];
+    }
+    double eps, epsPrime;
+    an(sx, sy, eps, epsPrime);
+    a[i] = float(eps * eps);
+    cx[i] = float(eps * epsPrime * sx);
+    cy[i] = float(eps * epsPrime * sy);
+    gx[i] = float(sx);
+    gy[i] = float(sy);
+    gz[i] = float(sz);
+}
+
+/// Pass 2 at cell i: forward-Euler update of p and T (eqs. 1-2). @a chi is the noise draw in
+/// [-1/2, 1/2] (ignored when noise is 0). Returns dp.
+inline double kobayashiEuler(const float* p, const float* T, const float* a, const float* cx, const float* cy,
+                             const float* gx, const float* gy, const float* gz, std::size_t i,
+                             const FlatStencil& st, const KobayashiParams& k, double chi, float& pOut,
+                             float& tOut)
+{
+    const double p0 = p[i], t0 = T[i], a0 = a[i], cx0 = cx[i], cy0 = cy[i];
+    double lapP = 0, lapT = 0, dax = 0, day = 0, daz = 0, cross = 0;
+    for (int q = 0; q < st.n; ++q) {
+        const std::size_t j = i + st.off[q];
+        lapP += st.wLap[q] * (double(p[j]) - p0);
+        lapT += st.wLap[q] * (double(T[j]) - t0);
+        const double da = st.wGrad[q] * (double(a[j]) - a0);
+        dax += da * st.ex[q];
+        day += da * st.ey[q];
+        daz += da * st.ez[q];
+        cross += st.wGrad[q] * (-st.ex[q] * (double(cy[j]) - cy0) + st.ey[q] * (double(cx[j]) - cx0));
+    }
+    const double div = a0 * lapP + dax * gx[i] + day * gy[i] + daz * gz[i];
+    const double m = k.alpha / M_PI * std::atan(k.gamma * (k.meltTemperature - t0));
+    const double reaction = p0 * (1.0 - p0) * (p0 - 0.5 + m + k.noise * chi);
+    const double dp = k.dt / k.tau * (div + cross + reaction);
+    pOut = float(p0 + dp);
+    tOut = float(t0 + k.dt * lapT + k.latentHeat * dp);
+    return dp;
+}
+
+} // namespace frostvdb

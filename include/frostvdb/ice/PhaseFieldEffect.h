@@ -1,0 +1,37 @@
+#pragma once
+/// @file PhaseFieldEffect.h
+/// @brief Section [phase_field]: the Kobayashi phase field (p, T) of the ice paper as an effect.
+/// Writes the fields p, T, growth_acc, freeze_time and the output grids `ice` (fog volume,
+/// p clamped to [0,1]), `temperature`, `growth` (accumulated positive dp normalised to [0,1],
+/// the paper's displacement map) and `freeze_time` (time p first exceeded 1/2).
+#include <frostvdb/core/Effect.h>
+#include <frostvdb/ice/PhaseFieldSolver.h>
+
+#include <memory>
+
+namespace frostvdb {
+
+class PhaseFieldEffect : public Effect {
+public:
+    static std::unique_ptr<Effect> create(ParamDict& params, const World& world);
+
+    std::string name() const override { return "phase_field"; }
+    std::vector<std::string> fieldsWritten() const override { return {"p", "T", "growth_acc", "freeze_time"}; }
+    void initialize(World& world) override;
+    void step(World& world, const StepInfo& info) override;
+    void addToFrame(World& world, Frame& frame) override;
+    double time() const override { return mTime; }
+    std::vector<std::pair<std::string, double>> timings() const override;
+
+    const KobayashiParams& params() const { return mParams; }
+
+private:
+    KobayashiParams mParams;
+    double mSeedRadius = 3.0;
+    std::vector<double> mSeedPosition{0.5, 0.5, 0.5};
+    double mTime = 0.0;
+    std::unique_ptr<PhaseFieldSolver> mSolver;
+    PhaseFieldStepStats mStats;
+};
+
+} // namespace frostvdb

@@ -1,0 +1,279 @@
+#include <frostvdb/ice/PhaseFieldSolver.h>
+#include <frostvdb/core/Error.h>
+#include <frostvdb/core/Random.h>
+
+#include <openvdb/tools/Prune.h>
+#include <openvdb/tree/LeafManager.h>
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <chrono>
+#include <cmath>
+#include <mutex>
+#include <sstream>
+
+namespace frostvdb {
+
+namespace {
+
+using FloatLeaf = openvdb::FloatTree::LeafNodeType;
+using Clock = std::chrono::steady_clock;
+constexpr int kDim = FloatLeaf::DIM; // 8
+constexpr int kHalo = 2;             // stencil reach of one Kobayashi step
+
+double since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
+
+/// A leaf's voxels plus a halo of kHalo cells, as flat arrays (x fastest).
+struct Block {
+    int bx, by, bz;
+    bool plane;
+    std::vector<float> p, T, a, cx, cy, gx, gy, gz;
+    explicit Block(bool isPlane)
+        : bx(kDim + 2 * kHalo), by(kDim + 2 * kHalo), bz(isPlane ? 1 : kDim + 2 * kHalo), plane(isPlane)
+    {
+        const size_t n = size_t(bx) * by * bz;
+        for (auto* v : {&p, &T, &a, &cx, &cy, &gx, &gy, &gz}) v->assign(n, 0.f);
+    }
+    size_t index(int x, int y, int z) const { return (size_t(z) * by + y) * bx + x; }
+    openvdb::Coord origin(const openvdb::Coord& leafOrigin) const
+    {
+        return leafOrigin - openvdb::Coord(kHalo, kHalo, plane ? 0 : kHalo);
+    }
+};
+
+/// Copies the grid's values over the block's footprint, leaf by leaf (the leaf and its
+/// neighbours), falling back to the tile or background value where no leaf exists.
+void gather(const openvdb::FloatGrid::ConstAccessor& acc, const Block& b, const openvdb::Coord& leafOrigin,
+            std::vector<float>& out)
+{
+    const openvdb::Coord bo = b.origin(leafOrigin);
+    const int zr = b.plane ? 0 : 1;
+    for (int lz = -zr; lz <= zr; ++lz)
+        for (int ly = -1; ly <= 1; ++ly)
+            for (int lx = -1; lx <= 1; ++lx) {
+                const openvdb::Coord lo = leafOrigin + openvdb::Coord(lx * kDim, ly * kDim, lz * kDim);
+                const int x0 = std::max(lo.x(), bo.x()), x1 = std::min(lo.x() + kDim, bo.x() + b.bx);
+                const int y0 = std::max(lo.y(), bo.y()), y1 = std::min(lo.y() + kDim, bo.y() + b.by);
+                const int z0 = b.plane ? leafOrigin.z() : std::max(lo.z(), bo.z());
+                const int z1 = b.plane ? leafOrigin.z() + 1 : std::min(lo.z() + kDim, bo.z() + b.bz);
+                if (x0 >= x1 || y0 >= y1 || z0 >= z1) continue;
+                if (const FloatLeaf* leaf = acc.probeConstLeaf(lo)) {
+                    const float* buf = leaf->buffer().data();
+                    for (int z = z0; z < z1; ++z)
+                        for (int y = y0; y < y1; ++y) {
+                            float* dst = &out[b.index(x0 - bo.x(), y - bo.y(), z - bo.z())];
+                            const float* src = buf + ((((x0 & 7) << 6) | ((y & 7) << 3) | (z & 7)));
+                            for (int x = x0; x < x1; ++x, src += 64) *dst++ = *src;
+                        }
+                } else {
+                    const float v = acc.getValue(lo);
+                    for (int z = z0; z < z1; ++z)
+                        for (int y = y0; y < y1; ++y) {
+                            float* dst = &out[b.index(x0 - bo.x(), y - bo.y(), z - bo.z())];
+                            for (int x = x0; x < x1; ++x) *dst++ = v;
+                        }
+                }
+            }
+}
+
+/// Pass 1 over the block's cells that have a full ring of neighbours.
+void auxPass(Block& b, const FlatStencil& st, const Anisotropy& an)
+{
+    const int zs = b.plane ? 0 : 1, ze = b.plane ? 1 : b.bz - 1;
+    for (int z = zs; z < ze; ++z)
+        for (int y = 1; y < b.by - 1; ++y)
+            for (int x = 1; x < b.bx - 1; ++x)
+                kobayashiAux(b.p.data(), b.index(x, y, z), st, an, b.a.data(), b.cx.data(), b.cy.data(),
+                             b.gx.data(), b.gy.data(), b.gz.data());
+}
+
+/// The first bad voxel found (smallest coordinate, so the report does not depend on threads).
+struct Failure {
+    std::mutex mutex;
+    bool any = false;
+    openvdb::Coord where;
+    std::string field;
+    float value = 0;
+    void report(const openvdb::Coord& c, const char* f, float v)
+    {
+        std::lock_guard<std::mutex> lock(mutex);
+        if (!any || c < where) { any = true; where = c; field = f; value = v; }
+    }
+};
+
+} // namespace
+
+PhaseFieldSolver::PhaseFieldSolver(const KobayashiParams& params, const Domain& domain, const RegionSettings& region)
+    : mParams(params), mDomain(domain), mRegion(region)
+{
+}
+
+void PhaseFieldSolver::step(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::Ptr& T, openvdb::FloatGrid* growth,
+                            openvdb::FloatGrid* freezeTime, int64_t stepIndex, double time, uint64_t seed,
+                            PhaseFieldStepStats* stats)
+{
+    auto t0 = Clock::now();
+    auto region = buildActiveRegion({p.get(), T.get()}, mRegion, kHalo, mDomain);
+    auto pNew = openvdb::FloatGrid::create(p->background());
+    auto tNew = openvdb::FloatGrid::create(T->background());
+    pNew->setTransform(p->transformPtr());
+    tNew->setTransform(T->transformPtr());
+    pNew->setGridClass(p->getGridClass());
+    pNew->tree().topologyUnion(region->tree());
+    tNew->tree().topologyUnion(region->tree());
+
+    openvdb::tree::LeafManager<openvdb::FloatTree> pLeaves(pNew->tree());
+    openvdb::tree::LeafManager<openvdb::FloatTree> tLeaves(tNew->tree());
+    const size_t nLeaves = pLeaves.leafCount();
+    // Leaves of the accumulators are created serially up front; the kernel then writes into
+    // distinct leaves from many threads without touching topology.
+    std::vector<FloatLeaf*> gLeaves(nLeaves, nullptr), fLeaves(nLeaves, nullptr);
+    for (size_t i = 0; i < nLeaves; ++i) {
+        if (growth) gLeaves[i] = growth->tree().touchLeaf(pLeaves.leaf(i).origin());
+        if (freezeTime) fLeaves[i] = freezeTime->tree().touchLeaf(pLeaves.leaf(i).origin());
+    }
+    if (stats) {
+        stats->regionVoxels = pNew->activeVoxelCount();
+        stats->regionSeconds += since(t0);
+    }
+
+    t0 = Clock::now();
+    const bool plane = mDomain.isPlane();
+    const Block proto(plane);
+    const FlatStencil st(mDomain.stencil(), proto.bx, std::ptrdiff_t(proto.bx) * proto.by);
+    const Anisotropy an(mParams);
+    const KobayashiParams k = mParams;
+    const double tNext = time + k.dt;
+    Failure failure;
+
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, nLeaves, 8), [&](const tbb::blocked_range<size_t>& r) {
+        Block b(plane);
+        auto pAcc = p->getConstAccessor();
+        auto tAcc = T->getConstAccessor();
+        for (size_t li = r.begin(); li != r.end(); ++li) {
+            FloatLeaf& pl = pLeaves.leaf(li);
+            FloatLeaf& tl = tLeaves.leaf(li);
+            const openvdb::Coord origin = pl.origin();
+            gather(pAcc, b, origin, b.p);
+            gather(tAcc, b, origin, b.T);
+            auxPass(b, st, an);
+            FloatLeaf* gl = gLeaves[li];
+            FloatLeaf* fl = fLeaves[li];
+            for (auto it = pl.cbeginValueOn(); it; ++it) {
+                const openvdb::Index n = it.pos();
+                const openvdb::Coord c = it.getCoord();
+                const openvdb::Coord l = c - origin;
+                const size_t i = b.index(l.x() + kHalo, l.y() + kHalo, plane ? 0 : l.z() + kHalo);
+                double chi = 0;
+                if (k.noise != 0)
+                    chi = toUnit(hashCounters(seed, uint64_t(stepIndex), coordKey(c.x(), c.y(), c.z()))) - 0.5;
+                float pn, tn;
+                const double dp = kobayashiEuler(b.p.data(), b.T.data(), b.a.data(), b.cx.data(), b.cy.data(),
+                                                 b.gx.data(), b.gy.data(), b.gz.data(), i, st, k, chi, pn, tn);
+                if (!std::isfinite(pn) || pn < -0.05f || pn > 1.05f) failure.report(c, "p (ice)", pn);
+                if (!std::isfinite(tn)) failure.report(c, "T (temperature)", tn);
+                pl.setValueOnly(n, pn);
+                tl.setValueOnly(n, tn);
+                if (gl && dp > 0) gl->setValueOn(n, gl->getValue(n) + float(dp));
+                if (fl && pn > 0.5f && !fl->isValueOn(n)) fl->setValueOn(n, float(tNext));
+            }
+        }
+    });
+    if (stats) stats->kernelSeconds += since(t0);
+    if (failure.any) {
+        std::ostringstream os;
+        os << "phase field left its bounds: " << failure.field << " = " << failure.value << " at voxel "
+           << failure.where << " in step " << stepIndex + 1 << " (t = " << tNext << "); dt = " << k.dt
+           << ", explicit limit " << k.explicitStabilityLimit(mDomain.stencil())
+           << ". Lower phase_field.dt or the anisotropy/latent heat; nothing of this step was written.";
+        throw SimulationError(os.str());
+    }
+
+    t0 = Clock::now();
+    if (!mRegion.dense) {
+        truncateToTolerance(*pNew, mRegion.tolerance);
+        truncateToTolerance(*tNew, mRegion.tolerance);
+    }
+    if (growth) openvdb::tools::pruneInactive(growth->tree());
+    if (freezeTime) openvdb::tools::pruneInactive(freezeTime->tree());
+    if (stats) stats->truncateSeconds += since(t0);
+    p = pNew;
+    T = tNew;
+}
+
+uint64_t PhaseFieldSolver::kernelOnly(const openvdb::MaskGrid& region, const openvdb::FloatGrid& p,
+                                      const openvdb::FloatGrid& T, openvdb::FloatGrid& pOut,
+                                      openvdb::FloatGrid& tOut) const
+{
+    pOut.tree().topologyUnion(region.tree());
+    tOut.tree().topologyUnion(region.tree());
+    openvdb::tree::LeafManager<openvdb::FloatTree> pLeaves(pOut.tree());
+    openvdb::tree::LeafManager<openvdb::FloatTree> tLeaves(tOut.tree());
+    const bool plane = mDomain.isPlane();
+    const Block proto(plane);
+    const FlatStencil st(mDomain.stencil(), proto.bx, std::ptrdiff_t(proto.bx) * proto.by);
+    const Anisotropy an(mParams);
+    const KobayashiParams k = mParams;
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, pLeaves.leafCount(), 8), [&](const tbb::blocked_range<size_t>& r) {
+        Block b(plane);
+        auto pAcc = p.getConstAccessor();
+        auto tAcc = T.getConstAccessor();
+        for (size_t li = r.begin(); li != r.end(); ++li) {
+            FloatLeaf& pl = pLeaves.leaf(li);
+            FloatLeaf& tl = tLeaves.leaf(li);
+            const openvdb::Coord origin = pl.origin();
+            gather(pAcc, b, origin, b.p);
+            gather(tAcc, b, origin, b.T);
+            auxPass(b, st, an);
+            for (auto it = pl.cbeginValueOn(); it; ++it) {
+                const openvdb::Coord l = it.getCoord() - origin;
+                const size_t i = b.index(l.x() + kHalo, l.y() + kHalo, plane ? 0 : l.z() + kHalo);
+                float pn, tn;
+                kobayashiEuler(b.p.data(), b.T.data(), b.a.data(), b.cx.data(), b.cy.data(), b.gx.data(),
+                               b.gy.data(), b.gz.data(), i, st, k, 0.0, pn, tn);
+                pl.setValueOnly(it.pos(), pn);
+                tl.setValueOnly(it.pos(), tn);
+            }
+        }
+    });
+    return pOut.activeVoxelCount();
+}
+
+DensePhaseField::DensePhaseField(const KobayashiParams& params, const Lattice& lattice, int nx, int ny)
+    : mParams(params), mStencil(lattice.stencil(false)), mNx(nx), mNy(ny), mStride(size_t(nx + 2 * kHalo))
+{
+    const size_t n = mStride * size_t(ny + 2 * kHalo);
+    mP.assign(n, 0.f);
+    mT.assign(n, float(params.farTemperature));
+    mTn.assign(n, float(params.farTemperature));
+    for (auto* v : {&mPn, &mA, &mCx, &mCy, &mGx, &mGy, &mGz}) v->assign(n, 0.f);
+}
+
+void DensePhaseField::step()
+{
+    const FlatStencil st(mStencil, std::ptrdiff_t(mStride), 0);
+    const Anisotropy an(mParams);
+    const int W = mNx + 2 * kHalo;
+    // Pass 1 on every cell with a full ring of neighbours, pass 2 on the domain cells; the halo
+    // keeps the far-field values (Dirichlet), as the sparse solver's reads outside the domain do.
+    tbb::parallel_for(tbb::blocked_range<int>(1, mNy + 2 * kHalo - 1, 16), [&](const tbb::blocked_range<int>& r) {
+        for (int y = r.begin(); y != r.end(); ++y)
+            for (int x = 1; x < W - 1; ++x)
+                kobayashiAux(mP.data(), size_t(y) * mStride + x, st, an, mA.data(), mCx.data(), mCy.data(),
+                             mGx.data(), mGy.data(), mGz.data());
+    });
+    tbb::parallel_for(tbb::blocked_range<int>(0, mNy, 16), [&](const tbb::blocked_range<int>& r) {
+        for (int j = r.begin(); j != r.end(); ++j)
+            for (int i = 0; i < mNx; ++i) {
+                const size_t idx = index(i, j);
+                kobayashiEuler(mP.data(), mT.data(), mA.data(), mCx.data(), mCy.data(), mGx.data(), mGy.data(),
+                               mGz.data(), idx, st, mParams, 0.0, mPn[idx], mTn[idx]);
+            }
+    });
+    // Halo cells are never written, so both buffer pairs keep the far field there.
+    std::swap(mP, mPn);
+    std::swap(mT, mTn);
+}
+
+} // namespace frostvdb

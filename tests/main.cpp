@@ -1,0 +1,10 @@
+// The one Catch2 main of the test binary; tests live in tests/*_test.cpp beside it.
+#define CATCH_CONFIG_RUNNER
+#include <catch2/catch.hpp>
+#include <openvdb/openvdb.h>
+
+int main(int argc, char* argv[])
+{
+    openvdb::initialize();
+    return Catch::Session().run(argc, argv);
+}

@@ -1,0 +1,262 @@
+/// frostvdb: grows ice, frost and snowflakes and makes procedural steam as OpenVDB volumes.
+///   frostvdb run [SCENE] [--out DIR] [--set K=V]... [--threads N] [--seed S] [--frames A-B]
+///   frostvdb info FILE.vdb
+///   frostvdb preview FILE.vdb -o FILE.png [--grid NAME]
+///   frostvdb bench NAME [--threads N] [--quick]
+///   frostvdb keys [--markdown]
+#include <frostvdb/core/Bench.h>
+#include <frostvdb/core/Error.h>
+#include <frostvdb/core/Simulation.h>
+#include <frostvdb/io/Preview.h>
+#include <frostvdb/io/VdbIO.h>
+
+#include <boost/program_options.hpp>
+#include <openvdb/openvdb.h>
+
+#include <iostream>
+#include <sstream>
+
+namespace po = boost::program_options;
+using namespace frostvdb;
+
+namespace {
+
+const char* kUsage = R"(usage: frostvdb COMMAND [options]
+
+commands:
+  run [SCENE]      simulate a scene (the built-in dendrite when SCENE is omitted)
+  info FILE.vdb    list the grids of a file: class, type, active voxels, bbox, voxel size, metadata
+  preview FILE.vdb -o FILE.png [--grid NAME]
+                   draw a grid: shaded top view for flat grids, ray-marched for volumes
+  bench NAME       run a benchmark (frostvdb bench --help lists them)
+  keys             list every scene section and key with default, unit and range
+
+`frostvdb COMMAND --help` describes each command.
+)";
+
+/// Parses "A-B" or "A" into a frame range.
+void parseFrames(const std::string& s, int64_t& first, int64_t& last)
+{
+    try {
+        const auto dash = s.find('-');
+        if (dash == std::string::npos) {
+            first = last = std::stoll(s);
+        } else {
+            first = std::stoll(s.substr(0, dash));
+            last = std::stoll(s.substr(dash + 1));
+        }
+    } catch (...) {
+        throw SceneError("--frames", 0, "", "expected A-B or A (frame numbers from 1), got '" + s + "'");
+    }
+    if (first < 1 || last < first)
+        throw SceneError("--frames", 0, "", "expected 1 <= A <= B, got '" + s + "'");
+}
+
+int cmdRun(const std::vector<std::string>& args)
+{
+    po::options_description opts("frostvdb run [SCENE] [options]");
+    std::vector<std::string> sets;
+    std::string out, frames;
+    int threads = 0;
+    int64_t seed = -1;
+    opts.add_options()
+        ("help,h", "show this help")
+        ("scene", po::value<std::string>(), "scene file (TOML); omitted: the built-in dendrite scene")
+        ("out,o", po::value<std::string>(&out), "output folder (default out/<scene name>)")
+        ("set,s", po::value<std::vector<std::string>>(&sets)->composing(), "override a key: section.key=value (repeatable)")
+        ("threads,t", po::value<int>(&threads)->default_value(0), "worker threads (0: all cores)")
+        ("seed", po::value<int64_t>(&seed), "random seed (overrides scene.seed)")
+        ("frames", po::value<std::string>(&frames), "write only frames A-B (procedural effects skip the rest)")
+        ("quiet,q", "no progress output")
+        ("print-default-scene", "print the built-in default scene and exit");
+    po::positional_options_description pos;
+    pos.add("scene", 1);
+    po::variables_map vm;
+    po::store(po::command_line_parser(args).options(opts).positional(pos).run(), vm);
+    po::notify(vm);
+    if (vm.count("help")) {
+        std::cout << opts << "\nExamples:\n  frostvdb run\n  frostvdb run scenes/dendrite_square.toml --set "
+                             "phase_field.dt=0.0001 --out out/test\n";
+        return 0;
+    }
+    if (vm.count("print-default-scene")) {
+        std::cout << Scene::builtinDefaultText();
+        return 0;
+    }
+    if (threads < 0) throw SceneError("--threads", 0, "", "must be >= 0");
+    Scene scene = vm.count("scene") ? Scene::load(vm["scene"].as<std::string>()) : Scene::builtinDefault();
+    for (const auto& s : sets) scene.applyOverride(s);
+    if (seed >= 0) scene.applyOverride("scene.seed=" + std::to_string(seed));
+    RunOptions ro;
+    ro.outDir = out;
+    ro.threads = threads;
+    ro.progress = !vm.count("quiet");
+    if (!frames.empty()) parseFrames(frames, ro.firstFrame, ro.lastFrame);
+    Simulation sim(std::move(scene)); // validates every section and key before anything runs
+    const RunSummary sum = sim.run(ro);
+    std::cout << sum.toText();
+    const std::string dir = out.empty() ? "out/" + sum.scene : out;
+    std::cout << "  wrote " << sum.files.size() << " files and run.json to " << dir << "/\n";
+    return 0;
+}
+
+std::string metaValue(const openvdb::Metadata& m)
+{
+    std::string s = m.str();
+    for (auto& c : s)
+        if (c == '\n') c = ' ';
+    if (s.size() > 100) s = s.substr(0, 97) + "...";
+    return s;
+}
+
+int cmdInfo(const std::vector<std::string>& args)
+{
+    po::options_description opts("frostvdb info FILE.vdb");
+    opts.add_options()("help,h", "show this help")("file", po::value<std::string>(), "VDB file");
+    po::positional_options_description pos;
+    pos.add("file", 1);
+    po::variables_map vm;
+    po::store(po::command_line_parser(args).options(opts).positional(pos).run(), vm);
+    if (vm.count("help") || !vm.count("file")) {
+        std::cout << opts;
+        return vm.count("help") ? 0 : 2;
+    }
+    const std::string path = vm["file"].as<std::string>();
+    openvdb::MetaMap::Ptr meta;
+    auto grids = readVdb(path, &meta);
+    std::cout << path << ": " << grids->size() << " grid(s)\n";
+    for (auto& g : *grids) {
+        const auto bbox = g->evalActiveVoxelBoundingBox();
+        const auto vs = g->voxelSize();
+        std::cout << "  " << g->getName() << "\n"
+                  << "    class " << openvdb::GridBase::gridClassToString(g->getGridClass()) << ", type " << g->valueType()
+                  << (g->isType<openvdb::Vec3SGrid>() ? std::string(", vector type ") +
+                                                            openvdb::GridBase::vecTypeToString(g->getVectorType())
+                                                      : std::string())
+                  << "\n    active voxels " << g->activeVoxelCount() << ", bbox " << bbox.min() << " - " << bbox.max()
+                  << "\n    voxel size " << vs[0] << " x " << vs[1] << " x " << vs[2] << " m, memory "
+                  << g->memUsage() / 1024 << " KiB\n";
+        for (auto it = g->beginMeta(); it != g->endMeta(); ++it) {
+            const std::string& k = it->first;
+            if (k == "name" || k == "class" || k == "file_bbox_min" || k == "file_bbox_max" || k == "file_mem_bytes" ||
+                k == "file_voxel_count" || k == "is_local_space" || k == "vector_type" || k == "value_type")
+                continue;
+            std::cout << "    " << k << ": " << metaValue(*it->second) << "\n";
+        }
+    }
+    std::cout << "  file metadata:\n";
+    for (auto it = meta->beginMeta(); it != meta->endMeta(); ++it) {
+        if (it->first == "scene") {
+            const std::string s = it->second->str();
+            std::cout << "    scene: (" << std::count(s.begin(), s.end(), '\n') << " lines of scene text)\n";
+            continue;
+        }
+        std::cout << "    " << it->first << ": " << metaValue(*it->second) << "\n";
+    }
+    return 0;
+}
+
+int cmdPreview(const std::vector<std::string>& args)
+{
+    po::options_description opts("frostvdb preview FILE.vdb -o FILE.png [--grid NAME]");
+    std::string out, gridName;
+    int width = 512;
+    opts.add_options()("help,h", "show this help")("file", po::value<std::string>(), "VDB file")(
+        "output,o", po::value<std::string>(&out), "PNG to write")(
+        "grid,g", po::value<std::string>(&gridName), "grid to draw (default: ice, density, cells or the first float grid)")(
+        "width,w", po::value<int>(&width)->default_value(512), "image width in pixels");
+    po::positional_options_description pos;
+    pos.add("file", 1);
+    po::variables_map vm;
+    po::store(po::command_line_parser(args).options(opts).positional(pos).run(), vm);
+    po::notify(vm);
+    if (vm.count("help") || !vm.count("file") || out.empty()) {
+        std::cout << opts;
+        return vm.count("help") ? 0 : 2;
+    }
+    if (width < 16 || width > 8192) throw SceneError("--width", 0, "", "must be in [16, 8192]");
+    auto grids = readVdb(vm["file"].as<std::string>());
+    openvdb::GridBase::Ptr pick;
+    std::vector<std::string> wanted = gridName.empty() ? std::vector<std::string>{"ice", "density", "cells"}
+                                                       : std::vector<std::string>{gridName};
+    for (auto& w : wanted)
+        for (auto& g : *grids)
+            if (!pick && g->getName() == w) pick = g;
+    if (!pick && gridName.empty())
+        for (auto& g : *grids)
+            if (!pick && g->isType<openvdb::FloatGrid>()) pick = g;
+    if (!pick) throw SceneError(vm["file"].as<std::string>(), 0, "--grid", "no grid named '" + gridName + "'");
+    PreviewOptions po;
+    po.width = width;
+    writePreview(*pick, out, po);
+    std::cout << "wrote " << out << " (grid " << pick->getName() << ")\n";
+    return 0;
+}
+
+int cmdBench(const std::vector<std::string>& args)
+{
+    BenchArgs ba;
+    std::string name;
+    bool help = false;
+    for (size_t i = 0; i < args.size(); ++i) {
+        const std::string& a = args[i];
+        if (a == "--help" || a == "-h") help = true;
+        else if (a == "--quick") ba.quick = true;
+        else if (a == "--threads" && i + 1 < args.size()) ba.threads = std::stoi(args[++i]);
+        else if (a == "--docs" && i + 1 < args.size()) ba.docsDir = args[++i];
+        else if (name.empty() && a[0] != '-') name = a;
+        else ba.args.push_back(a);
+    }
+    if (help || name.empty()) {
+        std::cout << "usage: frostvdb bench NAME [--threads N] [--quick] [--docs DIR]\n\nbenchmarks:\n";
+        for (auto* b : BenchRegistry::all()) std::cout << "  " << b->name << "  " << b->summary << "\n";
+        return help ? 0 : 2;
+    }
+    const BenchInfo* b = BenchRegistry::find(name);
+    if (!b) throw SceneError("bench", 0, "", "unknown benchmark '" + name + "' (frostvdb bench --help lists them)");
+    return b->run(ba);
+}
+
+int cmdKeys(const std::vector<std::string>& args)
+{
+    std::cout << sceneReferenceMarkdown();
+    return 0;
+}
+
+} // namespace
+
+int main(int argc, char** argv)
+{
+    openvdb::initialize();
+    if (argc < 2 || std::string(argv[1]) == "--help" || std::string(argv[1]) == "-h" || std::string(argv[1]) == "help") {
+        std::cout << kUsage;
+        return argc < 2 ? 2 : 0;
+    }
+    if (std::string(argv[1]) == "--version") {
+        std::cout << "frostvdb " << FROSTVDB_VERSION << " (OpenVDB " << openvdb::getLibraryVersionString() << ")\n";
+        return 0;
+    }
+    const std::string cmd = argv[1];
+    std::vector<std::string> args(argv + 2, argv + argc);
+    try {
+        if (cmd == "run") return cmdRun(args);
+        if (cmd == "info") return cmdInfo(args);
+        if (cmd == "preview") return cmdPreview(args);
+        if (cmd == "bench") return cmdBench(args);
+        if (cmd == "keys") return cmdKeys(args);
+        std::cerr << "frostvdb: unknown command '" << cmd << "'\n" << kUsage;
+        return 2;
+    } catch (const SceneError& e) {
+        std::cerr << "frostvdb: error: " << e.what() << "\n";
+        return 2;
+    } catch (const SimulationError& e) {
+        std::cerr << "frostvdb: simulation stopped: " << e.what() << "\n";
+        return 3;
+    } catch (const po::error& e) {
+        std::cerr << "frostvdb: " << cmd << ": " << e.what() << " (see frostvdb " << cmd << " --help)\n";
+        return 2;
+    } catch (const std::exception& e) {
+        std::cerr << "frostvdb: error: " << e.what() << "\n";
+        return 1;
+    }
+}
