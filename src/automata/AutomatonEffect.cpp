@@ -380,7 +380,7 @@ OutputOptions readOutput(ParamDict& d, Rule rule, AutomatonConfig& cfg)
     if (!is3D) {
         o.thickness = d.getString("thickness", defThick, {"age", "value", "uniform"},
             "`ice` plate thickness from the cell's age (old ice is thick), its value, or uniform");
-        o.plateThickness = d.getFloat("plate_thickness", 0.5, 0.01, 1000.0, "cells",
+        o.plateThickness = d.getFloat("plate_thickness", 1.5, 0.01, 1000.0, "cells",
             "thickest plate of `ice`, in cell spacings");
         o.plateMin = d.getFloat("plate_min", 0.25, 0.0, 1.0, "",
             "thinnest plate as a fraction of plate_thickness");

@@ -57,7 +57,7 @@ void readSceneSection(ParamDict& d, World& w, const std::string& fallbackName)
     w.seed = uint64_t(d.getInt("seed", 1, 0, int64_t(1) << 53, "", "random seed (same seed, same bits)"));
     w.frames = d.getInt("frames", 8, 1, 1000000, "frames", "number of output frames");
     w.stepsPerFrame = d.getInt("steps_per_frame", 100, 1, 100000000, "steps", "simulation steps between frames");
-    for (char c : w.sceneName)
+    for (char c : d.has("name") ? w.sceneName : std::string())
         if (!(std::isalnum(static_cast<unsigned char>(c)) || c == '_' || c == '-'))
             d.fail("name", "use letters, digits, '_' and '-' only (it names files)");
 }

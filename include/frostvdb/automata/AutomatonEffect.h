@@ -19,7 +19,7 @@ namespace automata {
 
 struct OutputOptions {
     std::string thickness = "age"; ///< "age" | "value" | "uniform"
-    double plateThickness = 0.5;   ///< full plate thickness in cell spacings
+    double plateThickness = 1.5;   ///< full plate thickness in cell spacings
     double plateMin = 0.25;        ///< thinnest plate as a fraction of plateThickness
     double ageSteps = 0;           ///< age (steps) of full thickness; 0: the steps run so far
     int voxelsPerCell = 2;         ///< `ice` voxels per cell spacing

@@ -1,0 +1,376 @@
+/// @file GasEffects.cpp
+/// @brief The gas scene sections: [steam], [fog], [fire], [gas] (procedural gases) and the flow
+/// sections [attractor], [repulsor], [linear_attractor], [vortex], [vector_field] that move every
+/// gas of the scene.
+///
+/// The gases are procedural: frame N is a pure function of N (needsHistory() is false), so any
+/// frame range renders alone. Each written frame gets `density` (fog volume, only voxels above
+/// the threshold active), `vel` (m/s, contravariant-relative) and, for fire, `flame`,
+/// `temperature` (K) and `Cd`. The density of the frame is also published as the field
+/// `density` in world.fields (refreshed at the first step of each frame and at output), so
+/// other effects (e.g. DLA walkers raising humidity near steam) can read it.
+#include <frostvdb/gas/GasGrid.h>
+#include <frostvdb/gas/GasModels.h>
+
+#include <frostvdb/core/Effect.h>
+#include <frostvdb/core/Error.h>
+
+#include <openvdb/tools/Composite.h>
+
+#include <chrono>
+#include <map>
+#include <mutex>
+
+namespace frostvdb::gas {
+
+namespace {
+
+// ---------------------------------------------------------------------------------------------
+// Flow registry: flow sections register their function for the world they run in; gases read
+// them at each frame. Applied in a fixed order whatever the section order.
+
+enum FlowOrder { kAttractor = 0, kRepulsor = 1, kLinear = 2, kVortex = 3, kTable = 4 };
+
+struct FlowRegistry {
+    std::mutex mutex;
+    std::map<const World*, std::map<int, std::shared_ptr<const FlowFunction>>> flows;
+
+    static FlowRegistry& get()
+    {
+        static FlowRegistry r;
+        return r;
+    }
+    void add(const World* w, int order, std::shared_ptr<const FlowFunction> f)
+    {
+        std::lock_guard<std::mutex> lock(mutex);
+        flows[w][order] = std::move(f);
+    }
+    void remove(const World* w, int order)
+    {
+        std::lock_guard<std::mutex> lock(mutex);
+        auto it = flows.find(w);
+        if (it == flows.end()) return;
+        it->second.erase(order);
+        if (it->second.empty()) flows.erase(it);
+    }
+    FlowList list(const World* w)
+    {
+        std::lock_guard<std::mutex> lock(mutex);
+        FlowList out;
+        auto it = flows.find(w);
+        if (it != flows.end())
+            for (auto& [k, f] : it->second) out.push_back(f);
+        return out;
+    }
+};
+
+class FlowEffect : public Effect {
+public:
+    FlowEffect(std::string section, int order, std::shared_ptr<const FlowFunction> f)
+        : mSection(std::move(section)), mOrder(order), mFlow(std::move(f)) {}
+    ~FlowEffect() override
+    {
+        if (mWorld) FlowRegistry::get().remove(mWorld, mOrder);
+    }
+    std::string name() const override { return mSection; }
+    std::vector<std::string> fieldsWritten() const override { return {}; }
+    void initialize(World& world) override
+    {
+        if (!mFlow) mFlow = load(world);
+        mWorld = &world;
+        FlowRegistry::get().add(mWorld, mOrder, mFlow);
+    }
+    void step(World&, const StepInfo&) override {}
+    void addToFrame(World&, Frame&) override {}
+    bool needsHistory() const override { return false; }
+
+protected:
+    virtual std::shared_ptr<const FlowFunction> load(World&) { return mFlow; }
+
+private:
+    std::string mSection;
+    int mOrder;
+    const World* mWorld = nullptr;
+
+protected:
+    std::shared_ptr<const FlowFunction> mFlow;
+};
+
+class AttractorEffect : public FlowEffect {
+public:
+    using FlowEffect::FlowEffect;
+    static std::unique_ptr<Effect> create(ParamDict& d, const World&)
+    {
+        return std::make_unique<AttractorEffect>("attractor", kAttractor, readSphericalAttractor(d, false));
+    }
+};
+
+class RepulsorEffect : public FlowEffect {
+public:
+    using FlowEffect::FlowEffect;
+    static std::unique_ptr<Effect> create(ParamDict& d, const World&)
+    {
+        return std::make_unique<RepulsorEffect>("repulsor", kRepulsor, readSphericalAttractor(d, true));
+    }
+};
+
+class LinearAttractorEffect : public FlowEffect {
+public:
+    using FlowEffect::FlowEffect;
+    static std::unique_ptr<Effect> create(ParamDict& d, const World&)
+    {
+        return std::make_unique<LinearAttractorEffect>("linear_attractor", kLinear, readLinearAttractor(d));
+    }
+};
+
+class VortexEffect : public FlowEffect {
+public:
+    using FlowEffect::FlowEffect;
+    static std::unique_ptr<Effect> create(ParamDict& d, const World&)
+    {
+        return std::make_unique<VortexEffect>("vortex", kVortex, readVortex(d));
+    }
+};
+
+class VectorFieldEffect : public FlowEffect {
+public:
+    VectorFieldEffect(VectorFieldSettings s) : FlowEffect("vector_field", kTable, nullptr), mSettings(std::move(s)) {}
+    static std::unique_ptr<Effect> create(ParamDict& d, const World&)
+    {
+        // `frostvdb keys` builds every effect with empty parameters, so a missing file is
+        // reported at initialisation, not here.
+        auto s = readVectorField(d);
+        return std::make_unique<VectorFieldEffect>(std::move(s));
+    }
+
+protected:
+    std::shared_ptr<const FlowFunction> load(World& world) override
+    {
+        if (mSettings.file.empty())
+            throw SceneError(world.sceneLabel, 0, "vector_field.file", "a .vdb file with a vector grid is required");
+        auto t = VectorFieldTable::load(mSettings.file, mSettings.grid);
+        mSettings.applyTo(*t);
+        return t;
+    }
+
+private:
+    VectorFieldSettings mSettings;
+};
+
+// ---------------------------------------------------------------------------------------------
+// Gas effects
+
+using Clock = std::chrono::steady_clock;
+
+class GasEffect : public Effect {
+public:
+    GasEffect(std::string section, std::unique_ptr<GasModel> model, GasBuildOptions build)
+        : mSection(std::move(section)), mModel(std::move(model)), mBuild(build)
+    {
+        mBuild.velocity = mModel->common().velocity;
+        mBuild.fire = mModel->isFire();
+    }
+    std::string name() const override { return mSection; }
+    std::vector<std::string> fieldsWritten() const override
+    {
+        std::vector<std::string> f{"density"};
+        if (mBuild.velocity) f.push_back("vel");
+        if (mBuild.fire) {
+            f.push_back("flame");
+            f.push_back("temperature");
+            if (mBuild.colour) f.push_back("Cd");
+        }
+        return f;
+    }
+    void initialize(World& world) override
+    {
+        mXform = gasTransform(world);
+        mWorld = &world;
+    }
+    void step(World& world, const StepInfo& info) override
+    {
+        // publish the density of the frame this step leads to, once per frame
+        if (!mPublish || info.frame == mFrameBuilt) return;
+        build(world, info.frame);
+    }
+    void addToFrame(World& world, Frame& frame) override
+    {
+        if (frame.frame != mFrameBuilt || !mGrids.density) build(world, frame.frame);
+        mergeInto(frame, mGrids.density, "density", true);
+        if (mGrids.vel) mergeVec(frame, mGrids.vel, "vel");
+        if (mGrids.flame) mergeInto(frame, mGrids.flame, "flame", false);
+        if (mGrids.temperature) mergeInto(frame, mGrids.temperature, "temperature", false);
+        if (mGrids.colour) mergeVec(frame, mGrids.colour, "Cd");
+        if (mPublish)
+            for (auto& g : frame.grids)
+                if (g->getName() == "density") publish(world, g); // the frame's (merged) density
+    }
+    bool needsHistory() const override { return false; }
+    double time() const override { return double(mFrameBuilt) / mModel->common().fps; }
+    bool writePreview(World& world, const Frame& frame, const std::string& pngPath) override
+    {
+        writeGasPreview(frame.grids, mModel->common().up, pngPath);
+        return true;
+    }
+    std::vector<std::pair<std::string, double>> timings() const override
+    {
+        return {{"build", mBuildSeconds}};
+    }
+    const GasModel& model() const { return *mModel; }
+    void setPublish(bool p) { mPublish = p; }
+
+private:
+    void build(World& world, int64_t frameNumber)
+    {
+        const auto t0 = Clock::now();
+        mFlows = FlowRegistry::get().list(&world);
+        const GasContext ctx = GasContext::at(double(frameNumber), mModel->common().fps, &mFlows);
+        mGrids = buildGasGrids(*mModel, ctx, mXform ? mXform : gasTransform(world), mBuild);
+        mFrameBuilt = frameNumber;
+        mVoxelsEvaluated += mGrids.evaluatedVoxels;
+        mGrids.density->insertMeta("frostvdb_gas", openvdb::StringMetadata(mSection));
+        if (mPublish) publish(world, mGrids.density);
+        mBuildSeconds += std::chrono::duration<double>(Clock::now() - t0).count();
+    }
+    /// The field shares the grid's tree; only when the transforms agree (a sheared hexagonal
+    /// lattice transform cannot hold the gas, which is then not published).
+    void publish(World& world, const openvdb::GridBase::Ptr& g)
+    {
+        if (!(*g->transformPtr() == *world.fields.transform())) return;
+        world.fields.replace("density", g->copyGrid());
+    }
+    /// Adds @a g to the frame, or merges it into a grid of the same name another gas added
+    /// (density sums, others keep the maximum). Merging builds a new grid: cached grids of the
+    /// effects are never modified.
+    static void mergeInto(Frame& frame, const openvdb::FloatGrid::Ptr& g, const std::string& name, bool sum)
+    {
+        for (auto& e : frame.grids)
+            if (e->getName() == name)
+                if (auto f = openvdb::gridPtrCast<openvdb::FloatGrid>(e)) {
+                    auto merged = f->deepCopy();
+                    auto copy = g->deepCopy();
+                    if (sum) openvdb::tools::compSum(*merged, *copy);
+                    else openvdb::tools::compMax(*merged, *copy);
+                    e = merged;
+                    return;
+                }
+        frame.add(g);
+    }
+    static void mergeVec(Frame& frame, const openvdb::Vec3SGrid::Ptr& g, const std::string& name)
+    {
+        for (auto& e : frame.grids)
+            if (e->getName() == name)
+                if (auto f = openvdb::gridPtrCast<openvdb::Vec3SGrid>(e)) {
+                    // the first gas wins where both are active
+                    auto merged = f->deepCopy();
+                    auto acc = merged->getAccessor();
+                    for (auto it = g->cbeginValueOn(); it; ++it)
+                        if (!acc.isValueOn(it.getCoord())) acc.setValue(it.getCoord(), *it);
+                    e = merged;
+                    return;
+                }
+        frame.add(g);
+    }
+
+    std::string mSection;
+    std::unique_ptr<GasModel> mModel;
+    GasBuildOptions mBuild;
+    openvdb::math::Transform::Ptr mXform;
+    World* mWorld = nullptr;
+    FlowList mFlows;
+    GasGrids mGrids;
+    int64_t mFrameBuilt = -1;
+    bool mPublish = true;
+    double mBuildSeconds = 0;
+    uint64_t mVoxelsEvaluated = 0;
+};
+
+bool readPublish(ParamDict& d)
+{
+    return d.getBool("publish_density", true,
+                     "publish the frame's density as the world field `density` at the first step of each frame "
+                     "(read by other effects, e.g. humidity of DLA walkers near steam)");
+}
+
+class SteamEffect : public GasEffect {
+public:
+    using GasEffect::GasEffect;
+    static std::unique_ptr<Effect> create(ParamDict& d, const World&)
+    {
+        auto m = readSteam(d);
+        auto e = std::make_unique<SteamEffect>("steam", std::move(m), GasBuildOptions());
+        e->setPublish(readPublish(d));
+        return e;
+    }
+};
+
+class FogEffect : public GasEffect {
+public:
+    using GasEffect::GasEffect;
+    static std::unique_ptr<Effect> create(ParamDict& d, const World&)
+    {
+        auto e = std::make_unique<FogEffect>("fog", readFog(d), GasBuildOptions());
+        e->setPublish(readPublish(d));
+        return e;
+    }
+};
+
+class BasicGasEffect : public GasEffect {
+public:
+    using GasEffect::GasEffect;
+    static std::unique_ptr<Effect> create(ParamDict& d, const World&)
+    {
+        auto e = std::make_unique<BasicGasEffect>("gas", readBasicGas(d), GasBuildOptions());
+        e->setPublish(readPublish(d));
+        return e;
+    }
+};
+
+class FireEffect : public GasEffect {
+public:
+    using GasEffect::GasEffect;
+    static std::unique_ptr<Effect> create(ParamDict& d, const World&)
+    {
+        auto m = readFire(d);
+        GasBuildOptions o;
+        o.colour = d.getBool("colour", true, "write the `Cd` colour grid (dense red to thin yellow)");
+        o.ambientTemperature = d.getFloat("ambient_temperature", 293.15, 0.0, 1e5, "K",
+                                          "temperature background (outside the flames)");
+        o.peakTemperature = d.getFloat("peak_temperature", 1700.0, 0.0, 1e5, "K",
+                                       "temperature where flame = 1 (temperature = ambient + flame (peak - ambient))");
+        auto e = std::make_unique<FireEffect>("fire", std::move(m), o);
+        e->setPublish(readPublish(d));
+        return e;
+    }
+};
+
+} // namespace
+
+} // namespace frostvdb::gas
+
+namespace frostvdb {
+using gas::AttractorEffect;
+using gas::BasicGasEffect;
+using gas::FireEffect;
+using gas::FogEffect;
+using gas::LinearAttractorEffect;
+using gas::RepulsorEffect;
+using gas::SteamEffect;
+using gas::VectorFieldEffect;
+using gas::VortexEffect;
+
+FROSTVDB_REGISTER_EFFECT(SteamEffect, "steam",
+                         "Ebert's steam rising from a cup: turbulence slab with spherical and vertical ramp-off, helical path");
+FROSTVDB_REGISTER_EFFECT(FogEffect, "fog", "Ebert's solid-textured-transparency fog rolling through a soft box");
+FROSTVDB_REGISTER_EFFECT(FireEffect, "fire",
+                         "Ebert's fire: base fire, sine flames, vertical ramp-off; density, flame, temperature, Cd");
+FROSTVDB_REGISTER_EFFECT(BasicGasEffect, "gas", "Ebert's basic gas in a box: power shaping, sine veins or molten marble");
+FROSTVDB_REGISTER_EFFECT(AttractorEffect, "attractor",
+                         "spherical attractor moving the scene's gases (moving, angle-limited, animated strength)");
+FROSTVDB_REGISTER_EFFECT(RepulsorEffect, "repulsor", "spherical repulsor (an attractor pushing the gases away)");
+FROSTVDB_REGISTER_EFFECT(LinearAttractorEffect, "linear_attractor",
+                         "attracts the scene's gases toward a line or a plane (flow along a wall)");
+FROSTVDB_REGISTER_EFFECT(VortexEffect, "vortex", "spiral vortex (Sims or angular-momentum-conserving) swirling the gases");
+FROSTVDB_REGISTER_EFFECT(VectorFieldEffect, "vector_field",
+                         "3D vector-field table: a VDB `vel` grid, trilinear lookup, moving the gases");
+} // namespace frostvdb

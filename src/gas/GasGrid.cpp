@@ -1,0 +1,463 @@
+/// @file GasGrid.cpp
+/// @brief Sparse grid construction for the procedural gases, the VDB vector-field table and the
+/// gas preview renderer.
+#include <frostvdb/gas/GasGrid.h>
+
+#include <frostvdb/core/Effect.h>
+#include <frostvdb/core/Error.h>
+#include <frostvdb/io/Png.h>
+#include <frostvdb/io/VdbIO.h>
+
+#include <openvdb/tools/Interpolation.h>
+#include <openvdb/tree/LeafManager.h>
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <cmath>
+
+namespace frostvdb::gas {
+
+using openvdb::Coord;
+using openvdb::Vec3d;
+
+openvdb::math::Transform::Ptr gasTransform(const World& world)
+{
+    auto xf = world.fields.transform();
+    if (xf && xf->isLinear() && xf->hasUniformScale()) {
+        const auto m = xf->baseMap()->getAffineMap()->getMat4();
+        // uniform scale with no rotation/shear: diagonal 3x3 part
+        bool diag = true;
+        for (int i = 0; i < 3; ++i)
+            for (int j = 0; j < 3; ++j)
+                if (i != j && std::fabs(m(i, j)) > 1e-12) diag = false;
+        if (diag) return xf;
+    }
+    auto t = openvdb::math::Transform::createLinearTransform(world.domain.voxelSize());
+    return t;
+}
+
+namespace {
+
+template <typename LeafT>
+LeafT* newLeaf(const Coord& origin, typename LeafT::ValueType bg)
+{
+    return new LeafT(origin, bg, false);
+}
+
+} // namespace
+
+GasGrids buildGasGrids(const GasModel& model, const GasContext& ctx,
+                       const openvdb::math::Transform::Ptr& xform, const GasBuildOptions& opt)
+{
+    using FloatLeaf = openvdb::FloatTree::LeafNodeType;
+    using VecLeaf = openvdb::Vec3STree::LeafNodeType;
+    GasGrids out;
+    const GasCommon& C = model.common();
+
+    V3 lo, hi;
+    model.bounds(ctx, lo, hi);
+    // index-space box of the world bounds
+    Coord imin(std::numeric_limits<int>::max()), imax(std::numeric_limits<int>::min());
+    for (int c = 0; c < 8; ++c) {
+        const Vec3d w((c & 1) ? hi.x : lo.x, (c & 2) ? hi.y : lo.y, (c & 4) ? hi.z : lo.z);
+        const Vec3d i = xform->worldToIndex(w);
+        for (int a = 0; a < 3; ++a) {
+            imin[a] = std::min(imin[a], int(std::floor(i[a])) - 1);
+            imax[a] = std::max(imax[a], int(std::ceil(i[a])) + 1);
+        }
+    }
+    const double dx = xform->voxelSize()[0];
+    const double leafRadius = 0.5 * std::sqrt(3.0) * 7.0 * dx + 1e-9;
+
+    std::vector<Coord> origins;
+    for (int i = imin.x() & ~7; i <= imax.x(); i += 8)
+        for (int j = imin.y() & ~7; j <= imax.y(); j += 8)
+            for (int k = imin.z() & ~7; k <= imax.z(); k += 8) {
+                const Vec3d w = xform->indexToWorld(Vec3d(i + 3.5, j + 3.5, k + 3.5));
+                if (model.mayHold(V3(w.x(), w.y(), w.z()), leafRadius, ctx)) origins.emplace_back(i, j, k);
+            }
+    out.candidateLeaves = origins.size();
+    out.evaluatedVoxels = origins.size() * 512ull;
+
+    const size_t n = origins.size();
+    std::vector<FloatLeaf*> dLeaves(n, nullptr), fLeaves(n, nullptr), tLeaves(n, nullptr);
+    std::vector<VecLeaf*> vLeaves(n, nullptr), cLeaves(n, nullptr);
+    const float thr = float(C.threshold);
+    const bool wantVel = opt.velocity;
+    const bool fire = opt.fire;
+
+    auto work = [&](const tbb::blocked_range<size_t>& r) {
+        GasSample s;
+        for (size_t li = r.begin(); li != r.end(); ++li) {
+            std::unique_ptr<FloatLeaf> dl(newLeaf<FloatLeaf>(origins[li], 0.f));
+            std::unique_ptr<VecLeaf> vl, cl;
+            std::unique_ptr<FloatLeaf> fl, tl;
+            bool any = false;
+            for (openvdb::Index off = 0; off < FloatLeaf::SIZE; ++off) {
+                const Coord ijk = dl->offsetToGlobalCoord(off);
+                const Vec3d w = xform->indexToWorld(ijk);
+                const V3 x(w.x(), w.y(), w.z());
+                model.evaluate(x, ctx, s);
+                const float d = float(s.density);
+                if (!(d > thr)) continue;
+                if (!std::isfinite(d))
+                    throw SimulationError(std::string("gas '") + model.kind() + "': density is not finite at voxel " +
+                                          std::to_string(ijk.x()) + "," + std::to_string(ijk.y()) + "," +
+                                          std::to_string(ijk.z()) + " frame " + std::to_string(ctx.time.frame));
+                any = true;
+                dl->setValueOn(off, d);
+                if (wantVel) {
+                    if (!vl) vl.reset(newLeaf<VecLeaf>(origins[li], openvdb::Vec3s(0.f)));
+                    const V3 v = model.velocity(x, ctx);
+                    vl->setValueOn(off, openvdb::Vec3s(float(v.x), float(v.y), float(v.z)));
+                }
+                if (fire) {
+                    if (!fl) fl.reset(newLeaf<FloatLeaf>(origins[li], 0.f));
+                    if (!tl) tl.reset(newLeaf<FloatLeaf>(origins[li], float(opt.ambientTemperature)));
+                    fl->setValueOn(off, float(s.flame));
+                    tl->setValueOn(off, float(opt.ambientTemperature +
+                                              s.flame * (opt.peakTemperature - opt.ambientTemperature)));
+                    if (opt.colour) {
+                        if (!cl) cl.reset(newLeaf<VecLeaf>(origins[li], openvdb::Vec3s(0.f)));
+                        cl->setValueOn(off, openvdb::Vec3s(float(s.colour.x), float(s.colour.y), float(s.colour.z)));
+                    }
+                }
+            }
+            if (!any) continue;
+            dLeaves[li] = dl.release();
+            vLeaves[li] = vl.release();
+            fLeaves[li] = fl.release();
+            tLeaves[li] = tl.release();
+            cLeaves[li] = cl.release();
+        }
+    };
+    if (opt.grain == 0) work(tbb::blocked_range<size_t>(0, n));
+    else tbb::parallel_for(tbb::blocked_range<size_t>(0, n, opt.grain), work);
+
+    auto makeF = [&](const std::string& name, float bg, std::vector<FloatLeaf*>& leaves, bool fog) {
+        auto g = openvdb::FloatGrid::create(bg);
+        g->setName(name);
+        g->setTransform(xform);
+        if (fog) g->setGridClass(openvdb::GRID_FOG_VOLUME);
+        for (auto* l : leaves)
+            if (l) g->tree().addLeaf(l);
+        return g;
+    };
+    auto makeV = [&](const std::string& name, std::vector<VecLeaf*>& leaves, openvdb::VecType vt) {
+        auto g = openvdb::Vec3SGrid::create(openvdb::Vec3s(0.f));
+        g->setName(name);
+        g->setTransform(xform);
+        g->setVectorType(vt);
+        g->setIsInWorldSpace(true);
+        for (auto* l : leaves)
+            if (l) g->tree().addLeaf(l);
+        return g;
+    };
+    out.density = makeF("density", 0.f, dLeaves, true);
+    if (wantVel) out.vel = makeV("vel", vLeaves, openvdb::VEC_CONTRAVARIANT_RELATIVE);
+    if (fire) {
+        out.flame = makeF("flame", 0.f, fLeaves, true);
+        out.temperature = makeF("temperature", float(opt.ambientTemperature), tLeaves, false);
+        if (opt.colour) out.colour = makeV("Cd", cLeaves, openvdb::VEC_INVARIANT);
+    }
+    return out;
+}
+
+void evaluateDensityOver(const GasModel& model, const GasContext& ctx, openvdb::FloatGrid& grid)
+{
+    const auto& xform = grid.transform();
+    openvdb::tree::LeafManager<openvdb::FloatTree> lm(grid.tree());
+    tbb::parallel_for(lm.leafRange(4), [&](const openvdb::tree::LeafManager<openvdb::FloatTree>::LeafRange& r) {
+        GasSample s;
+        for (auto leaf = r.begin(); leaf; ++leaf)
+            for (auto it = leaf->beginValueOn(); it; ++it) {
+                const Vec3d w = xform.indexToWorld(it.getCoord());
+                model.evaluate(V3(w.x(), w.y(), w.z()), ctx, s);
+                it.setValue(float(s.density));
+            }
+    });
+}
+
+// -------------------------------------------------------------------------------------------------
+// Vector-field table
+
+struct VectorFieldTable::Impl {
+    openvdb::Vec3SGrid::Ptr grid;
+    openvdb::BBoxd worldBox; // world bounds of the active voxels
+};
+
+VectorFieldTable::VectorFieldTable() : mImpl(std::make_unique<Impl>()) {}
+VectorFieldTable::~VectorFieldTable() = default;
+
+namespace {
+void finishTable(VectorFieldTable::Impl& impl)
+{
+    const openvdb::CoordBBox ib = impl.grid->evalActiveVoxelBoundingBox();
+    const openvdb::BBoxd ibd(ib.min().asVec3d(), ib.max().asVec3d());
+    impl.worldBox = impl.grid->transform().indexToWorld(ibd);
+}
+} // namespace
+
+std::shared_ptr<VectorFieldTable> VectorFieldTable::load(const std::string& path, const std::string& gridName)
+{
+    openvdb::GridPtrVecPtr grids;
+    try {
+        grids = readVdb(path);
+    } catch (const std::exception& e) {
+        throw SceneError(path, 0, "vector_field.file", std::string("cannot read: ") + e.what());
+    }
+    for (auto& g : *grids) {
+        if (g->getName() != gridName) continue;
+        std::shared_ptr<VectorFieldTable> t(new VectorFieldTable());
+        if (auto v = openvdb::gridPtrCast<openvdb::Vec3SGrid>(g)) t->mImpl->grid = v;
+        else if (auto vd = openvdb::gridPtrCast<openvdb::Vec3DGrid>(g)) {
+            auto v3 = openvdb::Vec3SGrid::create(openvdb::Vec3s(0.f));
+            v3->setTransform(vd->transform().copy());
+            auto acc = v3->getAccessor();
+            for (auto it = vd->cbeginValueOn(); it; ++it)
+                acc.setValue(it.getCoord(), openvdb::Vec3s(*it));
+            t->mImpl->grid = v3;
+        } else
+            throw SceneError(path, 0, "vector_field.grid", "grid '" + gridName + "' is not a vector grid");
+        if (t->mImpl->grid->activeVoxelCount() == 0)
+            throw SceneError(path, 0, "vector_field.grid", "grid '" + gridName + "' has no active voxels");
+        finishTable(*t->mImpl);
+        return t;
+    }
+    throw SceneError(path, 0, "vector_field.grid", "no grid named '" + gridName + "' in the file");
+}
+
+std::shared_ptr<VectorFieldTable> VectorFieldTable::fromLattice(const V3& origin, double spacing, int nx, int ny,
+                                                                int nz, const std::vector<V3>& values)
+{
+    std::shared_ptr<VectorFieldTable> t(new VectorFieldTable());
+    auto g = openvdb::Vec3SGrid::create(openvdb::Vec3s(0.f));
+    auto xf = openvdb::math::Transform::createLinearTransform(spacing);
+    xf->postTranslate(Vec3d(origin.x, origin.y, origin.z));
+    g->setTransform(xf);
+    auto acc = g->getAccessor();
+    for (int k = 0; k < nz; ++k)
+        for (int j = 0; j < ny; ++j)
+            for (int i = 0; i < nx; ++i) {
+                const V3& v = values.at(size_t(i + nx * (j + ny * k)));
+                acc.setValue(Coord(i, j, k), openvdb::Vec3s(float(v.x), float(v.y), float(v.z)));
+            }
+    t->mImpl->grid = g;
+    finishTable(*t->mImpl);
+    return t;
+}
+
+V3 VectorFieldTable::sample(const V3& x) const
+{
+    // thread-safe: a fresh (cheap) accessor per call keeps the table const and shareable
+    const openvdb::Vec3s v = openvdb::tools::BoxSampler::sample(
+        mImpl->grid->tree(), mImpl->grid->transform().worldToIndex(Vec3d(x.x, x.y, x.z)));
+    return {v.x(), v.y(), v.z()};
+}
+
+double VectorFieldTable::percent(const V3& x, const FlowTime& t) const
+{
+    const auto& b = mImpl->worldBox;
+    double f = 1.0;
+    for (int a = 0; a < 3; ++a) {
+        const double p = a == 0 ? x.x : (a == 1 ? x.y : x.z);
+        const double d = std::min(p - b.min()[a], b.max()[a] - p);
+        if (d < 0) return 0.0;
+        if (edge > 0 && d < edge) f *= 1.0 - cosineRamp(d / edge);
+    }
+    return f * maxPercent * std::clamp(strength(t.frame), 0.0, 1.0);
+}
+
+// -------------------------------------------------------------------------------------------------
+// Preview
+
+namespace {
+
+template <typename GridT>
+typename GridT::Ptr findGrid(const openvdb::GridPtrVec& grids, const std::string& name)
+{
+    for (auto& g : grids)
+        if (g && g->getName() == name)
+            if (auto t = openvdb::gridPtrCast<GridT>(g)) return t;
+    return nullptr;
+}
+
+} // namespace
+
+void writeGasPreview(const openvdb::GridPtrVec& grids, const V3& up, const std::string& pngPath, int width)
+{
+    auto density = findGrid<openvdb::FloatGrid>(grids, "density");
+    auto ice = findGrid<openvdb::FloatGrid>(grids, "ice");
+    auto colour = findGrid<openvdb::Vec3SGrid>(grids, "Cd");
+    auto flame = findGrid<openvdb::FloatGrid>(grids, "flame");
+    if (!density) throw SimulationError("gas preview: the frame has no density grid");
+
+    openvdb::CoordBBox bb = density->evalActiveVoxelBoundingBox();
+    if (ice && ice->activeVoxelCount() > 0 && ice->transform() == density->transform())
+        bb.expand(ice->evalActiveVoxelBoundingBox());
+    else
+        ice.reset();
+    if (bb.empty()) bb = openvdb::CoordBBox(Coord(0), Coord(7));
+
+    // axes: U = dominant axis of up (image vertical), H = horizontal image axis, D = depth
+    const double uc[3] = {up.x, up.y, up.z};
+    int U = 0;
+    for (int a = 1; a < 3; ++a)
+        if (std::fabs(uc[a]) > std::fabs(uc[U])) U = a;
+    const bool flipUp = uc[U] < 0;
+    const int H = U == 0 ? 1 : 0;
+    const int D = 3 - U - H;
+
+    const int ext[3] = {bb.dim().x(), bb.dim().y(), bb.dim().z()};
+    int s = std::max(1, int(std::ceil(double(std::max(ext[H], ext[U])) / width)));
+    auto cells = [&](int step) {
+        return double((ext[0] + step - 1) / step) * ((ext[1] + step - 1) / step) * ((ext[2] + step - 1) / step);
+    };
+    while (cells(s) > 12e6) ++s;
+    const int n[3] = {(ext[0] + s - 1) / s, (ext[1] + s - 1) / s, (ext[2] + s - 1) / s};
+    const size_t total = size_t(n[0]) * n[1] * n[2];
+    std::vector<float> rho(total, 0.f), fl(flame ? total : 0, 0.f);
+    std::vector<openvdb::Vec3s> cd(colour ? total : 0);
+    std::vector<float> iceTop(size_t(n[H]) * n[D], 0.f);
+    auto idx = [&](int i, int j, int k) { return size_t(i) + size_t(n[0]) * (size_t(j) + size_t(n[1]) * k); };
+    {
+        auto acc = density->getConstAccessor();
+        std::unique_ptr<openvdb::FloatGrid::ConstAccessor> facc;
+        std::unique_ptr<openvdb::Vec3SGrid::ConstAccessor> cacc;
+        std::unique_ptr<openvdb::FloatGrid::ConstAccessor> iacc;
+        if (flame) facc = std::make_unique<openvdb::FloatGrid::ConstAccessor>(flame->getConstAccessor());
+        if (colour) cacc = std::make_unique<openvdb::Vec3SGrid::ConstAccessor>(colour->getConstAccessor());
+        if (ice) iacc = std::make_unique<openvdb::FloatGrid::ConstAccessor>(ice->getConstAccessor());
+        for (int k = 0; k < n[2]; ++k)
+            for (int j = 0; j < n[1]; ++j)
+                for (int i = 0; i < n[0]; ++i) {
+                    const Coord c = bb.min() + Coord(i * s, j * s, k * s);
+                    const size_t id = idx(i, j, k);
+                    rho[id] = std::max(0.f, acc.getValue(c));
+                    if (facc) fl[id] = facc->getValue(c);
+                    if (cacc) cd[id] = cacc->getValue(c);
+                    if (iacc) {
+                        const int ijk[3] = {i, j, k};
+                        float& t = iceTop[size_t(ijk[H]) + size_t(n[H]) * ijk[D]];
+                        t = std::max(t, iacc->getValue(c));
+                    }
+                }
+    }
+    auto at = [&](int h, int u, int d) {
+        int ijk[3];
+        ijk[H] = h;
+        ijk[U] = u;
+        ijk[D] = d;
+        return idx(ijk[0], ijk[1], ijk[2]);
+    };
+    const double dx = density->voxelSize()[0] * s;
+    // extinction scale: the 99th percentile of view-column optical depth maps to ~2.5
+    std::vector<float> cols;
+    cols.reserve(size_t(n[H]) * n[U]);
+    for (int u = 0; u < n[U]; ++u)
+        for (int h = 0; h < n[H]; ++h) {
+            double sum = 0;
+            for (int d = 0; d < n[D]; ++d) sum += rho[at(h, u, d)];
+            if (sum > 0) cols.push_back(float(sum * dx));
+        }
+    double k = 1.0;
+    if (!cols.empty()) {
+        const size_t p = std::min(cols.size() - 1, size_t(cols.size() * 0.99));
+        std::nth_element(cols.begin(), cols.begin() + long(p), cols.end());
+        k = 2.5 / std::max(1e-12, double(cols[p]));
+    }
+    // light from above: transmittance along -up from the top of the box
+    std::vector<float> light(total, 1.f);
+    for (int d = 0; d < n[D]; ++d)
+        for (int h = 0; h < n[H]; ++h) {
+            double tau = 0;
+            for (int q = 0; q < n[U]; ++q) {
+                const int u = flipUp ? q : n[U] - 1 - q;
+                const size_t id = at(h, u, d);
+                light[id] = float(std::exp(-tau));
+                tau += 0.6 * k * rho[id] * dx;
+            }
+        }
+    const bool isFire = flame != nullptr;
+    auto shade = [&](size_t id, double a, double T, double& r, double& g, double& b) {
+        if (isFire) {
+            const openvdb::Vec3s c = colour ? cd[id] : openvdb::Vec3s(1.f, 0.6f, 0.2f);
+            const double e = 0.4 + 1.6 * (fl.empty() ? 1.0 : fl[id]);
+            r += T * a * c.x() * e;
+            g += T * a * c.y() * e;
+            b += T * a * c.z() * e;
+        } else {
+            const double l = 0.22 + 0.9 * light[id];
+            r += T * a * l * 0.97;
+            g += T * a * l * 0.98;
+            b += T * a * l * 1.0;
+        }
+    };
+    const int W = n[H], Hh = n[U];
+    const int panels = ice ? 2 : 1;
+    const int topH = ice ? n[D] : 0;
+    ImageRGB img(W * panels + (panels - 1) * 4, std::max(Hh, topH));
+    // side view
+    for (int py = 0; py < Hh; ++py)
+        for (int px = 0; px < W; ++px) {
+            const int u = flipUp ? py : Hh - 1 - py;
+            double r = 0, g = 0, b = 0, T = 1;
+            for (int d = 0; d < n[D] && T > 1e-3; ++d) {
+                const size_t id = at(px, u, d);
+                if (rho[id] <= 0) continue;
+                const double a = 1.0 - std::exp(-k * rho[id] * dx);
+                shade(id, a, T, r, g, b);
+                T *= 1.0 - a;
+            }
+            const double fy = double(py) / std::max(1, Hh - 1);
+            const double bgR = isFire ? 0.02 : 0.10 + 0.08 * fy, bgG = isFire ? 0.02 : 0.12 + 0.08 * fy,
+                         bgB = isFire ? 0.03 : 0.16 + 0.08 * fy;
+            img.set(px, py, float(r + T * bgR), float(g + T * bgG), float(b + T * bgB));
+        }
+    // top view (only with ice): steam seen from above over the frost
+    if (ice) {
+        const int x0 = W + 4;
+        for (int py = 0; py < topH; ++py)
+            for (int px = 0; px < W; ++px) {
+                const int d = topH - 1 - py;
+                double r = 0, g = 0, b = 0, T = 1;
+                for (int q = 0; q < n[U] && T > 1e-3; ++q) {
+                    const int u = flipUp ? q : n[U] - 1 - q;
+                    const size_t id = at(px, u, d);
+                    if (rho[id] <= 0) continue;
+                    const double a = 1.0 - std::exp(-k * rho[id] * dx);
+                    shade(id, a, T, r, g, b);
+                    T *= 1.0 - a;
+                }
+                const double p = std::clamp(double(iceTop[size_t(px) + size_t(W) * d]), 0.0, 1.0);
+                const double bgR = 0.08 + 0.75 * p, bgG = 0.10 + 0.82 * p, bgB = 0.16 + 0.84 * p;
+                img.set(x0 + px, py, float(r + T * bgR), float(g + T * bgG), float(b + T * bgB));
+            }
+    }
+    // small volumes: bilinear upscale to about the requested width
+    const int f = std::max(1, width / std::max(1, img.width));
+    if (f > 1) {
+        ImageRGB big(img.width * f, img.height * f);
+        for (int y = 0; y < big.height; ++y)
+            for (int x = 0; x < big.width; ++x) {
+                const double sx = std::clamp((x + 0.5) / f - 0.5, 0.0, img.width - 1.0);
+                const double sy = std::clamp((y + 0.5) / f - 0.5, 0.0, img.height - 1.0);
+                const int x0 = int(sx), y0 = int(sy);
+                const int x1 = std::min(x0 + 1, img.width - 1), y1 = std::min(y0 + 1, img.height - 1);
+                const double ax = sx - x0, ay = sy - y0;
+                float c[3];
+                for (int ch = 0; ch < 3; ++ch) {
+                    auto px = [&](int xx, int yy) { return img.rgb[(size_t(yy) * img.width + xx) * 3 + ch] / 255.0; };
+                    c[ch] = float((1 - ay) * ((1 - ax) * px(x0, y0) + ax * px(x1, y0)) +
+                                  ay * ((1 - ax) * px(x0, y1) + ax * px(x1, y1)));
+                }
+                big.set(x, y, c[0], c[1], c[2]);
+            }
+        img = std::move(big);
+    }
+    writePngRGB(pngPath, img);
+}
+
+} // namespace frostvdb::gas

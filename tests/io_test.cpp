@@ -1,0 +1,129 @@
+// Output files: every grid and its metadata survive a write/read round trip; the command line
+// refuses bad input without writing anything.
+#include "test_util.h"
+
+#include <frostvdb/io/Png.h>
+#include <frostvdb/io/VdbIO.h>
+
+#include <catch2/catch.hpp>
+
+using namespace frostvdb;
+using namespace frostvdb::test;
+
+TEST_CASE("Frames round-trip every grid and its metadata", "[fast][io]")
+{
+    auto sim = makeSim("[scene]\nname = \"rt\"\nframes = 2\nsteps_per_frame = 40\nseed = 77\n"
+                       "[domain]\nsize = [48, 48]\nvoxel_size = 0.002\n[phase_field]\n");
+    RunOptions ro;
+    ro.progress = false;
+    ro.outDir = tempDir("roundtrip");
+    auto sum = sim.run(ro);
+    const std::string path = ro.outDir + "/rt.0002.vdb";
+    REQUIRE(std::filesystem::exists(path));
+    REQUIRE(std::filesystem::exists(ro.outDir + "/rt.0002.png"));
+    REQUIRE(std::filesystem::exists(ro.outDir + "/run.json"));
+    const Frame frame = sim.currentFrame(2);
+
+    openvdb::MetaMap::Ptr meta;
+    auto grids = readVdb(path, &meta);
+    std::vector<std::string> names;
+    for (auto& g : *grids) names.push_back(g->getName());
+    std::sort(names.begin(), names.end());
+    CHECK(names == std::vector<std::string>{"freeze_time", "growth", "ice", "temperature"});
+    auto byName = [&](const std::string& n) {
+        for (auto& g : *grids)
+            if (g->getName() == n) return openvdb::gridPtrCast<openvdb::FloatGrid>(g);
+        return openvdb::FloatGrid::Ptr();
+    };
+    for (auto& g : *grids) {
+        auto fg = openvdb::gridPtrCast<openvdb::FloatGrid>(g);
+        REQUIRE(fg);
+        CHECK(fg->voxelSize()[0] == Approx(0.002));
+        for (auto& want : frame.grids)
+            if (want->getName() == g->getName())
+                CHECK(maxAbsDiff(*fg, *openvdb::gridPtrCast<openvdb::FloatGrid>(want)) == 0.0);
+        CHECK(g->metaValue<int64_t>("frostvdb_step") == 80);
+    }
+    CHECK(byName("ice")->getGridClass() == openvdb::GRID_FOG_VOLUME);
+    CHECK(meta->metaValue<int64_t>("seed") == 77);
+    CHECK(meta->metaValue<int64_t>("step") == 80);
+    CHECK(meta->metaValue<int64_t>("frame") == 2);
+    CHECK(meta->metaValue<double>("time") == Approx(80 * 0.0002));
+    CHECK(meta->metaValue<std::string>("scene").find("name = \"rt\"") != std::string::npos);
+    CHECK(meta->metaValue<std::string>("frostvdb_version") == FROSTVDB_VERSION);
+    // The ice is a fog volume in [0,1]; growth normalised to [0,1].
+    float mn, mx;
+    byName("ice")->evalMinMax(mn, mx);
+    CHECK(mn >= 0.f);
+    CHECK(mx <= 1.f);
+    byName("growth")->evalMinMax(mn, mx);
+    CHECK(mx == Approx(1.0f));
+    // No temporary files are left behind.
+    for (auto& e : std::filesystem::directory_iterator(ro.outDir))
+        CHECK(e.path().filename().string()[0] != '.');
+}
+
+TEST_CASE("Non-finite values are never written", "[fast][io]")
+{
+    auto g = openvdb::FloatGrid::create(0.f);
+    g->setName("bad");
+    g->tree().setValue(openvdb::Coord(1, 2, 3), std::numeric_limits<float>::quiet_NaN());
+    const std::string dir = tempDir("nan");
+    const std::string path = dir + "/bad.vdb";
+    try {
+        writeVdbAtomic(path, {g}, openvdb::MetaMap());
+        FAIL("a NaN grid was written");
+    } catch (const std::exception& e) {
+        CHECK(std::string(e.what()).find("[1, 2, 3]") != std::string::npos);
+    }
+    CHECK(!std::filesystem::exists(path));
+}
+
+TEST_CASE("16-bit greyscale PNG round trip", "[fast][io]")
+{
+    const std::string path = tempDir("png") + "/g.png";
+    std::vector<float> v(6 * 4);
+    for (size_t i = 0; i < v.size(); ++i) v[i] = float(i) / float(v.size() - 1);
+    writePngGray(path, 6, 4, v, 16);
+    int w, h;
+    auto back = readPngGray(path, w, h);
+    REQUIRE(w == 6);
+    REQUIRE(h == 4);
+    for (size_t i = 0; i < v.size(); ++i) CHECK(back[i] == Approx(v[i]).margin(1.0 / 65535.0));
+}
+
+TEST_CASE("Command line: bad scene gives a one-line error, non-zero exit, nothing written", "[fast][cli]")
+{
+    const std::string dir = tempDir("cli");
+    const std::string scene = dir + "/bad.toml";
+    std::ofstream(scene) << "[domain]\nsize = [32, 32]\n[phase_field]\nanisotropy_mode = 40\n";
+    const int rc = runCommand(std::string(FROSTVDB_BINARY) + " run " + scene + " --out " + dir + "/out", dir + "/log");
+    CHECK(rc == 2);
+    const std::string log = readFile(dir + "/log");
+    CHECK(log.find("bad.toml:4: phase_field.anisotropy_mode") != std::string::npos);
+    CHECK(std::count(log.begin(), log.end(), '\n') == 1);
+    CHECK(!std::filesystem::exists(dir + "/out"));
+
+    // An existing good output is not damaged by a failing run into the same folder.
+    std::filesystem::create_directories(dir + "/out");
+    std::ofstream(dir + "/out/keep.vdb") << "precious";
+    runCommand(std::string(FROSTVDB_BINARY) + " run " + scene + " --out " + dir + "/out", dir + "/log2");
+    CHECK(readFile(dir + "/out/keep.vdb") == "precious");
+}
+
+TEST_CASE("Command line: run, info and preview work end to end", "[fast][cli]")
+{
+    const std::string dir = tempDir("cli_ok");
+    const std::string bin = FROSTVDB_BINARY;
+    REQUIRE(runCommand(bin + " run --quiet --out " + dir + " --set scene.frames=2 --set scene.steps_per_frame=50"
+                             " --set domain.size=[64,64]", dir + "/log") == 0);
+    REQUIRE(std::filesystem::exists(dir + "/dendrite.0002.vdb"));
+    REQUIRE(runCommand(bin + " info " + dir + "/dendrite.0002.vdb", dir + "/info") == 0);
+    const std::string info = readFile(dir + "/info");
+    for (const char* g : {"ice", "temperature", "growth", "freeze_time", "fog volume", "voxel size", "seed"})
+        CHECK(info.find(g) != std::string::npos);
+    REQUIRE(runCommand(bin + " preview " + dir + "/dendrite.0002.vdb -o " + dir + "/p.png --grid temperature",
+                       dir + "/prev") == 0);
+    CHECK(std::filesystem::file_size(dir + "/p.png") > 1000);
+    CHECK(runCommand(bin + " preview " + dir + "/dendrite.0002.vdb -o " + dir + "/q.png --grid nope", dir + "/prev2") != 0);
+}

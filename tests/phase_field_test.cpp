@@ -1,0 +1,195 @@
+// The Kobayashi phase field on the sparse engine: dense reference, tolerance convergence,
+// arm count, determinism.
+#include "test_util.h"
+
+#include <frostvdb/ice/PhaseFieldSolver.h>
+
+#include <catch2/catch.hpp>
+
+#include <tbb/global_control.h>
+
+#include <cmath>
+#include <complex>
+
+using namespace frostvdb;
+using namespace frostvdb::test;
+
+namespace {
+
+const char* kSmallScene = R"(
+[scene]
+name = "small"
+frames = 1
+steps_per_frame = 300
+[domain]
+size = [64, 64]
+[phase_field]
+anisotropy_mode = 4
+seed_radius = 3
+)";
+
+/// Angular Fourier amplitudes |sum p r e^{i m phi}| of the frozen cells beyond 40% of the
+/// largest radius (the arms, not the core), around the domain centre, for m = 1..8.
+std::vector<double> angularModes(const openvdb::FloatGrid& p, const Domain& dom)
+{
+    const auto c3 = dom.centre();
+    const auto c = dom.lattice().planePosition(c3.x(), c3.y());
+    double rmax = 0;
+    for (auto it = p.cbeginValueOn(); it; ++it)
+        if (*it > 0.5f) {
+            auto q = dom.lattice().planePosition(it.getCoord().x(), it.getCoord().y()) - c;
+            rmax = std::max(rmax, q.length());
+        }
+    std::vector<std::complex<double>> f(9);
+    for (auto it = p.cbeginValueOn(); it; ++it) {
+        if (*it <= 0.5f) continue;
+        auto q = dom.lattice().planePosition(it.getCoord().x(), it.getCoord().y()) - c;
+        const double r = q.length();
+        if (r < 0.4 * rmax) continue;
+        const double phi = std::atan2(q.y(), q.x());
+        for (int m = 1; m <= 8; ++m) f[m] += r * std::polar(1.0, m * phi);
+    }
+    std::vector<double> a(9, 0.0);
+    for (int m = 1; m <= 8; ++m) a[m] = std::abs(f[m]);
+    return a;
+}
+
+} // namespace
+
+TEST_CASE("Sparse kernel in dense mode equals the plain dense-array loop bit for bit", "[fast][phase_field]")
+{
+    for (auto kind : {LatticeKind::Square, LatticeKind::Hexagonal}) {
+        KobayashiParams k;
+        k.anisotropyMode = kind == LatticeKind::Square ? 4 : 6;
+        const int n = 40;
+        Lattice lat(kind, 3.0 / 64.0);
+        Domain dom(DomainKind::Plane, lat, openvdb::Coord(n, n, 1), 1e-4);
+        RegionSettings rs;
+        rs.dense = true;
+        PhaseFieldSolver solver(k, dom, rs);
+        DensePhaseField ref(k, lat, n, n);
+        auto p = openvdb::FloatGrid::create(0.f);
+        auto T = openvdb::FloatGrid::create(0.f);
+        for (int j = 17; j <= 22; ++j)
+            for (int i = 17; i <= 22; ++i) {
+                p->tree().setValue(openvdb::Coord(i, j, 0), 1.f);
+                ref.p()[ref.index(i, j)] = 1.f;
+            }
+        for (int s = 0; s < 60; ++s) {
+            solver.step(p, T, nullptr, nullptr, s, s * k.dt, 1);
+            ref.step();
+        }
+        auto pa = p->getConstAccessor();
+        auto ta = T->getConstAccessor();
+        size_t mismatches = 0;
+        for (int j = 0; j < n; ++j)
+            for (int i = 0; i < n; ++i) {
+                mismatches += pa.getValue(openvdb::Coord(i, j, 0)) != ref.p()[ref.index(i, j)];
+                mismatches += ta.getValue(openvdb::Coord(i, j, 0)) != ref.T()[ref.index(i, j)];
+            }
+        INFO(Lattice::kindName(kind));
+        CHECK(mismatches == 0);
+        CHECK(ref.p()[ref.index(20, 20)] > 0.9f); // the seed survived: a real solution
+    }
+}
+
+TEST_CASE("Sparse results converge to the dense reference as the tolerance goes to 0", "[fast][phase_field][region]")
+{
+    auto run = [](const std::vector<std::string>& extra) {
+        auto sim = makeSim(kSmallScene, extra);
+        sim.initialize();
+        for (int s = 0; s < 300; ++s) sim.step();
+        auto p = sim.world().fields.get<openvdb::FloatGrid>("p");
+        auto T = sim.world().fields.get<openvdb::FloatGrid>("T");
+        return std::make_pair(p, T);
+    };
+    auto dense = run({"region.dense=true"});
+    double prev = 1e9;
+    for (double tol : {1e-2, 1e-3, 1e-4, 1e-6, 0.0}) {
+        auto sparse = run({"region.tolerance=" + std::to_string(tol)});
+        const double dp = maxAbsDiff(*sparse.first, *dense.first);
+        const double dT = maxAbsDiff(*sparse.second, *dense.second);
+        const double err = std::max(dp, dT);
+        // Reported so the trade can be read from the test log (ctest --output-on-failure -V).
+        WARN("tolerance " << tol << ": max |p - p_dense| = " << dp << ", max |T - T_dense| = " << dT
+                          << ", active T voxels " << sparse.second->activeVoxelCount() << " of "
+                          << dense.second->activeVoxelCount());
+        CHECK(err <= prev + 1e-12);
+        if (tol <= 1e-6) CHECK(err < 1e-4);
+        if (tol == 0.0) CHECK(err == 0.0); // tolerance 0 is the dense answer, bit for bit
+        prev = err;
+    }
+}
+
+TEST_CASE("The default dendrite has 4 arms with j=4 and 6 arms with j=6", "[fast][phase_field]")
+{
+    for (int j : {4, 6}) {
+        Scene scene = Scene::builtinDefault();
+        scene.applyOverride("phase_field.anisotropy_mode=" + std::to_string(j));
+        scene.applyOverride("scene.frames=6");
+        Simulation s(std::move(scene));
+        RunOptions ro;
+        ro.progress = false;
+        ro.writeFiles = false;
+        s.run(ro);
+        auto p = s.world().fields.get<openvdb::FloatGrid>("p");
+        const auto modes = angularModes(*p, s.world().domain);
+        int best = 2;
+        for (int m = 2; m <= 8; ++m)
+            if (modes[m] > modes[best]) best = m;
+        std::ostringstream os;
+        for (int m = 1; m <= 8; ++m) os << " m" << m << "=" << modes[m];
+        INFO("j=" << j << " angular modes:" << os.str());
+        CHECK(best == j);
+        for (int m = 2; m <= 8; ++m)
+            if (m != j && m != 2 * j) CHECK(modes[j] > 3.0 * modes[m]);
+    }
+}
+
+TEST_CASE("Same seed gives bit-identical files with 1 and 2 threads", "[fast][phase_field][determinism]")
+{
+    const std::string scene = std::string(kSmallScene) + "noise = 0.01\n";
+    std::string files[2];
+    std::string paths[2];
+    int idx = 0;
+    for (int threads : {1, 2}) {
+        auto sim = makeSim(scene, {"scene.steps_per_frame=150"});
+        RunOptions ro;
+        ro.progress = false;
+        ro.threads = threads;
+        ro.outDir = tempDir("det" + std::to_string(threads));
+        auto sum = sim.run(ro);
+        REQUIRE(!sum.files.empty());
+        paths[idx] = ro.outDir + "/small.0001.vdb";
+        files[idx] = readFile(paths[idx]);
+        ++idx;
+    }
+    REQUIRE(files[0].size() > 1000);
+    std::string why;
+    CHECK(sameVdbContent(paths[0], paths[1], &why));
+    INFO(why);
+    // A different seed gives a different result (the noise is really used).
+    auto other = makeSim(scene, {"scene.steps_per_frame=150", "scene.seed=2"});
+    RunOptions ro;
+    ro.progress = false;
+    ro.outDir = tempDir("det_other");
+    other.run(ro);
+    CHECK(!sameVdbContent(ro.outDir + "/small.0001.vdb", paths[0]));
+}
+
+TEST_CASE("Explicit stability limit is reported and a larger dt is refused", "[fast][phase_field]")
+{
+    KobayashiParams k;
+    const Lattice lat(LatticeKind::Square, 3.0 / 64.0);
+    const double limit = k.explicitStabilityLimit(lat.stencil(false));
+    CHECK(limit == Approx((3.0 / 64.0) * (3.0 / 64.0) / 4.0)); // heat equation bound dominates
+    CHECK_NOTHROW(makeSim(kSmallScene, {"phase_field.dt=" + std::to_string(limit * 0.99)}));
+    try {
+        makeSim(kSmallScene, {"phase_field.dt=" + std::to_string(limit * 1.1)});
+        FAIL("dt above the limit was accepted");
+    } catch (const std::exception& e) {
+        const std::string msg = e.what();
+        CHECK(msg.find("phase_field.dt") != std::string::npos);
+        CHECK(msg.find("stability limit") != std::string::npos);
+    }
+}

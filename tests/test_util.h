@@ -1,0 +1,86 @@
+#pragma once
+// Helpers shared by the tests: build a Simulation from scene text, run it quietly, compare grids.
+#include <frostvdb/core/Simulation.h>
+
+#include <openvdb/openvdb.h>
+
+#include <openvdb/io/File.h>
+
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <string>
+
+namespace frostvdb::test {
+
+inline Simulation makeSim(const std::string& text, const std::vector<std::string>& overrides = {})
+{
+    Scene scene = Scene::fromString(text, "test.toml");
+    for (auto& o : overrides) scene.applyOverride(o);
+    return Simulation(std::move(scene));
+}
+
+/// A fresh empty folder under the system temp dir.
+inline std::string tempDir(const std::string& name)
+{
+    auto p = std::filesystem::temp_directory_path() / ("frostvdb_test_" + name);
+    std::filesystem::remove_all(p);
+    std::filesystem::create_directories(p);
+    return p.string();
+}
+
+inline std::string readFile(const std::string& path)
+{
+    std::ifstream in(path, std::ios::binary);
+    std::stringstream ss;
+    ss << in.rdbuf();
+    return ss.str();
+}
+
+/// Max |a - b| over the union of both grids' active voxels (background where inactive).
+inline double maxAbsDiff(const openvdb::FloatGrid& a, const openvdb::FloatGrid& b)
+{
+    double m = 0;
+    auto ba = b.getConstAccessor();
+    for (auto it = a.cbeginValueOn(); it; ++it) m = std::max(m, double(std::fabs(*it - ba.getValue(it.getCoord()))));
+    auto aa = a.getConstAccessor();
+    for (auto it = b.cbeginValueOn(); it; ++it) m = std::max(m, double(std::fabs(*it - aa.getValue(it.getCoord()))));
+    return m;
+}
+
+/// True when two files hold the same grids (names, topology, every stored value bit for bit,
+/// transforms) and the same file metadata apart from the random per-file UUID OpenVDB writes.
+inline bool sameVdbContent(const std::string& a, const std::string& b, std::string* why = nullptr)
+{
+    openvdb::io::File fa(a), fb(b);
+    fa.open();
+    fb.open();
+    auto ga = fa.getGrids(), gb = fb.getGrids();
+    auto ma = fa.getMetadata(), mb = fb.getMetadata();
+    auto fail = [&](const std::string& w) { if (why) *why = w; return false; };
+    if (ga->size() != gb->size()) return fail("grid count");
+    if (ma->str() != mb->str()) return fail("file metadata");
+    for (size_t i = 0; i < ga->size(); ++i) {
+        auto x = openvdb::gridPtrCast<openvdb::FloatGrid>((*ga)[i]);
+        auto y = openvdb::gridPtrCast<openvdb::FloatGrid>((*gb)[i]);
+        if (!x || !y || x->getName() != y->getName()) return fail("grid names/types");
+        if (x->transform() != y->transform()) return fail("transform of " + x->getName());
+        if (!x->tree().hasSameTopology(y->tree())) return fail("topology of " + x->getName());
+        auto acc = y->getConstAccessor();
+        for (auto it = x->cbeginValueAll(); it; ++it)
+            if (std::memcmp(&*it, &static_cast<const float&>(acc.getValue(it.getCoord())), sizeof(float)) != 0)
+                return fail("value of " + x->getName());
+    }
+    return true;
+}
+
+/// Runs a command line, returning its exit code; output goes to @a outFile.
+inline int runCommand(const std::string& cmd, const std::string& outFile)
+{
+    const int rc = std::system((cmd + " > " + outFile + " 2>&1").c_str());
+    return WIFEXITED(rc) ? WEXITSTATUS(rc) : -1;
+}
+
+} // namespace frostvdb::test
