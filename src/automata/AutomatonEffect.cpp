@@ -106,6 +106,14 @@ std::vector<std::string> AutomatonEffect::fieldsWritten() const
 
 AutomatonConfig AutomatonEffect::flakeConfig(const AutomatonConfig& base, const OutputOptions& out, int k)
 {
+    if (!out.sweepBackground.empty() || !out.sweepBackground2.empty() || !out.sweepSeedCells.empty()) {
+        AutomatonConfig c = base;
+        auto pick = [k](const std::vector<double>& v) { return v[size_t(k) % v.size()]; };
+        if (!out.sweepBackground.empty()) c.cr.background = pick(out.sweepBackground);
+        if (!out.sweepBackground2.empty()) c.cr.background2 = pick(out.sweepBackground2);
+        if (!out.sweepSeedCells.empty()) c.seedCells = int(pick(out.sweepSeedCells));
+        return c;
+    }
     if (k == 0) return base;
     AutomatonConfig c = base;
     CounterRng rng(base.seed, 0x464c414bull, uint64_t(k)); // "FLAK"
@@ -205,14 +213,18 @@ void writeFlake(const HexAutomaton& a, const OutputOptions& out, double h, int s
     const int Z = is3D ? int(std::ceil((layers * 0.5 + 1) * layerH / vs))
                        : int(std::ceil(0.5 * out.plateThickness * h / vs)) + 1;
 
-    // Rows of voxels in parallel, each into its own tree; merged in row order (deterministic).
+    // Slabs of 32 voxel rows in parallel, each into its own tree (a tree's internal nodes are
+    // large, so not one per row); merged in slab order (deterministic).
     const int nRows = 2 * X + 1;
+    const int slab = 32;
+    const int nSlabs = (nRows + slab - 1) / slab;
     std::vector<openvdb::FloatTree::Ptr> trees;
-    trees.resize(static_cast<size_t>(nRows));
-    tbb::parallel_for(0, nRows, [&](int yi) {
-        const int y = yi - X;
+    trees.resize(static_cast<size_t>(nSlabs));
+    tbb::parallel_for(0, nSlabs, [&](int si) {
         auto tree = std::make_shared<openvdb::FloatTree>(0.0f);
         openvdb::tree::ValueAccessor<openvdb::FloatTree> acc(*tree);
+        for (int yi = si * slab; yi < std::min(nRows, (si + 1) * slab); ++yi) {
+        const int y = yi - X;
         for (int x = -X; x <= X; ++x) {
             const Axial c = cellAt(x * vs / h, y * vs / h);
             if (!L.inside(c.q, c.r)) continue;
@@ -238,7 +250,8 @@ void writeFlake(const HexAutomaton& a, const OutputOptions& out, double h, int s
                 }
             }
         }
-        trees[size_t(yi)] = tree;
+        }
+        trees[size_t(si)] = tree;
     });
     for (auto& t : trees) ice.tree().merge(*t, openvdb::MERGE_ACTIVE_STATES_AND_NODES);
 }
@@ -477,6 +490,24 @@ std::unique_ptr<Effect> RuleEffect<R>::create(ParamDict& d, const World&)
             "(0,1,1) (0,1,0) (0,2,0) (0,2,1) (0,2,2) (0,>=3,0) (0,>=3,1) (0,>=3,>=2); default Table 1");
         for (int c = 0; c < kCoxeReiterCases; ++c)
             for (int k = 0; k < 4; ++k) p.weights[size_t(c)][size_t(k)] = w[size_t(4 * c + k)];
+        out.sweepBackground = d.getFloatArray("sweep_background", {}, {}, 0.0, 0.5, "",
+            "one flake per entry with exactly this background (a sweep, e.g. Figures 5-6); sets batch");
+        out.sweepBackground2 = d.getFloatArray("sweep_background2", {}, {}, -1.0, 0.5, "",
+            "per-flake second background (oscillating bands, Figure 7); -1 = constant");
+        out.sweepSeedCells = d.getFloatArray("sweep_seed_cells", {}, {}, 1.0, 4.0, "cells",
+            "per-flake number of seed cells 1..4 (Figure 8)");
+        size_t n = 0;
+        for (const auto* v : {&out.sweepBackground, &out.sweepBackground2, &out.sweepSeedCells}) {
+            if (v->empty()) continue;
+            if (n != 0 && v->size() != n) d.fail("sweep_background", "sweep arrays must have the same length");
+            n = v->size();
+        }
+        for (double sc : out.sweepSeedCells)
+            if (sc != double(int(sc))) d.fail("sweep_seed_cells", "seed cells must be whole numbers 1..4");
+        if (n > 0) {
+            if (d.has("batch") && out.batch != int(n)) d.fail("batch", "batch must match the sweep length");
+            out.batch = int(n);
+        }
         break;
     }
     case Rule::Probabilistic: {

@@ -28,6 +28,9 @@ struct OutputOptions {
     double vary = 0.05;            ///< relative parameter jitter of flakes 1..K-1
     int seedRadius = 3;            ///< radius of the random symmetric seeds of flakes 1..K-1
     bool writeVapour = false;      ///< GG: also write the vapour field `vapour`
+    /// Coxe-Reiter sweeps: flake k uses sweepBackground[k] (and sweepBackground2[k],
+    /// sweepSeedCells[k]) exactly, instead of random variations. Non-empty sets batch.
+    std::vector<double> sweepBackground, sweepBackground2, sweepSeedCells;
 };
 
 class AutomatonEffect : public Effect {
