@@ -342,7 +342,7 @@ bool AutomatonEffect::writePreview(World& world, const Frame& frame, const std::
     const int K = int(mFlakes.size());
     const int cols = K <= 4 ? K : int(std::ceil(std::sqrt(double(K))));
     const int rowsN = (K + cols - 1) / cols;
-    const int tile = K == 1 ? 768 : std::max(192, 1024 / cols);
+    const int tile = K == 1 ? 768 : std::max(160, 640 / cols);
     ImageRGB img(tile * cols, tile * rowsN);
     for (int k = 0; k < K; ++k) {
         const HexAutomaton& a = *mFlakes[size_t(k)];
