@@ -5,6 +5,7 @@
 #include <frostvdb/automata/Automata.h>
 
 #include <cstring>
+#include <tbb/global_control.h>
 #include <set>
 
 using namespace frostvdb::automata;
@@ -272,4 +273,19 @@ TEST_CASE("probabilistic rule: same seed same flake, other seed other flake", "[
     d.expand();
     CHECK(sameBits(a, b));
     CHECK(!sameBits(a, d));
+}
+
+TEST_CASE("results do not depend on the thread count", "[automata][fast]")
+{
+    for (Rule r : {Rule::CoxeReiter, Rule::GravnerGriffeath, Rule::Probabilistic}) {
+        AutomatonConfig c = config(r, 40, false);
+        c.gg.sigma = 0.02;
+        HexAutomaton many(c);
+        for (int s = 0; s < 80; ++s) many.step();
+        tbb::global_control one(tbb::global_control::max_allowed_parallelism, 1);
+        HexAutomaton single(c);
+        for (int s = 0; s < 80; ++s) single.step();
+        INFO(ruleName(r));
+        CHECK(sameBits(many, single));
+    }
 }

@@ -72,7 +72,7 @@ TEST_CASE("batch mode grows K distinct flakes in one run", "[automata][fast]")
                              "[domain]\nsize = [61, 61]\n[coxe_reiter]\nbackground = 0.2\nbatch = 3\n";
     Simulation* sim = nullptr;
     auto g = runScene(text, &sim);
-    for (const char* name : {"ice", "ice_1", "ice_2", "cells_1", "cells_2", "freeze_time_2"}) {
+    for (const char* name : {"ice", "ice_0", "ice_1", "ice_2", "cells_0", "cells_1", "cells_2", "freeze_time_2"}) {
         INFO(name);
         REQUIRE(g.count(name));
         CHECK(g[name]->activeVoxelCount() > 0);
@@ -85,8 +85,16 @@ TEST_CASE("batch mode grows K distinct flakes in one run", "[automata][fast]")
         CHECK(f->usesWedge());
         CHECK(f->isD6Symmetric());
     }
-    // The combined grid holds every flake side by side.
-    CHECK(g["ice"]->activeVoxelCount() > g["ice_1"]->activeVoxelCount());
+    // The combined grid holds every flake side by side; each ice_k is centred on the origin.
+    CHECK(g["ice"]->activeVoxelCount() ==
+          g["ice_0"]->activeVoxelCount() + g["ice_1"]->activeVoxelCount() + g["ice_2"]->activeVoxelCount());
+    const auto bb = g["ice_2"]->evalActiveVoxelBoundingBox();
+    CHECK(bb.min().x() == -bb.max().x());
+    // Flake 0 is exactly the unbatched flake.
+    const uint64_t flake0 = g["ice_0"]->activeVoxelCount();
+    auto single = runScene("[scene]\nframes = 1\nsteps_per_frame = 40\nseed = 3\n"
+                           "[domain]\nsize = [61, 61]\n[coxe_reiter]\nbackground = 0.2\n");
+    CHECK(single["ice"]->activeVoxelCount() == flake0);
 }
 
 TEST_CASE("unknown keys and other rules' keys are errors", "[automata][fast]")

@@ -383,8 +383,8 @@ OutputOptions readOutput(ParamDict& d, Rule rule, AutomatonConfig& cfg)
     cfg.wedge = d.getBool("wedge", true,
         "compute 1/12 of the lattice and mirror it (bit-identical; used only for symmetric set-ups)");
     o.batch = int(d.getInt("batch", 1, 1, 1024, "flakes",
-        "grow this many distinct flakes at once: grids cells_k, ice_k, freeze_time_k (k >= 1) centred "
-        "on the origin, plus all flakes side by side in cells, ice, freeze_time"));
+        "grow this many distinct flakes at once: grids cells_k, ice_k, freeze_time_k (k = 0..K-1) "
+        "centred on the origin, plus all flakes side by side in cells, ice, freeze_time"));
     o.vary = d.getFloat("vary", 0.05, 0.0, 0.5, "",
         "batch: relative random jitter of the rule's parameters for flakes 1..K-1 (flake 0 is exact)");
     o.seedRadius = int(d.getInt("seed_radius", 3, 0, 50, "cells",
