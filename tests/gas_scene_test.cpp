@@ -324,3 +324,43 @@ envelope_heights = [0.005, 0.03]
                       Catch::Contains("falloff_start"));
     CHECK_THROWS_WITH(test::makeSim(base + "[steam2]\n"), Catch::Contains("steam2"));
 }
+
+TEST_CASE("Every gas scene file is valid", "[fast][gas]")
+{
+    openvdb::initialize();
+    for (const char* s : {"gas_teacup", "gas_teacup_breeze", "gas_wall_hole", "gas_fog", "gas_fire",
+                          "gas_molten_marble", "gas_vortex", "frost_with_steam"}) {
+        INFO(s);
+        CHECK_NOTHROW(Simulation(Scene::load(std::string(FROSTVDB_SOURCE_DIR) + "/scenes/" + s + ".toml")));
+    }
+}
+
+TEST_CASE("Frost with steam writes ice and density into one frame on one transform", "[fast][gas]")
+{
+    openvdb::initialize();
+    Scene scene = Scene::load(std::string(FROSTVDB_SOURCE_DIR) + "/scenes/frost_with_steam.toml");
+    scene.applyOverride("scene.frames=1");
+    scene.applyOverride("scene.steps_per_frame=3");
+    scene.applyOverride("domain.size=[64, 64]");
+    scene.applyOverride("steam.center=[0.024, 0.016, 0.01]");
+    scene.applyOverride("steam.radius=0.008");
+    scene.applyOverride("steam.height=0.02");
+    Simulation sim(std::move(scene));
+    const std::string dir = test::tempDir("gas_frost_steam");
+    RunOptions o;
+    o.outDir = dir;
+    o.progress = false;
+    sim.run(o);
+    auto grids = readVdb(framePath(dir, "frost_with_steam", 1));
+    openvdb::GridBase::Ptr ice, density;
+    for (auto& g : *grids) {
+        if (g->getName() == "ice") ice = g;
+        if (g->getName() == "density") density = g;
+    }
+    REQUIRE(ice);
+    REQUIRE(density);
+    CHECK(ice->transform() == density->transform());
+    CHECK(density->activeVoxelCount() > 0);
+    // the steam's density is the world field other effects read
+    REQUIRE(sim.world().fields.get<openvdb::FloatGrid>("density"));
+}
