@@ -16,7 +16,7 @@ V3 samplePoint(uint64_t i)
 }
 } // namespace
 
-TEST_CASE("Gradient noise stays in [-1, 1] with mean near 0", "[fast][gas]")
+TEST_CASE("Gradient noise stays within -1..1 with mean near 0", "[fast][gas]")
 {
     GradientNoise n(3);
     double sum = 0, sumSq = 0, lo = 1, hi = -1;
@@ -69,7 +69,7 @@ TEST_CASE("Noise and turbulence are deterministic for a seed", "[fast][gas]")
     CHECK(differ > 900);  // another seed gives other noise
 }
 
-TEST_CASE("Turbulence lies in [0, bound) and fBm averages to 0", "[fast][gas]")
+TEST_CASE("Turbulence lies within 0..bound and fBm averages to 0", "[fast][gas]")
 {
     GradientNoise n(5);
     Octaves o{5, 2.0, 0.5};

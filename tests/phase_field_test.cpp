@@ -2,6 +2,7 @@
 // arm count, determinism.
 #include "test_util.h"
 
+#include <frostvdb/core/Error.h>
 #include <frostvdb/ice/PhaseFieldSolver.h>
 
 #include <catch2/catch.hpp>
@@ -192,4 +193,25 @@ TEST_CASE("Explicit stability limit is reported and a larger dt is refused", "[f
         CHECK(msg.find("phase_field.dt") != std::string::npos);
         CHECK(msg.find("stability limit") != std::string::npos);
     }
+}
+
+TEST_CASE("A solver that leaves its bounds stops naming field, voxel, step and time, and writes no file",
+          "[fast][phase_field][guard]")
+{
+    auto sim = makeSim(kSmallScene, {"phase_field.delta=0.5", "phase_field.latent_heat=5", "phase_field.dt=0.00054",
+                                     "scene.frames=3"});
+    RunOptions ro;
+    ro.progress = false;
+    ro.outDir = tempDir("guard");
+    try {
+        sim.run(ro);
+        FAIL("the unstable run was not stopped");
+    } catch (const SimulationError& e) {
+        const std::string msg = e.what();
+        CHECK(msg.find("p (ice)") != std::string::npos);
+        CHECK(msg.find("at voxel [") != std::string::npos);
+        CHECK(msg.find("in step ") != std::string::npos);
+        CHECK(msg.find("t = ") != std::string::npos);
+    }
+    CHECK(std::filesystem::is_empty(ro.outDir));
 }

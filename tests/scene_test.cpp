@@ -116,3 +116,17 @@ TEST_CASE("Every registered key is documented with a default and range", "[fast]
     CHECK(md.find("`anisotropy_mode`") != std::string::npos);
     CHECK(md.find("| `tolerance` |") != std::string::npos);
 }
+
+TEST_CASE("docs/scene-reference.md is in step with the code", "[fast][scene][docs]")
+{
+    const std::string onDisk = readFile(std::string(FROSTVDB_SOURCE_DIR) + "/docs/scene-reference.md");
+    INFO("regenerate with: build/bin/frostvdb keys > docs/scene-reference.md");
+    CHECK(onDisk == sceneReferenceMarkdown());
+}
+
+TEST_CASE("A voxel size OpenVDB cannot represent is a scene error", "[fast][scene]")
+{
+    const auto msg = errorOf("[domain]\nlattice = \"hexagonal\"\nvoxel_size = 1e-8\n[phase_field]\n");
+    CHECK(msg.find("test.toml:3") != std::string::npos);
+    CHECK(msg.find("domain.voxel_size") != std::string::npos);
+}

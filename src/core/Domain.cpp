@@ -30,6 +30,11 @@ Domain Domain::fromParams(ParamDict& d)
         d.fail("lattice", "box domains use the cubic (square) lattice");
     for (double s : size)
         if (s != double(int(s))) d.fail("size", "sizes must be whole numbers of cells");
+    try { // OpenVDB refuses near-singular maps: say so in scene terms, not as an exception deep inside
+        Lattice(Lattice::parseKind(lattice), spacing).transform(voxelSize);
+    } catch (const std::exception&) {
+        d.fail("voxel_size", "too small for an OpenVDB transform (it needs roughly 3e-5 m or more); scale the volume in the DCC tool instead");
+    }
     const openvdb::Coord n{int(size[0]), int(size[1]), size.size() > 2 ? int(size[2]) : 1};
     return Domain(kind == "box" ? DomainKind::Box : DomainKind::Plane,
                   Lattice(Lattice::parseKind(lattice), spacing), n, voxelSize);

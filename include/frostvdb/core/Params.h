@@ -52,8 +52,8 @@ public:
     bool getBool(const std::string& key, bool def, const std::string& doc);
     std::string getString(const std::string& key, const std::string& def,
                           const std::vector<std::string>& choices, const std::string& doc);
-    /// A numeric array; @a count 0 accepts any length >= 1, otherwise exactly @a count
-    /// (or any of @a counts when given as several values).
+    /// A numeric array; an empty @a counts accepts any length >= 1, otherwise the length must be
+    /// one of @a counts.
     std::vector<double> getFloatArray(const std::string& key, const std::vector<double>& def,
                                       std::vector<size_t> counts, double lo, double hi,
                                       const std::string& unit, const std::string& doc);
