@@ -102,6 +102,65 @@ struct Failure {
     }
 };
 
+/// The kernel over every leaf of the new grids (whose topology is the region): gather, pass 1,
+/// pass 2. Accumulator leaves and the failure report are optional (benchmarks pass none).
+struct LeafKernel {
+    const KobayashiParams& k;
+    const Domain& domain;
+    const openvdb::FloatGrid& p;
+    const openvdb::FloatGrid& T;
+    int64_t stepIndex = 0;
+    double tNext = 0;
+    uint64_t seed = 0;
+    const std::vector<FloatLeaf*>* growthLeaves = nullptr;
+    const std::vector<FloatLeaf*>* freezeLeaves = nullptr;
+    Failure* failure = nullptr;
+
+    void run(openvdb::tree::LeafManager<openvdb::FloatTree>& pLeaves,
+             openvdb::tree::LeafManager<openvdb::FloatTree>& tLeaves) const
+    {
+        const bool plane = domain.isPlane();
+        const Block proto(plane);
+        const FlatStencil st(domain.stencil(), proto.bx, std::ptrdiff_t(proto.bx) * proto.by);
+        const Anisotropy an(k);
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, pLeaves.leafCount(), 8), [&](const tbb::blocked_range<size_t>& r) {
+            Block b(plane);
+            auto pAcc = p.getConstAccessor();
+            auto tAcc = T.getConstAccessor();
+            for (size_t li = r.begin(); li != r.end(); ++li) {
+                FloatLeaf& pl = pLeaves.leaf(li);
+                FloatLeaf& tl = tLeaves.leaf(li);
+                const openvdb::Coord origin = pl.origin();
+                gather(pAcc, b, origin, b.p);
+                gather(tAcc, b, origin, b.T);
+                auxPass(b, st, an);
+                FloatLeaf* gl = growthLeaves ? (*growthLeaves)[li] : nullptr;
+                FloatLeaf* fl = freezeLeaves ? (*freezeLeaves)[li] : nullptr;
+                for (auto it = pl.cbeginValueOn(); it; ++it) {
+                    const openvdb::Index n = it.pos();
+                    const openvdb::Coord c = it.getCoord();
+                    const openvdb::Coord l = c - origin;
+                    const size_t i = b.index(l.x() + kHalo, l.y() + kHalo, plane ? 0 : l.z() + kHalo);
+                    double chi = 0;
+                    if (k.noise != 0)
+                        chi = toUnit(hashCounters(seed, uint64_t(stepIndex), coordKey(c.x(), c.y(), c.z()))) - 0.5;
+                    float pn, tn;
+                    const double dp = kobayashiEuler(b.p.data(), b.T.data(), b.a.data(), b.cx.data(), b.cy.data(),
+                                                     b.gx.data(), b.gy.data(), b.gz.data(), i, st, k, chi, pn, tn);
+                    if (failure) {
+                        if (!std::isfinite(pn) || pn < -0.05f || pn > 1.05f) failure->report(c, "p (ice)", pn);
+                        if (!std::isfinite(tn)) failure->report(c, "T (temperature)", tn);
+                    }
+                    pl.setValueOnly(n, pn);
+                    tl.setValueOnly(n, tn);
+                    if (gl && dp > 0) gl->setValueOn(n, gl->getValue(n) + float(dp));
+                    if (fl && pn > 0.5f && !fl->isValueOn(n)) fl->setValueOn(n, float(tNext));
+                }
+            }
+        });
+    }
+};
+
 } // namespace
 
 PhaseFieldSolver::PhaseFieldSolver(const KobayashiParams& params, const Domain& domain, const RegionSettings& region)
@@ -139,47 +198,11 @@ void PhaseFieldSolver::step(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::Ptr&
     }
 
     t0 = Clock::now();
-    const bool plane = mDomain.isPlane();
-    const Block proto(plane);
-    const FlatStencil st(mDomain.stencil(), proto.bx, std::ptrdiff_t(proto.bx) * proto.by);
-    const Anisotropy an(mParams);
-    const KobayashiParams k = mParams;
+    const KobayashiParams& k = mParams;
     const double tNext = time + k.dt;
     Failure failure;
-
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, nLeaves, 8), [&](const tbb::blocked_range<size_t>& r) {
-        Block b(plane);
-        auto pAcc = p->getConstAccessor();
-        auto tAcc = T->getConstAccessor();
-        for (size_t li = r.begin(); li != r.end(); ++li) {
-            FloatLeaf& pl = pLeaves.leaf(li);
-            FloatLeaf& tl = tLeaves.leaf(li);
-            const openvdb::Coord origin = pl.origin();
-            gather(pAcc, b, origin, b.p);
-            gather(tAcc, b, origin, b.T);
-            auxPass(b, st, an);
-            FloatLeaf* gl = gLeaves[li];
-            FloatLeaf* fl = fLeaves[li];
-            for (auto it = pl.cbeginValueOn(); it; ++it) {
-                const openvdb::Index n = it.pos();
-                const openvdb::Coord c = it.getCoord();
-                const openvdb::Coord l = c - origin;
-                const size_t i = b.index(l.x() + kHalo, l.y() + kHalo, plane ? 0 : l.z() + kHalo);
-                double chi = 0;
-                if (k.noise != 0)
-                    chi = toUnit(hashCounters(seed, uint64_t(stepIndex), coordKey(c.x(), c.y(), c.z()))) - 0.5;
-                float pn, tn;
-                const double dp = kobayashiEuler(b.p.data(), b.T.data(), b.a.data(), b.cx.data(), b.cy.data(),
-                                                 b.gx.data(), b.gy.data(), b.gz.data(), i, st, k, chi, pn, tn);
-                if (!std::isfinite(pn) || pn < -0.05f || pn > 1.05f) failure.report(c, "p (ice)", pn);
-                if (!std::isfinite(tn)) failure.report(c, "T (temperature)", tn);
-                pl.setValueOnly(n, pn);
-                tl.setValueOnly(n, tn);
-                if (gl && dp > 0) gl->setValueOn(n, gl->getValue(n) + float(dp));
-                if (fl && pn > 0.5f && !fl->isValueOn(n)) fl->setValueOn(n, float(tNext));
-            }
-        }
-    });
+    LeafKernel kernel{k, mDomain, *p, *T, stepIndex, tNext, seed, &gLeaves, &fLeaves, &failure};
+    kernel.run(pLeaves, tLeaves);
     if (stats) stats->kernelSeconds += since(t0);
     if (failure.any) {
         std::ostringstream os;
@@ -210,33 +233,7 @@ uint64_t PhaseFieldSolver::kernelOnly(const openvdb::MaskGrid& region, const ope
     tOut.tree().topologyUnion(region.tree());
     openvdb::tree::LeafManager<openvdb::FloatTree> pLeaves(pOut.tree());
     openvdb::tree::LeafManager<openvdb::FloatTree> tLeaves(tOut.tree());
-    const bool plane = mDomain.isPlane();
-    const Block proto(plane);
-    const FlatStencil st(mDomain.stencil(), proto.bx, std::ptrdiff_t(proto.bx) * proto.by);
-    const Anisotropy an(mParams);
-    const KobayashiParams k = mParams;
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, pLeaves.leafCount(), 8), [&](const tbb::blocked_range<size_t>& r) {
-        Block b(plane);
-        auto pAcc = p.getConstAccessor();
-        auto tAcc = T.getConstAccessor();
-        for (size_t li = r.begin(); li != r.end(); ++li) {
-            FloatLeaf& pl = pLeaves.leaf(li);
-            FloatLeaf& tl = tLeaves.leaf(li);
-            const openvdb::Coord origin = pl.origin();
-            gather(pAcc, b, origin, b.p);
-            gather(tAcc, b, origin, b.T);
-            auxPass(b, st, an);
-            for (auto it = pl.cbeginValueOn(); it; ++it) {
-                const openvdb::Coord l = it.getCoord() - origin;
-                const size_t i = b.index(l.x() + kHalo, l.y() + kHalo, plane ? 0 : l.z() + kHalo);
-                float pn, tn;
-                kobayashiEuler(b.p.data(), b.T.data(), b.a.data(), b.cx.data(), b.cy.data(), b.gx.data(),
-                               b.gy.data(), b.gz.data(), i, st, k, 0.0, pn, tn);
-                pl.setValueOnly(it.pos(), pn);
-                tl.setValueOnly(it.pos(), tn);
-            }
-        }
-    });
+    LeafKernel{mParams, mDomain, p, T}.run(pLeaves, tLeaves);
     return pOut.activeVoxelCount();
 }
 
