@@ -26,7 +26,6 @@ steps_per_frame = 300
 size = [64, 64]
 [phase_field]
 anisotropy_mode = 4
-seed_radius = 3
 )";
 
 /// Angular Fourier amplitudes |sum p r e^{i m phi}| of the frozen cells beyond 40% of the

@@ -141,7 +141,6 @@ voxel_size = 0.0001     # metres per cell: a 19 mm plate
 scheme = "euler"
 dt = 0.0002
 anisotropy_mode = 6
-seed_radius = 3.0
 )";
 }
 

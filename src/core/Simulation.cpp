@@ -129,7 +129,12 @@ Effect* Simulation::effect(const std::string& section) const
 void Simulation::initialize()
 {
     if (mInitialized) return;
-    for (auto& e : mEffects) e->initialize(mWorld);
+    std::vector<Effect*> order;
+    for (auto& e : mEffects) order.push_back(e.get());
+    std::stable_sort(order.begin(), order.end(), [](const Effect* a, const Effect* b) {
+        return a->initializationOrder() < b->initializationOrder();
+    });
+    for (Effect* e : order) e->initialize(mWorld);
     mInitialized = true;
 }
 

@@ -1,5 +1,6 @@
 #include <frostvdb/ice/PhaseFieldEffect.h>
 #include <frostvdb/core/Error.h>
+#include <frostvdb/ice/IceState.h>
 
 #include <openvdb/tools/Prune.h>
 #include <openvdb/tools/ValueTransformer.h>
@@ -31,9 +32,6 @@ std::unique_ptr<Effect> PhaseFieldEffect::create(ParamDict& d, const World& worl
     k.farTemperature = d.getFloat("far_temperature", 0.0, -10.0, 10.0, "",
                                   "initial and far-field temperature T_inf (undercooling is T_e - T_inf)");
     k.noise = d.getFloat("noise", 0.0, 0.0, 0.1, "", "amplitude a of Kobayashi's interface noise (0: none)");
-    fx->mSeedRadius = d.getFloat("seed_radius", 3.0, 0.5, 1e5, "cells", "radius of the initial ice disc (sphere in a box)");
-    fx->mSeedPosition = d.getFloatArray("seed_position", {0.5, 0.5}, {2, 3}, 0.0, 1.0, "fraction of domain",
-                                        "centre of the initial ice, as a fraction of the domain size");
     const double limit = k.explicitStabilityLimit(world.domain.stencil());
     if (k.dt > limit) {
         std::ostringstream os;
@@ -46,33 +44,15 @@ std::unique_ptr<Effect> PhaseFieldEffect::create(ParamDict& d, const World& worl
 
 void PhaseFieldEffect::initialize(World& world)
 {
-    const Domain& dom = world.domain;
-    auto p = world.fields.require<openvdb::FloatGrid>("p", 0.f);
-    auto T = world.fields.require<openvdb::FloatGrid>("T", float(mParams.farTemperature));
-    world.fields.require<openvdb::FloatGrid>("growth_acc", 0.f);
-    world.fields.require<openvdb::FloatGrid>("freeze_time", 0.f);
-    // Seed: a disc (plane) or ball (box) of p = 1 around seed_position, measured in the
-    // lattice's own geometry so a hexagonal seed is round too.
-    const auto& bb = dom.bbox();
-    const openvdb::Vec3d size = (bb.max() - bb.min()).asVec3d() + openvdb::Vec3d(1.0);
-    const openvdb::Vec3d centreIdx(bb.min().x() + mSeedPosition[0] * (size.x() - 1),
-                                   bb.min().y() + mSeedPosition[1] * (size.y() - 1),
-                                   dom.isPlane() ? 0.0
-                                                 : bb.min().z() + (mSeedPosition.size() > 2 ? mSeedPosition[2] : 0.5) *
-                                                                      (size.z() - 1));
-    const openvdb::Vec2d c2 = dom.lattice().planePosition(centreIdx.x(), centreIdx.y());
-    const int r = int(std::ceil(mSeedRadius * 2.0)) + 1;
-    auto acc = p->getAccessor();
-    for (int k = dom.isPlane() ? 0 : int(centreIdx.z()) - r; k <= (dom.isPlane() ? 0 : int(centreIdx.z()) + r); ++k)
-        for (int j = int(centreIdx.y()) - r; j <= int(centreIdx.y()) + r; ++j)
-            for (int i = int(centreIdx.x()) - r; i <= int(centreIdx.x()) + r; ++i) {
-                const openvdb::Coord c(i, j, k);
-                if (!dom.contains(c)) continue;
-                const openvdb::Vec2d q = dom.lattice().planePosition(i, j) - c2;
-                const double dz = dom.isPlane() ? 0.0 : k - centreIdx.z();
-                if (q.lengthSqr() + dz * dz <= mSeedRadius * mSeedRadius) acc.setValue(c, 1.f);
-            }
-    mSolver = std::make_unique<PhaseFieldSolver>(mParams, dom, world.region);
+    ice::IceShared& shared = ice::shared(world);
+    shared.dt = mParams.dt;
+    shared.dtOwnedByPhaseField = true;
+    shared.farTemperature = mParams.farTemperature;
+    shared.latentHeat = mParams.latentHeat;
+    shared.meltTemperature = mParams.meltTemperature;
+    shared.temperatureEvolves = true;
+    ice::requireIceFields(world);
+    mSolver = std::make_unique<PhaseFieldSolver>(mParams, world.domain, world.region);
     mTime = 0.0;
 }
 
@@ -88,40 +68,7 @@ void PhaseFieldEffect::step(World& world, const StepInfo& info)
     mTime += mParams.dt;
 }
 
-void PhaseFieldEffect::addToFrame(World& world, Frame& frame)
-{
-    auto p = world.fields.get<openvdb::FloatGrid>("p");
-    auto ice = p->deepCopy();
-    // Fog volume: values in [0,1], background 0, nothing stored where there is no ice.
-    openvdb::tools::foreach(ice->beginValueOn(), [](const openvdb::FloatGrid::ValueOnIter& it) {
-        const float v = std::min(std::max(*it, 0.f), 1.f);
-        it.setValue(v);
-        if (v <= 0.f) it.setValueOff();
-    });
-    openvdb::tools::pruneInactive(ice->tree());
-    ice->setName("ice");
-    ice->setGridClass(openvdb::GRID_FOG_VOLUME);
-    frame.add(ice);
-
-    auto temperature = world.fields.get<openvdb::FloatGrid>("T")->deepCopy();
-    temperature->setName("temperature");
-    temperature->setGridClass(openvdb::GRID_UNKNOWN);
-    frame.add(temperature);
-
-    auto growth = world.fields.get<openvdb::FloatGrid>("growth_acc")->deepCopy();
-    float mn = 0, mx = 0;
-    if (growth->activeVoxelCount() > 0) growth->evalMinMax(mn, mx);
-    const float scale = mx > 0 ? 1.f / mx : 0.f;
-    openvdb::tools::foreach(growth->beginValueOn(), [scale](const openvdb::FloatGrid::ValueOnIter& it) {
-        it.setValue(std::min(1.f, *it * scale));
-    });
-    growth->setName("growth");
-    frame.add(growth);
-
-    auto freeze = world.fields.get<openvdb::FloatGrid>("freeze_time")->deepCopy();
-    freeze->setName("freeze_time");
-    frame.add(freeze);
-}
+void PhaseFieldEffect::addToFrame(World& world, Frame& frame) { ice::addIceOutputs(world, frame); }
 
 std::vector<std::pair<std::string, double>> PhaseFieldEffect::timings() const
 {

@@ -45,6 +45,20 @@ struct World {
     Domain domain;
     FieldSet fields;
     RegionSettings region;
+
+    /// State several effects share beyond grids (e.g. the ice clock in ice/IceState.h), created
+    /// on first request and keyed by name. T must be default-constructible.
+    template <typename T>
+    T& shared(const std::string& key)
+    {
+        auto& slot = mShared[key];
+        if (!slot) slot = std::make_shared<T>();
+        return *static_cast<T*>(slot.get());
+    }
+    bool hasShared(const std::string& key) const { return mShared.count(key) > 0; }
+
+private:
+    std::map<std::string, std::shared_ptr<void>> mShared;
 };
 
 struct StepInfo {
@@ -70,6 +84,10 @@ public:
     virtual std::vector<std::string> fieldsWritten() const = 0;
     /// Allocates fields and sets the initial state.
     virtual void initialize(World& world) = 0;
+    /// Effects are initialised by increasing order, then in scene order; steps always run in
+    /// scene order. Providers of state others read at initialisation use lower numbers: the
+    /// [crystal] seeds and maps 0, [phase_field] (owner of the ice clock and T_inf) 1.
+    virtual int initializationOrder() const { return 2; }
     /// Advances one step.
     virtual void step(World& world, const StepInfo& info) = 0;
     /// Adds this effect's output grids to a frame.

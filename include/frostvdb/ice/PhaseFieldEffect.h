@@ -18,6 +18,7 @@ public:
     std::string name() const override { return "phase_field"; }
     std::vector<std::string> fieldsWritten() const override { return {"p", "T", "growth_acc", "freeze_time"}; }
     void initialize(World& world) override;
+    int initializationOrder() const override { return 1; }
     void step(World& world, const StepInfo& info) override;
     void addToFrame(World& world, Frame& frame) override;
     double time() const override { return mTime; }
@@ -27,8 +28,6 @@ public:
 
 private:
     KobayashiParams mParams;
-    double mSeedRadius = 3.0;
-    std::vector<double> mSeedPosition{0.5, 0.5, 0.5};
     double mTime = 0.0;
     std::unique_ptr<PhaseFieldSolver> mSolver;
     PhaseFieldStepStats mStats;

@@ -1,0 +1,98 @@
+#include <frostvdb/ice/IceState.h>
+
+#include <openvdb/tools/Prune.h>
+#include <openvdb/tools/ValueTransformer.h>
+
+#include <algorithm>
+#include <cmath>
+
+namespace frostvdb {
+namespace ice {
+
+void stampDisc(World& world, openvdb::FloatGrid& p, const std::vector<double>& f, double radius)
+{
+    const Domain& dom = world.domain;
+    const auto& bb = dom.bbox();
+    const openvdb::Vec3d size = (bb.max() - bb.min()).asVec3d();
+    const double fz = f.size() > 2 ? f[2] : 0.5;
+    const openvdb::Vec3d centre(bb.min().x() + f[0] * size.x(), bb.min().y() + f[1] * size.y(),
+                                dom.isPlane() ? 0.0 : bb.min().z() + fz * size.z());
+    // Measured in the lattice's own geometry so that a hexagonal seed is round too; the index
+    // window is wide enough for the hex shear (|di| <= r + |dj|/2).
+    const openvdb::Vec2d c2 = dom.lattice().planePosition(centre.x(), centre.y());
+    const int r = int(std::ceil(radius * 2.0)) + 1;
+    auto acc = p.getAccessor();
+    const int k0 = dom.isPlane() ? 0 : int(std::floor(centre.z())) - r;
+    const int k1 = dom.isPlane() ? 0 : int(std::ceil(centre.z())) + r;
+    for (int k = k0; k <= k1; ++k)
+        for (int j = int(centre.y()) - r; j <= int(centre.y()) + r; ++j)
+            for (int i = int(centre.x()) - r; i <= int(centre.x()) + r; ++i) {
+                const openvdb::Coord c(i, j, k);
+                if (!dom.contains(c)) continue;
+                const openvdb::Vec2d q = dom.lattice().planePosition(i, j) - c2;
+                const double dz = dom.isPlane() ? 0.0 : k - centre.z();
+                if (q.lengthSqr() + dz * dz <= radius * radius) acc.setValue(c, 1.f);
+            }
+}
+
+void requireIceFields(World& world)
+{
+    const bool hadPhase = world.fields.has(kPhase);
+    auto p = world.fields.require<openvdb::FloatGrid>(kPhase, 0.f);
+    world.fields.require<openvdb::FloatGrid>(kTemperature, float(shared(world).farTemperature));
+    world.fields.require<openvdb::FloatGrid>(kGrowth, 0.f);
+    world.fields.require<openvdb::FloatGrid>(kFreezeTime, 0.f);
+    if (!hadPhase) stampDisc(world, *p, {0.5, 0.5, 0.5}, 3.0);
+}
+
+void recordPhaseChange(openvdb::FloatGrid::Accessor& growth, openvdb::FloatGrid::Accessor& freeze,
+                       const openvdb::Coord& c, float before, float after, double time)
+{
+    if (after > before) growth.setValue(c, growth.getValue(c) + (after - before));
+    if (before <= 0.5f && after > 0.5f && freeze.getValue(c) == 0.f) freeze.setValue(c, float(time));
+}
+
+void addIceOutputs(World& world, Frame& frame)
+{
+    for (const auto& g : frame.grids)
+        if (g->getName() == "ice") return;
+    auto p = world.fields.get<openvdb::FloatGrid>(kPhase);
+    if (!p) return;
+    auto ice = p->deepCopy();
+    // Fog volume: values in [0,1], background 0, nothing stored where there is no ice.
+    openvdb::tools::foreach(ice->beginValueOn(), [](const openvdb::FloatGrid::ValueOnIter& it) {
+        const float v = std::min(std::max(*it, 0.f), 1.f);
+        it.setValue(v);
+        if (v <= 0.f) it.setValueOff();
+    });
+    openvdb::tools::pruneInactive(ice->tree());
+    ice->setName("ice");
+    ice->setGridClass(openvdb::GRID_FOG_VOLUME);
+    frame.add(ice);
+
+    if (auto T = world.fields.get<openvdb::FloatGrid>(kTemperature)) {
+        auto temperature = T->deepCopy();
+        temperature->setName("temperature");
+        temperature->setGridClass(openvdb::GRID_UNKNOWN);
+        frame.add(temperature);
+    }
+    if (auto acc = world.fields.get<openvdb::FloatGrid>(kGrowth)) {
+        auto growth = acc->deepCopy();
+        float mn = 0, mx = 0;
+        if (growth->activeVoxelCount() > 0) growth->evalMinMax(mn, mx);
+        const float scale = mx > 0 ? 1.f / mx : 0.f;
+        openvdb::tools::foreach(growth->beginValueOn(), [scale](const openvdb::FloatGrid::ValueOnIter& it) {
+            it.setValue(std::min(1.f, *it * scale));
+        });
+        growth->setName("growth");
+        frame.add(growth);
+    }
+    if (auto f = world.fields.get<openvdb::FloatGrid>(kFreezeTime)) {
+        auto freeze = f->deepCopy();
+        freeze->setName("freeze_time");
+        frame.add(freeze);
+    }
+}
+
+} // namespace ice
+} // namespace frostvdb
