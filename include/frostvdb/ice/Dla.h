@@ -1,0 +1,223 @@
+#pragma once
+/// @file Dla.h
+/// @brief Section [dla]: diffusion-limited aggregation walkers on the ice phase field p (ice
+/// paper sections 4.1, 4.3, 4.4 and 6), with multiple-hit averaging, a sticking-probability
+/// (melt) map, heat release L (dp/dt)_DLA into T (eq. 6), flow drift from `vel`, steam humidity
+/// from `density`, and empty-space jumps that keep the hitting statistics of the plain walk.
+///
+/// Walk rules (per step, H walkers; see docs/dla.md for the full semantics):
+/// @code
+///   release on an empty cell (uniformly, or on the domain perimeter; steam adds extra walkers)
+///   loop:
+///     next to a cell with p > 1/2 ?  stick with probability melt(cell)  -> hits(cell) += 1
+///                                    (hits == n: p(cell) = 1, heat L (1 - p_before) into T)
+///     far from ice (lattice distance d)? jump to the exit point of the walk from the lattice
+///                                    ball of radius d-2 around it (exact first-passage tables)
+///     else step to a random lattice neighbour (+ whole-cell flow drift); leaving the domain kills
+/// @endcode
+/// Determinism: the walkers of a step are cut into batches of `batch` consecutive walker ids;
+/// the walkers of a batch walk in parallel against the ice as it was at the start of the batch,
+/// each with its own counter-based stream (seed, step, walker id), and their sticks are applied
+/// in walker-id order. A walker whose stick cell froze earlier in the same batch resumes its walk
+/// serially (in order) against the updated ice. The result does not depend on the thread count.
+#include <frostvdb/core/Domain.h>
+#include <frostvdb/core/Effect.h>
+#include <frostvdb/core/Random.h>
+
+#include <openvdb/openvdb.h>
+
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <utility>
+#include <vector>
+
+namespace frostvdb {
+namespace ice {
+
+inline const char* const kDlaHits = "dla_hits";
+
+enum class DlaRelease { Uniform, Perimeter };
+
+struct DlaParams {
+    int64_t humidity = 300;                               ///< H: walkers released per step
+    std::vector<std::pair<int64_t, int64_t>> schedule;    ///< (from step, H), sorted by step
+    DlaRelease release = DlaRelease::Uniform;
+    int hits = 1;                 ///< n: walkers that must stick at a cell before it freezes
+    double heatRelease = -1.0;    ///< L; < 0 means K/6
+    double dt = 0.0002;           ///< ice clock when no [phase_field] owns it
+    double flowDrift = 1.0;       ///< scale of the drift vel * dt
+    int64_t maxSteps = 0;         ///< walker lifetime in lattice steps (0: until it leaves)
+    bool jumps = true;            ///< empty-space jumps
+    int jumpMinRadius = 3;        ///< smallest jump (lattice radius)
+    int jumpMaxRadius = 0;        ///< largest jump table (0: 128 on a plane, 32 in a box)
+    int batch = 1024;             ///< walkers per parallel batch
+    double steamHumidity = 0.0;   ///< gain of the local steam density on the walker release
+    double steamReach = 0.05;     ///< metres above the plane where steam counts
+    /// Test hook, never read from a scene: with this probability a jump's exit is redrawn and the
+    /// one further along +x kept (a deliberate bias, to prove the statistics test can see one).
+    double testJumpBias = 0.0;
+
+    /// H at a step, after the schedule.
+    int64_t humidityAt(int64_t step) const;
+};
+
+/// First-passage (exit) distribution of the lattice random walk started at the centre of the
+/// lattice ball of graph radius r (a diamond on the square lattice, a hexagon on the hexagonal
+/// one, an octahedron in a box): solved exactly (conjugate gradients on the Green's function of
+/// the walk killed on the shell), sampled in O(1) with an alias table.
+struct ShellTable {
+    int radius = 0;
+    std::vector<openvdb::Coord> exits; ///< shell offsets (graph distance exactly r)
+    std::vector<double> prob;          ///< exit probability of each
+    std::vector<double> aliasProb;     ///< Vose alias table
+    std::vector<uint32_t> alias;
+    double meanSteps = 0;              ///< expected number of lattice steps to reach the shell
+    double solverResidual = 0;         ///< CG relative residual reached
+
+    /// Draws an exit index from two uniform 64-bit words.
+    uint32_t sample(uint64_t a, uint64_t b) const;
+};
+
+/// The table for a neighbour set and radius, computed once per process and cached.
+std::shared_ptr<const ShellTable> shellTable(const std::vector<openvdb::Coord>& neighbours, int radius);
+
+/// The lattice neighbours a walker moves between: the plane's 4 or 6, plus (0,0,+-1) in a box.
+std::vector<openvdb::Coord> walkerNeighbours(const Domain& domain);
+
+/// Counters of a run (or a batch), summed in walker order.
+struct DlaStats {
+    uint64_t released = 0, stuck = 0, frozen = 0, killed = 0, exhausted = 0;
+    uint64_t conflicts = 0;  ///< sticks at a cell that froze earlier in the batch (walk resumed)
+    uint64_t moves = 0;      ///< loop iterations actually executed (single steps + jumps)
+    uint64_t jumps = 0;
+    double latticeSteps = 0; ///< equivalent lattice steps (a jump counts its mean exit time)
+    double dpDla = 0;        ///< sum of (1 - p_before) over DLA freezes
+    double walkSeconds = 0, applySeconds = 0, syncSeconds = 0, steamSeconds = 0, tableSeconds = 0;
+};
+
+/// One walker's end.
+struct WalkEnd {
+    enum Kind : uint8_t { Stuck, Killed, Exhausted } kind = Killed;
+    int64_t cell = -1; ///< linear cell index where it stuck
+    int64_t prev = -1; ///< the cell it stepped from by one lattice step (-1 after a jump/release)
+    uint32_t moves = 0, jumps = 0;
+    double latticeSteps = 0;
+};
+
+/// The walker machinery on a dense view of the domain: ice flags and a capped exact lattice
+/// distance to the ice (incrementally updated), a coarse 8-cell block distance for far jumps,
+/// and the walk itself. Used by the [dla] effect; public for tests.
+class DlaEngine {
+public:
+    DlaEngine(const Domain& domain, const DlaParams& params, uint64_t seed);
+
+    /// Brings the ice flags in line with p > 1/2 (incremental when ice was only added).
+    void sync(const openvdb::FloatGrid& p);
+    /// Marks a cell as ice and updates the distances.
+    void freeze(int64_t cell);
+    bool isIce(int64_t cell) const { return mFine[size_t(cell)] == 0; }
+    /// Lattice distance to the nearest ice, exact below the fine cap, a lower bound above.
+    int iceDistance(const openvdb::Coord& c) const;
+    uint64_t iceCount() const { return mIceCount; }
+
+    int64_t index(const openvdb::Coord& c) const
+    {
+        return int64_t(c.x()) + mNx * (int64_t(c.y()) + mNy * int64_t(c.z()));
+    }
+    openvdb::Coord coord(int64_t idx) const
+    {
+        return openvdb::Coord(int(idx % mNx), int((idx / mNx) % mNy), int(idx / (mNx * mNy)));
+    }
+    int64_t cellCount() const { return mNx * mNy * mNz; }
+
+    /// Optional inputs of a walk (null: none). The velocity is in index cells per lattice step.
+    struct Inputs {
+        const openvdb::FloatGrid* melt = nullptr;
+        const openvdb::Vec3SGrid* vel = nullptr;
+        openvdb::Mat3d velToCells = openvdb::Mat3d::zero(); ///< world vel -> cells per step
+        bool velOnDomainTransform = true;
+        const std::vector<double>* steamCdf = nullptr;      ///< cumulative release weights
+        const std::vector<int64_t>* steamCells = nullptr;   ///< cells of the weights
+        int64_t baseWalkers = 0; ///< walker ids >= this are steam walkers
+    };
+
+    /// Releases and walks walkers [first, first+count) of @a step in parallel (TBB) against the
+    /// current ice; results indexed by walker - first.
+    void walkBatch(int64_t step, uint64_t first, uint64_t count, const Inputs& in,
+                   std::vector<WalkEnd>& out) const;
+    /// Walks one walker from a given cell (or releases it when @a start < 0), with stream
+    /// @a stream (a salt separates resumed walks from first walks).
+    WalkEnd walk(int64_t step, uint64_t walker, uint64_t salt, int64_t start, const Inputs& in) const;
+
+    double stickingProbability(const Inputs& in, int64_t cell) const;
+    uint64_t seed() const { return mSeed; }
+    const std::vector<openvdb::Coord>& neighbours() const { return mNbr; }
+    const Domain& domain() const { return mDomain; }
+    /// Largest jump table radius in use.
+    int maxJumpRadius() const { return mTableForRadius.empty() ? 0 : int(mTableForRadius.size()) - 1; }
+
+private:
+    void rebuild(const openvdb::FloatGrid& p);
+    void relaxFrom(int64_t cell);
+    void markBlock(int64_t cell);
+    void rebuildCoarse();
+    int64_t release(int64_t step, uint64_t walker, CounterRng& rng, const Inputs& in) const;
+    int outsideDistance(int x, int y, int z) const;
+
+    Domain mDomain;
+    DlaParams mParams;
+    uint64_t mSeed;
+    int64_t mNx, mNy, mNz;
+    int mDim;
+    std::vector<openvdb::Coord> mNbr;
+    std::vector<int64_t> mNbrDelta;
+    std::vector<uint8_t> mFine; ///< 0 ice, 1..kCap-1 exact distance, kCap: >= kCap
+    int64_t mBx, mBy, mBz;      ///< coarse block counts
+    std::vector<uint32_t> mBlockIce;
+    std::vector<uint16_t> mCoarse; ///< Chebyshev block distance to a block with ice
+    uint64_t mIceCount = 0;
+    std::vector<int64_t> mQueue;
+    std::vector<std::shared_ptr<const ShellTable>> mTables;
+    std::vector<int16_t> mTableForRadius; ///< radius -> index in mTables of the largest <= it (-1)
+    int mDigits = 1;
+
+public:
+    static constexpr int kCap = 12;
+    static constexpr int kBlockLog2 = 3;
+};
+
+/// The [dla] effect.
+class DlaEffect : public Effect {
+public:
+    static std::unique_ptr<Effect> create(ParamDict& params, const World& world);
+
+    std::string name() const override { return "dla"; }
+    std::vector<std::string> fieldsWritten() const override;
+    void initialize(World& world) override;
+    int initializationOrder() const override { return 2; }
+    void step(World& world, const StepInfo& info) override;
+    void addToFrame(World& world, Frame& frame) override;
+    double time() const override { return mTime; }
+    std::vector<std::pair<std::string, double>> timings() const override;
+
+    const DlaParams& params() const { return mParams; }
+    const DlaStats& stats() const { return mStats; }
+    const DlaEngine* engine() const { return mEngine.get(); }
+
+private:
+    void updateSteam(World& world);
+
+    DlaParams mParams;
+    double mHeat = 0; ///< L in use
+    double mTime = 0;
+    std::unique_ptr<DlaEngine> mEngine;
+    DlaStats mStats;
+    openvdb::GridBase::ConstPtr mSteamSource; ///< the density grid the steam map was built from
+    std::vector<double> mSteamCdf;
+    std::vector<int64_t> mSteamCells;
+    double mSteamSum = 0;
+};
+
+} // namespace ice
+} // namespace frostvdb

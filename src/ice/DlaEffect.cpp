@@ -1,0 +1,318 @@
+/// @file DlaEffect.cpp
+/// @brief Section [dla]: reads its keys, runs the walkers of each step in deterministic batches
+/// and applies their sticks (hits, freezing, heat, growth) in walker order.
+#include <frostvdb/ice/Dla.h>
+#include <frostvdb/core/Error.h>
+#include <frostvdb/core/Random.h>
+#include <frostvdb/ice/IceState.h>
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <sstream>
+
+namespace frostvdb {
+namespace ice {
+
+FROSTVDB_REGISTER_EFFECT(DlaEffect, "dla",
+                         "DLA walkers on the ice p field (ice paper 4.1, 4.3, 4.4): humidity H, sticking (melt) map, "
+                         "multiple hits n, heat release L, flow drift, steam humidity, empty-space jumps.");
+
+namespace {
+using Clock = std::chrono::steady_clock;
+double since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
+constexpr uint64_t kResumeSalt = 0x5E5D3E11ull;
+} // namespace
+
+std::unique_ptr<Effect> DlaEffect::create(ParamDict& d, const World& world)
+{
+    auto fx = std::make_unique<DlaEffect>();
+    DlaParams& p = fx->mParams;
+    p.humidity = d.getInt("humidity", 300, 0, int64_t(1) << 32, "walkers/step",
+                          "H: walkers released per step (all of them, not only those that stick; paper 4.1)");
+    const auto sched = d.getFloatArray("humidity_schedule", {}, {}, 0, 1e15, "[step, walkers/step, ...]",
+                                       "pairs (from step, H): from that step on H is the new value, e.g. [75, 350] "
+                                       "(the paper's Figure 6: 300, then 350 after step 75); empty: H throughout");
+    if (sched.size() % 2 != 0) d.fail("humidity_schedule", "needs pairs [step, H, step, H, ...]");
+    for (size_t i = 0; i < sched.size(); i += 2) {
+        if (sched[i] != std::floor(sched[i]) || sched[i + 1] != std::floor(sched[i + 1]))
+            d.fail("humidity_schedule", "steps and walker counts must be whole numbers");
+        if (i > 0 && sched[i] <= sched[i - 2]) d.fail("humidity_schedule", "steps must increase");
+        p.schedule.emplace_back(int64_t(sched[i]), int64_t(sched[i + 1]));
+    }
+    const std::string rel = d.getString("release", "uniform", {"uniform", "perimeter"},
+                                        "where walkers start: uniform over the domain's empty cells, or on its "
+                                        "perimeter (the cells of its edges/faces)");
+    p.release = rel == "perimeter" ? DlaRelease::Perimeter : DlaRelease::Uniform;
+    p.hits = int(d.getInt("hits", 1, 1, 1000000, "walkers",
+                          "n, multiple-hit averaging: a cell freezes after n walkers stuck at it (1: plain DLA; "
+                          "larger is more regular)"));
+    p.heatRelease = d.getFloat("heat_release", -1.0, -1.0, 100.0, "",
+                               "L, heat released into T per unit of p a walker freezes (eq. 6); -1: K/6 with K "
+                               "the phase field's latent_heat");
+    p.dt = d.getFloat("dt", 0.0002, 1e-8, 1e3, "",
+                      "time step of the ice clock when no [phase_field] runs (freeze_time = step * dt, drift vel*dt)");
+    p.flowDrift = d.getFloat("flow_drift", 1.0, 0.0, 1e6, "",
+                             "scale of the flow drift: each walker step adds flow_drift * vel * dt (in cells) "
+                             "where the field vel exists (paper 4.3)");
+    p.maxSteps = d.getInt("max_steps", 0, 0, int64_t(1) << 50, "steps",
+                          "walker lifetime in lattice steps (a jump counts its mean duration); 0: until it "
+                          "sticks or leaves the domain");
+    p.jumps = d.getBool("jumps", true,
+                        "empty-space jumps: far from the ice a walker jumps to the exact first-passage point of "
+                        "the largest free lattice ball around it (same statistics, far fewer steps)");
+    p.jumpMinRadius = int(d.getInt("jump_min_radius", 3, 2, 1000, "cells",
+                                   "smallest jump radius (below it walkers step cell by cell)"));
+    p.jumpMaxRadius = int(d.getInt("jump_max_radius", 0, 0, 1000, "cells",
+                                   "largest jump table radius; 0: 128 on a plane, 32 in a box"));
+    p.batch = int(d.getInt("batch", 1024, 1, int64_t(1) << 30, "walkers",
+                           "walkers per parallel batch: a batch walks against the ice at its start, sticks are "
+                           "applied in walker order (smaller is closer to the paper's one-by-one release)"));
+    p.steamHumidity = d.getFloat("steam_humidity", 0.0, 0.0, 1e6, "1/density",
+                                 "gain of the local steam density (field `density` of the gas effects) on the "
+                                 "release: cells release H/N (1 + gain * density) walkers per step; 0: off");
+    p.steamReach = d.getFloat("steam_reach", 0.05, 0.0, 1e3, "m",
+                              "on a plane: steam up to this height above it counts, weighted 1 - height/reach "
+                              "(column maximum); 0: the plane's own height only");
+    if (p.jumpMaxRadius > 0 && p.jumpMaxRadius < p.jumpMinRadius)
+        d.fail("jump_max_radius", "must be 0 or >= jump_min_radius");
+    (void)world;
+    return fx;
+}
+
+std::vector<std::string> DlaEffect::fieldsWritten() const
+{
+    std::vector<std::string> f{kPhase, kTemperature, kGrowth, kFreezeTime};
+    if (mParams.hits > 1) f.push_back(kDlaHits);
+    return f;
+}
+
+void DlaEffect::initialize(World& world)
+{
+    IceShared& sh = shared(world);
+    if (!sh.dtOwnedByPhaseField) sh.dt = mParams.dt;
+    requireIceFields(world);
+    mHeat = mParams.heatRelease < 0 ? sh.latentHeat / 6.0 : mParams.heatRelease;
+    if (mParams.hits > 1) world.fields.require<openvdb::Int32Grid>(kDlaHits, 0);
+    const auto t0 = Clock::now();
+    mEngine = std::make_unique<DlaEngine>(world.domain, mParams, world.seed);
+    mStats.tableSeconds += since(t0);
+    mEngine->sync(*world.fields.get<openvdb::FloatGrid>(kPhase));
+    mTime = 0;
+}
+
+void DlaEffect::updateSteam(World& world)
+{
+    auto density = world.fields.get<openvdb::FloatGrid>("density");
+    if (!density) {
+        mSteamSource.reset();
+        mSteamCdf.clear();
+        mSteamCells.clear();
+        mSteamSum = 0;
+        return;
+    }
+    if (density == mSteamSource) return; // the gas publishes a new grid each frame
+    mSteamSource = density;
+    mSteamCdf.clear();
+    mSteamCells.clear();
+    mSteamSum = 0;
+    if (density->activeVoxelCount() == 0) return;
+    const Domain& dom = world.domain;
+    const auto xf = dom.transform();
+    const auto& dxf = density->transform();
+    const bool plane = dom.isPlane();
+    const double reach = plane ? mParams.steamReach : 0.0;
+    const double dz = dxf.voxelSize()[2];
+    const int samples = reach > 0 ? std::max(1, int(std::ceil(reach / dz))) : 0;
+    // the domain cells under the density's world bounding box
+    const openvdb::CoordBBox ib = density->evalActiveVoxelBoundingBox();
+    openvdb::CoordBBox cells;
+    for (int cx = 0; cx < 2; ++cx)
+        for (int cy = 0; cy < 2; ++cy)
+            for (int cz = 0; cz < 2; ++cz) {
+                const openvdb::Vec3d corner(cx ? ib.max().x() + 0.5 : ib.min().x() - 0.5,
+                                            cy ? ib.max().y() + 0.5 : ib.min().y() - 0.5,
+                                            cz ? ib.max().z() + 0.5 : ib.min().z() - 0.5);
+                const openvdb::Vec3d w = dxf.indexToWorld(corner);
+                const openvdb::Vec3d q = xf->worldToIndex(plane ? openvdb::Vec3d(w.x(), w.y(), 0.0) : w);
+                cells.expand(openvdb::Coord::floor(q));
+                cells.expand(openvdb::Coord::floor(q) + openvdb::Coord(1));
+            }
+    cells.intersect(dom.bbox());
+    if (cells.empty()) return;
+    const openvdb::Coord lo = cells.min(), dim = cells.dim();
+    std::vector<float> w(size_t(dim.x()) * dim.y() * dim.z(), 0.f);
+    tbb::parallel_for(tbb::blocked_range<int>(0, dim.y() * dim.z()), [&](const tbb::blocked_range<int>& r) {
+        auto acc = density->getConstAccessor();
+        for (int row = r.begin(); row != r.end(); ++row) {
+            const int j = lo.y() + row % dim.y(), k = lo.z() + row / dim.y();
+            for (int i = lo.x(); i < lo.x() + dim.x(); ++i) {
+                const openvdb::Vec3d p = xf->indexToWorld(openvdb::Vec3d(i, j, k));
+                float best = 0.f;
+                for (int s = 0; s <= samples; ++s) {
+                    const double h = s * dz;
+                    if (reach > 0 && h > reach) break;
+                    const float wgt = reach > 0 ? float(1.0 - h / reach) : 1.f;
+                    const float v = acc.getValue(dxf.worldToIndexNodeCentered(p + openvdb::Vec3d(0, 0, h)));
+                    best = std::max(best, v * wgt);
+                }
+                w[size_t(i - lo.x()) + size_t(dim.x()) * size_t(row)] = best;
+            }
+        }
+    });
+    double sum = 0;
+    for (int row = 0; row < dim.y() * dim.z(); ++row)
+        for (int i = 0; i < dim.x(); ++i) {
+            const float v = w[size_t(i) + size_t(dim.x()) * size_t(row)];
+            if (!(v > 0.f)) continue;
+            sum += v;
+            mSteamCdf.push_back(sum);
+            mSteamCells.push_back(mEngine->index(
+                openvdb::Coord(lo.x() + i, lo.y() + row % dim.y(), lo.z() + row / dim.y())));
+        }
+    mSteamSum = sum;
+}
+
+void DlaEffect::step(World& world, const StepInfo& info)
+{
+    IceShared& sh = shared(world);
+    auto p = world.fields.get<openvdb::FloatGrid>(kPhase);
+    auto T = world.fields.get<openvdb::FloatGrid>(kTemperature);
+    auto growth = world.fields.get<openvdb::FloatGrid>(kGrowth);
+    auto freeze = world.fields.get<openvdb::FloatGrid>(kFreezeTime);
+    auto hitsGrid = world.fields.get<openvdb::Int32Grid>(kDlaHits);
+    auto melt = world.fields.get<openvdb::FloatGrid>(kMelt);
+    auto vel = world.fields.get<openvdb::Vec3SGrid>(kVelocity);
+
+    auto t0 = Clock::now();
+    mEngine->sync(*p);
+    mStats.syncSeconds += since(t0);
+
+    const int64_t H = mParams.humidityAt(info.step);
+    int64_t extra = 0;
+    DlaEngine::Inputs in;
+    in.melt = melt.get();
+    in.baseWalkers = H;
+    if (mParams.steamHumidity > 0) {
+        t0 = Clock::now();
+        updateSteam(world);
+        if (mSteamSum > 0) {
+            const double e = double(H) * mParams.steamHumidity * mSteamSum / double(mEngine->cellCount());
+            extra = int64_t(std::floor(e));
+            if (toUnit(hashCounters(mEngine->seed(), 0x57EA4ull, uint64_t(info.step))) < e - std::floor(e)) ++extra;
+            in.steamCdf = &mSteamCdf;
+            in.steamCells = &mSteamCells;
+        }
+        mStats.steamSeconds += since(t0);
+    }
+    if (vel) {
+        in.vel = vel.get();
+        in.velOnDomainTransform = vel->transform() == *world.domain.transform();
+        // world displacement -> index cells, times dt and the user's scale
+        const auto xf = world.domain.transform();
+        const openvdb::Vec3d o = xf->worldToIndex(openvdb::Vec3d(0.0));
+        for (int b = 0; b < 3; ++b) {
+            openvdb::Vec3d e(0.0);
+            e[b] = 1.0;
+            const openvdb::Vec3d col = xf->worldToIndex(e) - o;
+            for (int a = 0; a < 3; ++a) in.velToCells(a, b) = col[a] * sh.dt * mParams.flowDrift;
+        }
+    }
+
+    auto pAcc = p->getAccessor();
+    auto gAcc = growth->getAccessor();
+    auto fAcc = freeze->getAccessor();
+    std::unique_ptr<openvdb::FloatGrid::Accessor> tAcc;
+    if (T && sh.temperatureEvolves && mHeat != 0) tAcc = std::make_unique<openvdb::FloatGrid::Accessor>(T->getAccessor());
+    std::unique_ptr<openvdb::Int32Grid::Accessor> hAcc;
+    if (hitsGrid && mParams.hits > 1) hAcc = std::make_unique<openvdb::Int32Grid::Accessor>(hitsGrid->getAccessor());
+    const double time = sh.timeAtStep(info.step);
+
+    auto freezeCell = [&](int64_t cell) {
+        const openvdb::Coord c = mEngine->coord(cell);
+        const float before = pAcc.getValue(c);
+        pAcc.setValue(c, 1.f);
+        recordPhaseChange(gAcc, fAcc, c, before, 1.f, time);
+        if (tAcc) tAcc->setValue(c, tAcc->getValue(c) + float(mHeat * (1.0 - double(before))));
+        mEngine->freeze(cell);
+        ++mStats.frozen;
+        mStats.dpDla += 1.0 - double(before);
+    };
+    auto hit = [&](int64_t cell) {
+        ++mStats.stuck;
+        if (!hAcc) {
+            freezeCell(cell);
+            return;
+        }
+        const openvdb::Coord c = mEngine->coord(cell);
+        const int n = hAcc->getValue(c) + 1;
+        if (n < mParams.hits) {
+            hAcc->setValue(c, n);
+        } else {
+            hAcc->setValueOff(c, 0);
+            freezeCell(cell);
+        }
+    };
+    auto account = [&](const WalkEnd& e) {
+        mStats.moves += e.moves;
+        mStats.jumps += e.jumps;
+        mStats.latticeSteps += e.latticeSteps;
+        if (e.kind == WalkEnd::Killed) ++mStats.killed;
+        if (e.kind == WalkEnd::Exhausted) ++mStats.exhausted;
+    };
+
+    const uint64_t total = uint64_t(H + extra);
+    mStats.released += total;
+    std::vector<WalkEnd> ends;
+    for (uint64_t first = 0; first < total; first += uint64_t(mParams.batch)) {
+        const uint64_t count = std::min<uint64_t>(uint64_t(mParams.batch), total - first);
+        t0 = Clock::now();
+        mEngine->walkBatch(info.step, first, count, in, ends);
+        mStats.walkSeconds += since(t0);
+        t0 = Clock::now();
+        for (uint64_t w = 0; w < count; ++w) {
+            WalkEnd e = ends[size_t(w)];
+            account(e);
+            if (e.kind != WalkEnd::Stuck) continue;
+            if (mEngine->isIce(e.cell)) {
+                // its cell froze earlier in this batch: the walker goes on from where it came
+                // from (or a free neighbour), serially, against the current ice
+                ++mStats.conflicts;
+                int64_t start = e.prev >= 0 && !mEngine->isIce(e.prev) ? e.prev : -1;
+                if (start < 0) {
+                    const auto& nb = mEngine->neighbours();
+                    const openvdb::Coord c = mEngine->coord(e.cell);
+                    const uint64_t h = hashCounters(mEngine->seed(), kResumeSalt, uint64_t(info.step), first + w);
+                    for (size_t k = 0; k < nb.size() && start < 0; ++k) {
+                        const openvdb::Coord q = c + nb[(h + k) % nb.size()];
+                        if (world.domain.contains(q) && !mEngine->isIce(mEngine->index(q))) start = mEngine->index(q);
+                    }
+                }
+                if (start < 0) continue;
+                e = mEngine->walk(info.step, first + w, kResumeSalt, start, in);
+                account(e);
+                if (e.kind != WalkEnd::Stuck) continue;
+            }
+            hit(e.cell);
+        }
+        mStats.applySeconds += since(t0);
+    }
+    mTime = sh.timeAtStep(info.step + 1);
+}
+
+void DlaEffect::addToFrame(World& world, Frame& frame) { addIceOutputs(world, frame); }
+
+std::vector<std::pair<std::string, double>> DlaEffect::timings() const
+{
+    return {{"walkers", mStats.walkSeconds},
+            {"apply", mStats.applySeconds},
+            {"distance", mStats.syncSeconds},
+            {"steam", mStats.steamSeconds},
+            {"tables", mStats.tableSeconds}};
+}
+
+} // namespace ice
+} // namespace frostvdb

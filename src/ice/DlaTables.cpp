@@ -1,0 +1,180 @@
+/// @file DlaTables.cpp
+/// @brief Exact first-passage tables for the empty-space jumps of the DLA walkers.
+///
+/// For a lattice (its neighbour offsets) and a graph radius r, the ball B_r is every cell within r
+/// lattice steps of the origin (a diamond on the square lattice, a hexagon on the hexagonal one,
+/// an octahedron on the cubic one); its shell is the cells at distance exactly r. A walk started
+/// at the origin reaches the shell first at a cell s with probability
+///     P(s) = sum over interior neighbours y of s of G(y) / deg,
+/// where G is the Green's function of the walk killed on the shell: (I - P_int) G = e_origin,
+/// P_int the transition matrix restricted to the interior (symmetric, since every cell has deg
+/// neighbours). G is solved with conjugate gradients in double precision to a relative residual
+/// of 1e-13; sum(G) is the mean number of steps to reach the shell. The tables depend only on
+/// the neighbour set and r, so they are computed once per process and shared.
+#include <frostvdb/ice/Dla.h>
+
+#include <cmath>
+#include <map>
+#include <mutex>
+#include <sstream>
+
+namespace frostvdb {
+namespace ice {
+
+namespace {
+
+std::shared_ptr<ShellTable> computeShell(const std::vector<openvdb::Coord>& nbr, int r)
+{
+    bool hasZ = false;
+    for (const auto& o : nbr) hasZ = hasZ || o.z() != 0;
+    const int side = 2 * r + 1, sideZ = hasZ ? side : 1, rz = hasZ ? r : 0;
+    auto key = [&](const openvdb::Coord& c) -> int64_t {
+        return int64_t(c.x() + r) + int64_t(side) * (int64_t(c.y() + r) + int64_t(side) * int64_t(c.z() + rz));
+    };
+    auto inBox = [&](const openvdb::Coord& c) {
+        return std::abs(c.x()) <= r && std::abs(c.y()) <= r && std::abs(c.z()) <= rz;
+    };
+    std::vector<int> dist(size_t(side) * side * sideZ, -1);
+    std::vector<openvdb::Coord> order{openvdb::Coord(0)};
+    dist[size_t(key(openvdb::Coord(0)))] = 0;
+    for (size_t q = 0; q < order.size(); ++q) {
+        const int d = dist[size_t(key(order[q]))];
+        if (d == r) continue;
+        for (const auto& o : nbr) {
+            const openvdb::Coord c = order[q] + o;
+            if (!inBox(c)) continue; // graph distance >= Chebyshev distance: never needed
+            int& dc = dist[size_t(key(c))];
+            if (dc < 0) {
+                dc = d + 1;
+                order.push_back(c);
+            }
+        }
+    }
+    // compact numbering: interior (d < r) first, then shell
+    std::vector<int> id(dist.size(), -1);
+    std::vector<openvdb::Coord> interior, shell;
+    for (const auto& c : order) {
+        if (dist[size_t(key(c))] < r) {
+            id[size_t(key(c))] = int(interior.size());
+            interior.push_back(c);
+        }
+    }
+    for (const auto& c : order) {
+        if (dist[size_t(key(c))] == r) {
+            id[size_t(key(c))] = int(shell.size());
+            shell.push_back(c);
+        }
+    }
+    const size_t n = interior.size(), deg = nbr.size();
+    // interior adjacency: index of the interior neighbour, or -1 - shellIndex for a shell one
+    std::vector<int> adj(n * deg);
+    for (size_t i = 0; i < n; ++i)
+        for (size_t k = 0; k < deg; ++k) {
+            const openvdb::Coord c = interior[i] + nbr[k];
+            const int64_t kk = key(c);
+            adj[i * deg + k] = dist[size_t(kk)] < r ? id[size_t(kk)] : -1 - id[size_t(kk)];
+        }
+    const double w = 1.0 / double(deg);
+    auto apply = [&](const std::vector<double>& x, std::vector<double>& y) {
+        for (size_t i = 0; i < n; ++i) {
+            double s = 0;
+            for (size_t k = 0; k < deg; ++k) {
+                const int a = adj[i * deg + k];
+                if (a >= 0) s += x[size_t(a)];
+            }
+            y[i] = x[i] - w * s;
+        }
+    };
+    std::vector<double> x(n, 0.0), res(n, 0.0), p(n, 0.0), ap(n, 0.0);
+    res[0] = 1.0; // origin is interior index 0 (first in BFS order)
+    p = res;
+    double rs = 1.0;
+    const double tol2 = 1e-26;
+    int it = 0;
+    for (; it < 100000 && rs > tol2; ++it) {
+        apply(p, ap);
+        double pap = 0;
+        for (size_t i = 0; i < n; ++i) pap += p[i] * ap[i];
+        const double alpha = rs / pap;
+        double rsn = 0;
+        for (size_t i = 0; i < n; ++i) {
+            x[i] += alpha * p[i];
+            res[i] -= alpha * ap[i];
+            rsn += res[i] * res[i];
+        }
+        const double beta = rsn / rs;
+        for (size_t i = 0; i < n; ++i) p[i] = res[i] + beta * p[i];
+        rs = rsn;
+    }
+    auto t = std::make_shared<ShellTable>();
+    t->radius = r;
+    t->exits = shell;
+    t->prob.assign(shell.size(), 0.0);
+    t->solverResidual = std::sqrt(rs);
+    for (size_t i = 0; i < n; ++i) {
+        t->meanSteps += x[i];
+        for (size_t k = 0; k < deg; ++k) {
+            const int a = adj[i * deg + k];
+            if (a < 0) t->prob[size_t(-1 - a)] += x[i] * w;
+        }
+    }
+    double total = 0;
+    for (double q : t->prob) total += q;
+    for (double& q : t->prob) q /= total; // total is 1 to the solver's accuracy
+    // Vose's alias method (deterministic: fixed processing order)
+    const size_t m = shell.size();
+    t->aliasProb.assign(m, 1.0);
+    t->alias.resize(m);
+    std::vector<double> scaled(m);
+    std::vector<uint32_t> small, large;
+    for (size_t i = 0; i < m; ++i) {
+        scaled[i] = t->prob[i] * double(m);
+        t->alias[i] = uint32_t(i);
+        (scaled[i] < 1.0 ? small : large).push_back(uint32_t(i));
+    }
+    while (!small.empty() && !large.empty()) {
+        const uint32_t s = small.back(), l = large.back();
+        small.pop_back();
+        t->aliasProb[s] = scaled[s];
+        t->alias[s] = l;
+        scaled[l] = (scaled[l] + scaled[s]) - 1.0;
+        if (scaled[l] < 1.0) {
+            large.pop_back();
+            small.push_back(l);
+        }
+    }
+    for (uint32_t i : large) t->aliasProb[i] = 1.0;
+    for (uint32_t i : small) t->aliasProb[i] = 1.0;
+    return t;
+}
+
+} // namespace
+
+uint32_t ShellTable::sample(uint64_t a, uint64_t b) const
+{
+    const uint32_t i = uint32_t(((a >> 32) * uint64_t(exits.size())) >> 32);
+    return toUnit(b) < aliasProb[i] ? i : alias[i];
+}
+
+std::shared_ptr<const ShellTable> shellTable(const std::vector<openvdb::Coord>& neighbours, int radius)
+{
+    static std::mutex mutex;
+    static std::map<std::string, std::shared_ptr<const ShellTable>> cache;
+    std::ostringstream os;
+    os << radius;
+    for (const auto& o : neighbours) os << ' ' << o.x() << ',' << o.y() << ',' << o.z();
+    const std::string key = os.str();
+    {
+        std::lock_guard<std::mutex> lock(mutex);
+        auto it = cache.find(key);
+        if (it != cache.end()) return it->second;
+    }
+    auto t = computeShell(neighbours, radius); // outside the lock; a duplicate is identical
+    std::lock_guard<std::mutex> lock(mutex);
+    auto& slot = cache[key];
+    if (!slot) slot = t;
+    return slot;
+}
+
+} // namespace ice
+} // namespace frostvdb
