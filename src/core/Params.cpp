@@ -36,13 +36,23 @@ const char* typeName(const ParamValue& v)
 
 void ParamDict::set(const std::string& key, ParamValue value, ParamOrigin origin)
 {
+    mTables.erase(key);
     mEntries[key] = Entry{std::move(value), std::move(origin), false};
+}
+
+void ParamDict::setTables(const std::string& key, std::vector<ParamDict> tables, ParamOrigin origin)
+{
+    for (size_t i = 0; i < tables.size(); ++i) tables[i].mSection = qualified(key) + "#" + std::to_string(i + 1);
+    mEntries.erase(key);
+    mTables[key] = TableEntry{std::move(tables), std::move(origin), false};
 }
 
 const ParamOrigin* ParamDict::origin(const std::string& key) const
 {
     auto it = mEntries.find(key);
-    return it == mEntries.end() ? nullptr : &it->second.origin;
+    if (it != mEntries.end()) return &it->second.origin;
+    auto t = mTables.find(key);
+    return t == mTables.end() ? nullptr : &t->second.origin;
 }
 
 const ParamDict::Entry* ParamDict::find(const std::string& key) const
@@ -160,8 +170,40 @@ std::vector<double> ParamDict::getFloatArray(const std::string& key, const std::
     return v;
 }
 
+std::vector<ParamDict>& ParamDict::getTables(const std::string& key, const std::string& doc,
+                                             const ParamDict& elementSchema)
+{
+    record({key, "table[]", "none", "array of tables, keys " + key + "[].*", "", doc});
+    for (const auto& s : elementSchema.specs()) {
+        ParamSpec sub = s;
+        sub.key = key + "[]." + s.key;
+        record(std::move(sub));
+    }
+    if (auto e = mEntries.find(key); e != mEntries.end()) {
+        e->second.read = true;
+        fail(key, "expected an array of tables ([[" + qualified(key) + "]] entries)");
+    }
+    auto t = mTables.find(key);
+    if (t == mTables.end()) {
+        mNoTables.clear();
+        return mNoTables;
+    }
+    t->second.read = true;
+    return t->second.tables;
+}
+
 void ParamDict::checkAllRead() const
 {
+    for (auto& [key, t] : mTables) {
+        if (t.read) {
+            for (auto& d : t.tables) d.checkAllRead();
+            continue;
+        }
+        std::string known;
+        for (auto& s : mSpecs) known += (known.empty() ? "" : ", ") + s.key;
+        fail(key, "unknown key in section [" + mSection + "] (known keys: " +
+                      (known.empty() ? "none" : known) + ")");
+    }
     for (auto& [key, entry] : mEntries) {
         if (entry.read) continue;
         std::string known;

@@ -31,6 +31,33 @@ ParamValue toValue(const toml::node& node, const std::string& file, const std::s
     throw SceneError(file, line, key, "unsupported value (expected a number, boolean, string or array of numbers)");
 }
 
+/// True for a non-empty array whose elements are all tables (`[[a.b]]` or `[{...}, {...}]`).
+bool isTableArray(const toml::node& node)
+{
+    auto arr = node.as_array();
+    return arr && !arr->empty() && arr->is_array_of_tables();
+}
+
+/// Converts an array of tables to ParamDicts; their values follow the rules of toValue.
+std::vector<ParamDict> toTables(const toml::node& node, const std::string& file, const std::string& key)
+{
+    std::vector<ParamDict> out;
+    int n = 0;
+    for (auto& el : *node.as_array()) {
+        ++n;
+        ParamDict d;
+        for (auto& [kk, value] : *el.as_table()) {
+            const std::string sub = key + "#" + std::to_string(n) + "." + std::string(kk.str());
+            const int line = int(value.source().begin.line);
+            if (value.is_table() || isTableArray(value))
+                throw SceneError(file, line, sub, "tables inside an array of tables are not allowed");
+            d.set(std::string(kk.str()), toValue(value, file, sub), {file, line});
+        }
+        out.push_back(std::move(d));
+    }
+    return out;
+}
+
 } // namespace
 
 Scene Scene::load(const std::string& path)
@@ -68,6 +95,11 @@ Scene Scene::fromString(const std::string& text, const std::string& label)
             if (value.is_table())
                 throw SceneError(label, int(value.source().begin.line), name + "." + key,
                                  "nested tables are not allowed");
+            if (isTableArray(value)) {
+                dict.setTables(key, toTables(value, label, name + "." + key),
+                               {label, int(value.source().begin.line)});
+                continue;
+            }
             dict.set(key, toValue(value, label, name + "." + key),
                      {label, int(value.source().begin.line)});
         }
@@ -91,9 +123,16 @@ void Scene::applyOverride(const std::string& assignment)
     const std::string key = assignment.substr(dot + 1, eq - dot - 1);
     const std::string valueText = assignment.substr(eq + 1);
     ParamValue value;
+    std::vector<ParamDict> tables;
+    bool isTables = false;
     try {
         auto t = toml::parse("v = " + valueText);
-        value = toValue(*t.get("v"), "--set", section + "." + key);
+        if (isTableArray(*t.get("v"))) {
+            tables = toTables(*t.get("v"), "--set", section + "." + key);
+            isTables = true;
+        } else {
+            value = toValue(*t.get("v"), "--set", section + "." + key);
+        }
     } catch (const toml::parse_error&) {
         // A bare word such as `lattice=hexagonal` is taken as a string.
         if (valueText.empty() || valueText.find_first_of("\"'[]{}=\n") != std::string::npos)
@@ -106,7 +145,8 @@ void Scene::applyOverride(const std::string& assignment)
         mOrder.push_back(section);
         mSectionLines[section] = 0;
     }
-    it->second.set(key, std::move(value), {"--set", 0});
+    if (isTables) it->second.setTables(key, std::move(tables), {"--set", 0});
+    else it->second.set(key, std::move(value), {"--set", 0});
 }
 
 ParamDict& Scene::section(const std::string& name)

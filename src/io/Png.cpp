@@ -81,20 +81,35 @@ void writePngGray(const std::string& path, int width, int height, const std::vec
     writePng(path, width, height, PNG_COLOR_TYPE_GRAY, bitDepth, rows, rowBytes);
 }
 
-std::vector<float> readPngGray(const std::string& path, int& width, int& height)
+std::vector<float> readPngGray(const std::string& path, int& width, int& height, int* bitDepth)
 {
     png_image image{};
     image.version = PNG_IMAGE_VERSION;
     if (!png_image_begin_read_from_file(&image, path.c_str()))
         throw std::runtime_error(path + ": cannot read PNG (" + image.message + ")");
-    image.format = PNG_FORMAT_LINEAR_Y; // 16-bit linear grey
-    std::vector<uint16_t> buf(PNG_IMAGE_SIZE(image) / 2);
-    if (!png_image_finish_read(&image, nullptr, buf.data(), 0, nullptr))
-        throw std::runtime_error(path + ": cannot decode PNG (" + image.message + ")");
+    // Code values as they are: 16-bit files are read as 16-bit grey (libpng treats them as
+    // linear, so no conversion), 8-bit files as 8-bit grey (no sRGB-to-linear decoding, which
+    // would turn a painted 50% grey into 21%).
+    const bool sixteen = (image.format & PNG_FORMAT_FLAG_LINEAR) != 0;
+    if (bitDepth) *bitDepth = sixteen ? 16 : 8;
+    std::vector<float> out;
+    if (sixteen) {
+        image.format = PNG_FORMAT_LINEAR_Y;
+        std::vector<uint16_t> buf(PNG_IMAGE_SIZE(image) / 2);
+        if (!png_image_finish_read(&image, nullptr, buf.data(), 0, nullptr))
+            throw std::runtime_error(path + ": cannot decode PNG (" + image.message + ")");
+        out.resize(buf.size());
+        for (size_t i = 0; i < buf.size(); ++i) out[i] = buf[i] / 65535.0f;
+    } else {
+        image.format = PNG_FORMAT_GRAY;
+        std::vector<uint8_t> buf(PNG_IMAGE_SIZE(image));
+        if (!png_image_finish_read(&image, nullptr, buf.data(), 0, nullptr))
+            throw std::runtime_error(path + ": cannot decode PNG (" + image.message + ")");
+        out.resize(buf.size());
+        for (size_t i = 0; i < buf.size(); ++i) out[i] = buf[i] / 255.0f;
+    }
     width = int(image.width);
     height = int(image.height);
-    std::vector<float> out(buf.size());
-    for (size_t i = 0; i < buf.size(); ++i) out[i] = buf[i] / 65535.0f;
     return out;
 }
 

@@ -40,7 +40,10 @@ public:
 
     const std::string& section() const { return mSection; }
     void set(const std::string& key, ParamValue value, ParamOrigin origin);
-    bool has(const std::string& key) const { return mEntries.count(key) > 0; }
+    /// Stores an array of tables (TOML `[[section.key]]` or `key = [{...}, {...}]`); each element
+    /// is a ParamDict of its own whose section reads "section.key#N" (N from 1) in messages.
+    void setTables(const std::string& key, std::vector<ParamDict> tables, ParamOrigin origin);
+    bool has(const std::string& key) const { return mEntries.count(key) > 0 || mTables.count(key) > 0; }
     const ParamOrigin* origin(const std::string& key) const;
 
     /// Typed look-ups. Each records the spec and throws SceneError (file, line, key, allowed
@@ -58,7 +61,14 @@ public:
                                       std::vector<size_t> counts, double lo, double hi,
                                       const std::string& unit, const std::string& doc);
 
-    /// Throws SceneError naming the first key that no look-up read.
+    /// An array of tables: returns its elements (empty when absent) and records the key, plus one
+    /// spec per element key ("key[].sub") taken from @a elementSchema, a ParamDict the caller
+    /// filled by reading an empty element (so the element reader must accept an empty table).
+    /// The elements' unread keys are reported by checkAllRead.
+    std::vector<ParamDict>& getTables(const std::string& key, const std::string& doc,
+                                      const ParamDict& elementSchema);
+
+    /// Throws SceneError naming the first key that no look-up read (in arrays of tables too).
     void checkAllRead() const;
 
     /// Throws a SceneError about @a key with the origin of that key (if it was given).
@@ -72,12 +82,19 @@ private:
         ParamOrigin origin;
         mutable bool read = false;
     };
+    struct TableEntry {
+        std::vector<ParamDict> tables;
+        ParamOrigin origin;
+        bool read = false;
+    };
     const Entry* find(const std::string& key) const;
     void record(ParamSpec spec);
     std::string qualified(const std::string& key) const;
 
     std::string mSection;
     std::map<std::string, Entry> mEntries;
+    std::map<std::string, TableEntry> mTables;
+    std::vector<ParamDict> mNoTables; ///< what getTables returns for an absent key
     std::vector<ParamSpec> mSpecs;
 };
 

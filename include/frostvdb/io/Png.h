@@ -22,6 +22,8 @@ void writePngRGB(const std::string& path, const ImageRGB& image);
 void writePngGray(const std::string& path, int width, int height, const std::vector<float>& values,
                   int bitDepth);
 /// Reads a PNG as greyscale in [0,1] (colour is converted by luminance); row 0 at the top.
-std::vector<float> readPngGray(const std::string& path, int& width, int& height);
+/// Values are the file's code values (8-bit v/255, 16-bit v/65535), without gamma decoding.
+/// @a bitDepth, if given, receives 8 or 16 (the precision of the file's samples).
+std::vector<float> readPngGray(const std::string& path, int& width, int& height, int* bitDepth = nullptr);
 
 } // namespace frostvdb

@@ -1,0 +1,483 @@
+#include <frostvdb/ice/Crystal.h>
+#include <frostvdb/core/Error.h>
+#include <frostvdb/ice/IceState.h>
+#include <frostvdb/io/Png.h>
+
+#include <openvdb/io/File.h>
+#include <openvdb/tools/Interpolation.h>
+#include <openvdb/tools/Prune.h>
+#include <openvdb/tools/ValueTransformer.h>
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <cctype>
+#include <cmath>
+#include <filesystem>
+#include <sstream>
+
+namespace frostvdb {
+namespace ice {
+
+FROSTVDB_REGISTER_EFFECT(CrystalEffect, "crystal",
+    "User controls (ice paper 4.4): seed crystal map and melting temperature map, from PNG or VDB maps "
+    "and shapes ([[crystal.seed]], [[crystal.melt]]: point, disc, line, edge).");
+
+namespace {
+
+using openvdb::Coord;
+using openvdb::Vec3d;
+
+/// Index position of domain fractions (a missing z is the middle of a box).
+Vec3d indexOf(const Domain& dom, const std::vector<double>& f)
+{
+    const auto& bb = dom.bbox();
+    const Vec3d size = (bb.max() - bb.min()).asVec3d();
+    const double fz = f.size() > 2 ? f[2] : 0.5;
+    return Vec3d(bb.min().x() + f[0] * size.x(), bb.min().y() + f[1] * size.y(),
+                 dom.isPlane() ? 0.0 : bb.min().z() + fz * size.z());
+}
+
+/// Position in the lattice's own geometry, in cells (hexagonal cells are unit apart too).
+Vec3d geo(const Domain& dom, const Vec3d& idx)
+{
+    const openvdb::Vec2d p = dom.lattice().planePosition(idx.x(), idx.y());
+    return Vec3d(p.x(), p.y(), dom.isPlane() ? 0.0 : idx.z());
+}
+
+/// Index window around [lo, hi] widened by @a r cells (with room for the hexagonal shear).
+openvdb::CoordBBox window(const Domain& dom, Vec3d lo, Vec3d hi, double r)
+{
+    const double rr = 2.0 * r + 2.0;
+    const Coord a(int(std::floor(lo.x() - rr)), int(std::floor(lo.y() - rr)),
+                  dom.isPlane() ? 0 : int(std::floor(lo.z() - r - 2.0)));
+    const Coord b(int(std::ceil(hi.x() + rr)), int(std::ceil(hi.y() + rr)),
+                  dom.isPlane() ? 0 : int(std::ceil(hi.z() + r + 2.0)));
+    openvdb::CoordBBox box(a, b);
+    box.intersect(dom.bbox());
+    return box;
+}
+
+unsigned parseEdges(ParamDict& d, const std::string& text, bool plane)
+{
+    unsigned bits = 0;
+    std::string word;
+    auto flush = [&]() {
+        if (word.empty()) return;
+        using E = CrystalShape;
+        if (word == "all") bits |= E::Left | E::Right | E::Bottom | E::Top | (plane ? 0u : unsigned(E::Front | E::Back));
+        else if (word == "left") bits |= E::Left;
+        else if (word == "right") bits |= E::Right;
+        else if (word == "bottom") bits |= E::Bottom;
+        else if (word == "top") bits |= E::Top;
+        else if (!plane && word == "front") bits |= E::Front;
+        else if (!plane && word == "back") bits |= E::Back;
+        else
+            d.fail("edges", "unknown edge '" + word + "' (allowed: all, left, right, bottom, top" +
+                                (plane ? std::string(")") : std::string(", front, back)")));
+        word.clear();
+    };
+    for (char c : text) {
+        if (c == ',' || c == '+' || std::isspace(static_cast<unsigned char>(c))) flush();
+        else word += char(std::tolower(static_cast<unsigned char>(c)));
+    }
+    flush();
+    if (!bits) d.fail("edges", "names no edge");
+    return bits;
+}
+
+bool endsWith(const std::string& s, const std::string& suffix)
+{
+    if (s.size() < suffix.size()) return false;
+    return std::equal(suffix.rbegin(), suffix.rend(), s.rbegin(),
+                      [](char a, char b) { return std::tolower(static_cast<unsigned char>(a)) == b; });
+}
+
+[[noreturn]] void mapFail(const MapSource& src, const std::string& what)
+{
+    throw SceneError(src.origin.file, src.origin.line, src.key, what);
+}
+
+/// World rectangle [x0, x1] x [y0, y1] the domain's cells cover (centres +- half a cell).
+void domainWorldRect(const Domain& dom, double& x0, double& x1, double& y0, double& y1)
+{
+    const auto& bb = dom.bbox();
+    x0 = y0 = 1e300;
+    x1 = y1 = -1e300;
+    for (int c = 0; c < 4; ++c) {
+        const Vec3d ip((c & 1) ? bb.max().x() : bb.min().x(), (c & 2) ? bb.max().y() : bb.min().y(), bb.min().z());
+        const Vec3d w = dom.transform()->indexToWorld(ip);
+        x0 = std::min(x0, w.x());
+        x1 = std::max(x1, w.x());
+        y0 = std::min(y0, w.y());
+        y1 = std::max(y1, w.y());
+    }
+    const double h = dom.voxelSize();
+    x0 -= 0.5 * h;
+    x1 += 0.5 * h;
+    y0 -= 0.5 * h;
+    y1 += 0.5 * h;
+}
+
+/// Runs @a value(cell) over every domain cell in parallel (one z layer at a time), then hands the
+/// values to @a fn serially.
+template <typename ValueFn>
+void sampleDomain(const Domain& dom, const ValueFn& value, const std::function<void(const Coord&, float)>& fn)
+{
+    const auto& bb = dom.bbox();
+    const int nx = bb.dim().x(), ny = bb.dim().y();
+    std::vector<float> layer(size_t(nx) * ny);
+    for (int k = bb.min().z(); k <= bb.max().z(); ++k) {
+        tbb::parallel_for(tbb::blocked_range<int>(0, ny), [&](const tbb::blocked_range<int>& r) {
+            auto sampler = value.make(); // one accessor per task
+            for (int j = r.begin(); j < r.end(); ++j)
+                for (int i = 0; i < nx; ++i)
+                    layer[size_t(j) * nx + i] = sampler(Coord(bb.min().x() + i, bb.min().y() + j, k));
+        });
+        for (int j = 0; j < ny; ++j)
+            for (int i = 0; i < nx; ++i)
+                fn(Coord(bb.min().x() + i, bb.min().y() + j, k), layer[size_t(j) * nx + i]);
+    }
+}
+
+struct PngSampler {
+    const Domain* dom;
+    const std::vector<float>* img;
+    int W, H;
+    double x0, x1, y0, y1;
+    struct Fn {
+        const PngSampler* s;
+        float operator()(const Coord& c) const
+        {
+            const Vec3d w = s->dom->transform()->indexToWorld(Vec3d(c.x(), c.y(), c.z()));
+            const double u = (w.x() - s->x0) / (s->x1 - s->x0), v = (w.y() - s->y0) / (s->y1 - s->y0);
+            const double px = std::clamp(u * s->W - 0.5, 0.0, double(s->W - 1));
+            const double py = std::clamp((1.0 - v) * s->H - 0.5, 0.0, double(s->H - 1)); // row 0 = top
+            const int ix = std::min(int(px), s->W - 2 < 0 ? 0 : s->W - 2);
+            const int iy = std::min(int(py), s->H - 2 < 0 ? 0 : s->H - 2);
+            const int ix1 = std::min(ix + 1, s->W - 1), iy1 = std::min(iy + 1, s->H - 1);
+            const double fx = px - ix, fy = py - iy;
+            auto at = [&](int x, int y) { return double((*s->img)[size_t(y) * s->W + x]); };
+            return float((1 - fy) * ((1 - fx) * at(ix, iy) + fx * at(ix1, iy)) +
+                         fy * ((1 - fx) * at(ix, iy1) + fx * at(ix1, iy1)));
+        }
+    };
+    Fn make() const { return Fn{this}; }
+};
+
+struct VdbSampler {
+    const Domain* dom;
+    const openvdb::FloatGrid* grid;
+    bool indexSpace;
+    struct Fn {
+        const VdbSampler* s;
+        openvdb::FloatGrid::ConstAccessor acc;
+        float operator()(const Coord& c)
+        {
+            if (s->indexSpace) return acc.getValue(c);
+            const Vec3d w = s->dom->transform()->indexToWorld(c);
+            const Vec3d ip = s->grid->transform().worldToIndex(w);
+            return openvdb::tools::BoxSampler::sample(acc, ip);
+        }
+    };
+    Fn make() const { return Fn{this, grid->getConstAccessor()}; }
+};
+
+} // namespace
+
+bool MapSource::isPng() const { return endsWith(path, ".png"); }
+
+std::string resolveScenePath(const std::string& path, const std::string& sceneLabel, const ParamOrigin* origin)
+{
+    namespace fs = std::filesystem;
+    const fs::path p(path);
+    if (p.is_absolute()) return path;
+    if (origin && origin->file == "--set") return path;
+    if (sceneLabel.empty() || sceneLabel[0] == '<') return path;
+    const fs::path dir = fs::path(sceneLabel).parent_path();
+    return dir.empty() ? path : (dir / p).string();
+}
+
+CrystalShape readCrystalShape(ParamDict& d, const Domain& dom, bool withValue)
+{
+    CrystalShape s;
+    const std::string kind = d.getString("shape", "point", {"point", "disc", "line", "edge"},
+        "point: disc of `radius` cells; disc: radius as a fraction of the domain; line: segment of `width` cells; "
+        "edge: band of `width` cells along domain edges (a box: balls, capsules and slabs)");
+    const std::vector<size_t> dims = dom.isPlane() ? std::vector<size_t>{2} : std::vector<size_t>{2, 3};
+    s.position = d.getFloatArray("position", {0.5, 0.5}, dims, 0.0, 1.0, "fraction",
+        "centre of a point or disc as fractions of the domain [x, y] (box: [x, y, z], z defaults to 0.5)");
+    s.radius = d.getFloat("radius", 3.0, 0.0, 1e6, "cells", "radius of a point");
+    const double rf = d.getFloat("radius_fraction", 0.1, 0.0, 1.0, "fraction",
+        "radius of a disc as a fraction of the domain's smaller side");
+    s.from = d.getFloatArray("from", {}, dims, 0.0, 1.0, "fraction", "start of a line as fractions of the domain");
+    s.to = d.getFloatArray("to", {}, dims, 0.0, 1.0, "fraction", "end of a line as fractions of the domain");
+    s.width = d.getFloat("width", 2.0, 0.0, 1e6, "cells",
+        "thickness of a line (cells within width/2 of it) or of an edge band (ceil(width) cells)");
+    const std::string edges = d.getString("edges", "all", {},
+        "edge shape: all, or a comma list of left, right, bottom, top (box also front = z min, back = z max)");
+    if (withValue)
+        s.value = float(d.getFloat("value", 0.0, 0.0, 1.0, "",
+            "melt value inside the shape: 0 suppresses growth, 1 fully promotes it"));
+
+    auto only = [&](const char* key, std::initializer_list<const char*> shapes) {
+        if (!d.has(key)) return;
+        for (const char* k : shapes)
+            if (kind == k) return;
+        std::string list;
+        for (const char* k : shapes) list += (list.empty() ? "" : " or ") + std::string("\"") + k + "\"";
+        d.fail(key, std::string("applies to shape = ") + list + " only (this entry is \"" + kind + "\")");
+    };
+    only("position", {"point", "disc"});
+    only("radius", {"point"});
+    only("radius_fraction", {"disc"});
+    only("from", {"line"});
+    only("to", {"line"});
+    only("width", {"line", "edge"});
+    only("edges", {"edge"});
+
+    const auto& bb = dom.bbox();
+    if (kind == "point") {
+        s.kind = CrystalShape::Kind::Point;
+    } else if (kind == "disc") {
+        s.kind = CrystalShape::Kind::Disc;
+        s.radius = rf * std::min(bb.dim().x(), bb.dim().y());
+    } else if (kind == "line") {
+        s.kind = CrystalShape::Kind::Line;
+        if (!d.has("from") || !d.has("to"))
+            d.fail(d.has("from") ? "to" : "from", "a line needs both `from` and `to`");
+    } else {
+        s.kind = CrystalShape::Kind::Edge;
+        s.edges = parseEdges(d, edges, dom.isPlane());
+        if (s.width < 1.0) d.fail("width", "an edge band is at least 1 cell wide");
+    }
+    return s;
+}
+
+void forEachShapeCell(const Domain& dom, const CrystalShape& s, const std::function<void(const Coord&)>& fn)
+{
+    const auto& bb = dom.bbox();
+    switch (s.kind) {
+    case CrystalShape::Kind::Point:
+    case CrystalShape::Kind::Disc: {
+        const Vec3d c = indexOf(dom, s.position);
+        const Vec3d g = geo(dom, c);
+        const double r2 = s.radius * s.radius;
+        const auto box = window(dom, c, c, s.radius);
+        for (auto it = box.begin(); it; ++it)
+            if ((geo(dom, (*it).asVec3d()) - g).lengthSqr() <= r2) fn(*it);
+        break;
+    }
+    case CrystalShape::Kind::Line: {
+        const Vec3d a = indexOf(dom, s.from), b = indexOf(dom, s.to);
+        const Vec3d ga = geo(dom, a), gb = geo(dom, b), ab = gb - ga;
+        const double len2 = ab.lengthSqr(), hw = 0.5 * s.width;
+        const auto box = window(dom, openvdb::math::minComponent(a, b), openvdb::math::maxComponent(a, b), hw);
+        for (auto it = box.begin(); it; ++it) {
+            const Vec3d q = geo(dom, (*it).asVec3d()) - ga;
+            const double t = len2 > 0 ? std::clamp(q.dot(ab) / len2, 0.0, 1.0) : 0.0;
+            if ((q - ab * t).lengthSqr() <= hw * hw) fn(*it);
+        }
+        break;
+    }
+    case CrystalShape::Kind::Edge: {
+        const int n = std::max(1, int(std::ceil(s.width - 1e-9)));
+        const Coord lo = bb.min(), hi = bb.max();
+        auto band = [&](unsigned bit, int axis, bool low) {
+            if (!(s.edges & bit)) return;
+            Coord a = lo, b = hi;
+            if (low) b[axis] = std::min(hi[axis], lo[axis] + n - 1);
+            else a[axis] = std::max(lo[axis], hi[axis] - n + 1);
+            const openvdb::CoordBBox box(a, b);
+            for (auto it = box.begin(); it; ++it) fn(*it);
+        };
+        band(CrystalShape::Left, 0, true);
+        band(CrystalShape::Right, 0, false);
+        band(CrystalShape::Bottom, 1, true);
+        band(CrystalShape::Top, 1, false);
+        band(CrystalShape::Front, 2, true);
+        band(CrystalShape::Back, 2, false);
+        break;
+    }
+    }
+}
+
+void stampShape(const Domain& dom, openvdb::FloatGrid& grid, const CrystalShape& s, float value)
+{
+    auto acc = grid.getAccessor();
+    forEachShapeCell(dom, s, [&](const Coord& c) { acc.setValue(c, value); });
+}
+
+void sampleMap(const Domain& dom, const MapSource& src, bool requireUnit,
+               const std::function<void(const Coord&, float)>& fn)
+{
+    namespace fs = std::filesystem;
+    if (!fs::exists(src.path)) mapFail(src, "cannot find '" + src.path + "'");
+    if (src.isPng()) {
+        int W = 0, H = 0;
+        std::vector<float> img;
+        try {
+            img = readPngGray(src.path, W, H);
+        } catch (const std::exception& e) {
+            mapFail(src, e.what());
+        }
+        double x0, x1, y0, y1;
+        domainWorldRect(dom, x0, x1, y0, y1);
+        const double aspect = (x1 - x0) / (y1 - y0);
+        if (!src.stretch && std::fabs(W - aspect * H) > std::max(1.5, 0.02 * W)) {
+            std::ostringstream os;
+            os.precision(4);
+            os << "'" << src.path << "' is " << W << "x" << H << " pixels, but the domain's aspect ratio is " << aspect
+               << " (e.g. " << dom.bbox().dim().x() << "x" << int(std::lround(dom.bbox().dim().x() / aspect))
+               << "); resize the image or set crystal.map_stretch = true";
+            mapFail(src, os.str());
+        }
+        PngSampler s{&dom, &img, W, H, x0, x1, y0, y1};
+        sampleDomain(dom, s, fn);
+        return;
+    }
+    if (!endsWith(src.path, ".vdb")) mapFail(src, "'" + src.path + "': expected a .png or .vdb file");
+    openvdb::GridBase::Ptr base;
+    std::string names;
+    try {
+        openvdb::io::File file(src.path);
+        file.open();
+        std::vector<std::string> floats;
+        for (auto it = file.beginName(); it != file.endName(); ++it) {
+            names += (names.empty() ? "" : ", ") + it.gridName();
+        }
+        if (src.grid.empty()) {
+            auto all = file.readAllGridMetadata();
+            for (auto& g : *all)
+                if (g->isType<openvdb::FloatGrid>()) floats.push_back(g->getName());
+            if (floats.size() != 1)
+                mapFail(src, "'" + src.path + "' holds " + std::to_string(floats.size()) +
+                                 " float grids (" + names + "): name one with the *_map_grid key");
+            base = file.readGrid(floats[0]);
+        } else {
+            if (!file.hasGrid(src.grid))
+                mapFail(src, "'" + src.path + "' has no grid '" + src.grid + "' (grids: " +
+                                 (names.empty() ? "none" : names) + ")");
+            base = file.readGrid(src.grid);
+        }
+        file.close();
+    } catch (const SceneError&) {
+        throw;
+    } catch (const std::exception& e) {
+        mapFail(src, "cannot read '" + src.path + "': " + e.what());
+    }
+    auto grid = openvdb::gridPtrCast<openvdb::FloatGrid>(base);
+    if (!grid) mapFail(src, "grid '" + base->getName() + "' in '" + src.path + "' is " + base->type() + ", expected a float grid");
+    const bool ls = grid->getGridClass() == openvdb::GRID_LEVEL_SET;
+    if (requireUnit && !ls) {
+        float mn = grid->background(), mx = grid->background();
+        if (grid->activeVoxelCount() > 0) {
+            float a, b;
+            grid->evalMinMax(a, b);
+            mn = std::min(mn, a);
+            mx = std::max(mx, b);
+        }
+        if (!(mn >= 0.f && mx <= 1.f)) {
+            std::ostringstream os;
+            os << "grid '" << grid->getName() << "' in '" << src.path << "' has values in [" << mn << ", " << mx
+               << "], expected [0, 1]";
+            mapFail(src, os.str());
+        }
+    }
+    VdbSampler s{&dom, grid.get(), src.indexSpace};
+    if (!ls) {
+        sampleDomain(dom, s, fn);
+        return;
+    }
+    sampleDomain(dom, s, [&](const Coord& c, float v) { fn(c, v <= 0.f ? 1.f : 0.f); }); // inside = 1
+}
+
+std::unique_ptr<Effect> CrystalEffect::create(ParamDict& d, const World& world)
+{
+    auto fx = std::make_unique<CrystalEffect>();
+    const Domain& dom = world.domain;
+    ParamDict seedSchema("crystal.seed"), meltSchema("crystal.melt");
+    readCrystalShape(seedSchema, dom, false);
+    readCrystalShape(meltSchema, dom, true);
+    for (auto& t : d.getTables("seed", "seed shapes (p = 1): [[crystal.seed]] tables, see seed[].*", seedSchema))
+        fx->mSeeds.push_back(readCrystalShape(t, dom, false));
+    for (auto& t : d.getTables("melt", "melt-map shapes: [[crystal.melt]] tables with a value, see melt[].*", meltSchema))
+        fx->mMelt.push_back(readCrystalShape(t, dom, true));
+
+    auto readMap = [&](const std::string& prefix, Map& m, const std::string& what) {
+        const std::string path = d.getString(prefix + "_map", "", {},
+            what + ": a greyscale PNG (8/16-bit, stretched over the domain, row 0 = +y; per column in a box) "
+                   "or a .vdb file; relative to the scene file");
+        const std::string grid = d.getString(prefix + "_map_grid", "", {},
+            "grid of a .vdb " + prefix + "_map (default: its only float grid)");
+        const std::string space = d.getString(prefix + "_map_space", "world", {"world", "index"},
+            "VDB " + prefix + " map: sample at world positions, or at our cell indices");
+        if (path.empty()) {
+            if (d.has(prefix + "_map_grid")) d.fail(prefix + "_map_grid", "needs " + prefix + "_map");
+            return;
+        }
+        m.has = true;
+        m.src.path = resolveScenePath(path, world.sceneLabel, d.origin(prefix + "_map"));
+        m.src.grid = grid;
+        m.src.indexSpace = space == "index";
+        m.src.key = "crystal." + prefix + "_map";
+        if (auto o = d.origin(prefix + "_map")) m.src.origin = *o;
+        if (!std::filesystem::exists(m.src.path))
+            d.fail(prefix + "_map", "cannot find '" + m.src.path + "'");
+        if (!endsWith(m.src.path, ".png") && !endsWith(m.src.path, ".vdb"))
+            d.fail(prefix + "_map", "'" + m.src.path + "': expected a .png or .vdb file");
+        if (m.src.isPng() && !grid.empty()) d.fail(prefix + "_map_grid", "applies to .vdb maps only");
+    };
+    readMap("seed", fx->mSeedMap, "seed crystal map: ice where the map >= seed_map_threshold (a VDB level set: inside)");
+    fx->mSeedThreshold = d.getFloat("seed_map_threshold", 0.5, 0.0, 1.0, "",
+                                    "seed map value from which a cell starts as ice");
+    readMap("melt", fx->mMeltMap, "melting temperature map in [0,1]: 1 promotes growth, 0 suppresses it");
+    fx->mMeltValue = d.getFloat("melt_value", 1.0, 0.0, 1.0, "",
+                                "melt value wherever no melt map or melt shape says otherwise");
+    const bool stretch = d.getBool("map_stretch", false,
+                                   "stretch PNG maps whose aspect ratio differs from the domain's instead of refusing them");
+    fx->mSeedMap.src.stretch = fx->mMeltMap.src.stretch = stretch;
+    return fx;
+}
+
+std::vector<std::string> CrystalEffect::fieldsWritten() const
+{
+    std::vector<std::string> f;
+    if (hasSeeds()) f.push_back(kPhase);
+    if (hasMelt()) f.push_back(kMelt);
+    return f;
+}
+
+void CrystalEffect::initialize(World& world)
+{
+    const Domain& dom = world.domain;
+    if (hasSeeds()) {
+        auto p = world.fields.require<openvdb::FloatGrid>(kPhase, 0.f);
+        auto acc = p->getAccessor();
+        if (mSeedMap.has)
+            sampleMap(dom, mSeedMap.src, true, [&](const Coord& c, float v) {
+                if (v >= float(mSeedThreshold)) acc.setValue(c, 1.f);
+            });
+        for (const auto& s : mSeeds) stampShape(dom, *p, s, 1.f);
+    }
+    if (hasMelt()) {
+        auto m = world.fields.require<openvdb::FloatGrid>(kMelt, 1.f);
+        if (mMeltValue != 1.0) m->tree().fill(dom.bbox(), float(mMeltValue), true);
+        if (mMeltMap.has) {
+            auto acc = m->getAccessor();
+            sampleMap(dom, mMeltMap.src, true, [&](const Coord& c, float v) {
+                if (v != 1.f || acc.getValue(c) != 1.f) acc.setValue(c, v);
+            });
+        }
+        for (const auto& s : mMelt) stampShape(dom, *m, s, s.value);
+        // Store only what differs from the background 1.
+        openvdb::tools::foreach(m->beginValueOn(), [](const openvdb::FloatGrid::ValueOnIter& it) {
+            if (*it == 1.f) it.setValueOff();
+        });
+        openvdb::tools::pruneInactive(m->tree());
+    }
+}
+
+} // namespace ice
+} // namespace frostvdb
