@@ -1,0 +1,141 @@
+#pragma once
+/// @file Fluid.h
+/// @brief Stam's "stable fluids" coupled to the ice (Kim, Henson & Lin 2004, sections 4.2-4.3):
+/// the crystal (p > 1/2) is a solid obstacle, the flow is advanced by semi-Lagrangian
+/// self-advection, optional implicit viscosity and a pressure projection, and the temperature
+/// T is then carried by the flow with no diffusion of its own (eq. 7 with kappa = 0; T is
+/// diffused by the phase field, eq. 2).
+///
+/// The flow lives on a dense staggered (MAC) square grid in the lattice plane with the lattice
+/// spacing h: for a square lattice it is the domain's own cells, for a hexagonal one the
+/// axis-aligned rectangle around the sheared domain. The flow reaches every cell, so this grid is
+/// not sparse (see docs/fluid.md). Plane domains only.
+///
+/// Units: lengths in the PDE's dimensionless units (one cell = h = [domain] spacing), time in
+/// the ice clock's units, so a velocity moves a point by u * dt / h cells per step. The field
+/// `vel` in World holds these dimensionless velocities at every domain cell; frames get `vel` in
+/// world metres per unit time (u * voxel_size / h).
+#include <frostvdb/core/Effect.h>
+
+#include <openvdb/openvdb.h>
+
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace frostvdb {
+namespace ice {
+
+enum class FluidEdge { Left = 0, Right = 1, Bottom = 2, Top = 3 };
+enum class InflowProfile { Uniform, Parabolic, RampQuadratic };
+enum class WallKind { Inflow, Outflow, Closed };
+
+struct FluidParams {
+    FluidEdge inflowEdge = FluidEdge::Left;
+    InflowProfile profile = InflowProfile::Uniform;
+    double inflowSpeed = 3.5;   ///< dimensionless (the paper's 3.5)
+    bool closedWalls = false;   ///< side walls (parallel to the inflow) closed instead of outflow
+    double viscosity = 0.0;     ///< kinematic viscosity nu (dimensionless), implicit
+    double tolerance = 1e-5;    ///< projection: max |div u| h / inflow_speed
+    int maxIterations = 2000;   ///< per linear solve
+    double solidThreshold = 0.5;///< p above this is an obstacle
+};
+
+/// Statistics of the last step, for tests and benchmarks.
+struct FluidStepStats {
+    int pressureIterations = 0;
+    double pressureResidual = 0; ///< max |div u| h after the projection (velocity units)
+    bool pressureConverged = true;
+    int viscosityIterations = 0;
+};
+
+/// The dense MAC-grid solver: nx x ny cells of size h, cell (i, j) centred at (i, j) in cell
+/// units; u on the x faces ((nx+1) x ny), v on the y faces (nx x (ny+1)).
+class StableFluid2D {
+public:
+    StableFluid2D(const FluidParams& params, int nx, int ny, double h);
+
+    int nx() const { return mNx; }
+    int ny() const { return mNy; }
+    const FluidParams& params() const { return mParams; }
+    WallKind wall(FluidEdge e) const { return mWalls[int(e)]; }
+
+    /// Obstacle cells (nx * ny, row-major, x fastest): nonzero = solid.
+    void setSolid(std::vector<uint8_t> solid);
+    const std::vector<uint8_t>& solid() const { return mSolid; }
+    /// The free stream: the inflow profile carried across the whole grid (divergence-free).
+    void setFreeStream();
+    /// One step: boundary conditions, self-advection, viscosity, projection.
+    void step(double dt);
+    /// Boundary conditions and obstacles, then the projection alone.
+    void project();
+
+    /// Velocity at plane position (x, y) in cell units (bilinear on the MAC grid, clamped to the
+    /// grid: zero-gradient outside).
+    openvdb::Vec2d sample(double x, double y) const;
+    /// Cell-centred discrete divergence (per unit time) of cell (i, j); 0 for solid cells.
+    double divergence(int i, int j) const;
+    double maxDivergence() const;
+    double& u(int i, int j) { return mU[size_t(j) * (mNx + 1) + i]; }
+    double& v(int i, int j) { return mV[size_t(j) * mNx + i]; }
+    double u(int i, int j) const { return mU[size_t(j) * (mNx + 1) + i]; }
+    double v(int i, int j) const { return mV[size_t(j) * mNx + i]; }
+    /// Inflow speed along the inflow edge at fraction s in [0,1] (left to right along top/bottom,
+    /// bottom to top along left/right).
+    double profile(double s) const;
+    const FluidStepStats& stats() const { return mStats; }
+    /// Seconds spent in advection, viscosity and projection since construction.
+    double advectSeconds = 0, viscositySeconds = 0, projectSeconds = 0;
+
+private:
+    bool uFixed(int i, int j, double& value) const;
+    bool vFixed(int i, int j, double& value) const;
+    void applyBoundaries();
+    void advect(double dt);
+    void diffuse(double dt);
+    bool isSolid(int i, int j) const { return mSolid[size_t(j) * mNx + i] != 0; }
+
+    FluidParams mParams;
+    int mNx, mNy;
+    double mH;
+    WallKind mWalls[4];
+    std::vector<double> mU, mV, mPhi;
+    std::vector<uint8_t> mSolid;
+    FluidStepStats mStats;
+};
+
+} // namespace ice
+
+/// Section [fluid]: the stable-fluid flow around the crystal and the advection of T.
+class FluidEffect : public Effect {
+public:
+    static std::unique_ptr<Effect> create(ParamDict& dict, const World& world);
+
+    std::string name() const override { return "fluid"; }
+    std::vector<std::string> fieldsWritten() const override { return {"vel", "T"}; }
+    int initializationOrder() const override { return 2; }
+    void initialize(World& world) override;
+    void step(World& world, const StepInfo& info) override;
+    void addToFrame(World& world, Frame& frame) override;
+    bool writePreview(World& world, const Frame& frame, const std::string& pngPath) override;
+    std::vector<std::pair<std::string, double>> timings() const override;
+
+    const ice::StableFluid2D& solver() const { return *mFluid; }
+    const ice::FluidParams& params() const { return mParams; }
+
+private:
+    void updateObstacles(World& world);
+    void writeVelocityField(World& world);
+    void advectTemperature(World& world, double dt);
+    /// Aux-grid (cell units) position of domain cell (i, j).
+    openvdb::Vec2d auxPosition(double i, double j) const;
+
+    ice::FluidParams mParams;
+    std::unique_ptr<ice::StableFluid2D> mFluid;
+    double mOffsetX = 0, mOffsetY = 0; ///< aux cell (0,0) sits at plane position (offset)
+    bool mHex = false;
+    double mObstacleSeconds = 0, mVelOutSeconds = 0, mAdvectTSeconds = 0;
+};
+
+} // namespace frostvdb

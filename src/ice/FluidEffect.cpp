@@ -1,0 +1,280 @@
+// Section [fluid]: obstacles from p, the stable-fluid step, `vel` for the walkers and the
+// semi-Lagrangian advection of T (no diffusion: eq. 7 with kappa = 0).
+#include <frostvdb/ice/Fluid.h>
+#include <frostvdb/core/ActiveRegion.h>
+#include <frostvdb/core/Error.h>
+#include <frostvdb/ice/IceState.h>
+#include <frostvdb/io/Png.h>
+
+#include <openvdb/tools/Interpolation.h>
+#include <openvdb/tools/Morphology.h>
+#include <openvdb/tools/ValueTransformer.h>
+#include <openvdb/tree/LeafManager.h>
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <sstream>
+
+namespace frostvdb {
+
+FROSTVDB_REGISTER_EFFECT(FluidEffect, "fluid",
+                         "Stam stable fluid around the crystal (ice paper 4.2-4.3): the ice is an obstacle, T is carried by the flow.");
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
+const double kSqrt3Over2 = std::sqrt(3.0) / 2.0;
+
+ice::FluidEdge parseEdge(const std::string& s)
+{
+    if (s == "right") return ice::FluidEdge::Right;
+    if (s == "bottom") return ice::FluidEdge::Bottom;
+    if (s == "top") return ice::FluidEdge::Top;
+    return ice::FluidEdge::Left;
+}
+
+} // namespace
+
+std::unique_ptr<Effect> FluidEffect::create(ParamDict& d, const World& world)
+{
+    auto fx = std::make_unique<FluidEffect>();
+    ice::FluidParams& f = fx->mParams;
+    f.inflowEdge = parseEdge(d.getString("inflow_edge", "left", {"left", "right", "top", "bottom"},
+        "the domain edge the flow enters through; the opposite edge is always an outflow"));
+    const std::string profile = d.getString("inflow_profile", "uniform", {"uniform", "parabolic", "ramp_quadratic"},
+        "inflow speed along the edge: uniform; parabolic (speed at the centre, 0 at the ends, the paper's "
+        "Figure 10); ramp_quadratic (0 at the start rising as s^2 to speed at the end, Figure 6; s runs left to "
+        "right along top/bottom, bottom to top along left/right)");
+    f.profile = profile == "parabolic" ? ice::InflowProfile::Parabolic
+              : profile == "ramp_quadratic" ? ice::InflowProfile::RampQuadratic
+              : ice::InflowProfile::Uniform;
+    f.inflowSpeed = d.getFloat("inflow_speed", 3.5, 0.0, 1000.0, "",
+        "peak inflow speed in PDE units (lengths in units where one cell = [domain] spacing, time in the ice clock); the paper uses 3.5");
+    f.closedWalls = d.getString("walls", "outflow", {"outflow", "closed"},
+        "the two edges beside the inflow: outflow (zero-gradient velocity, p = 0) or closed (free-slip solid walls, a channel)") == "closed";
+    f.viscosity = d.getFloat("viscosity", 0.0, 0.0, 100.0, "",
+        "kinematic viscosity nu (PDE units), solved implicitly; 0 = inviscid");
+    f.tolerance = d.getFloat("tolerance", 1e-5, 1e-12, 0.1, "",
+        "projection (and viscosity) solve tolerance: max |div u| h / inflow_speed after the projection");
+    f.maxIterations = int(d.getInt("max_iterations", 2000, 1, 1000000, "",
+        "conjugate-gradient iteration cap per linear solve (a solve that hits it is reported)"));
+    f.solidThreshold = d.getFloat("obstacle_threshold", 0.5, 0.0, 1.0, "",
+        "cells with p above this are solid obstacles (the paper: 0.5)");
+    if (!world.domain.isPlane())
+        throw SceneError(world.sceneLabel, 0, "fluid",
+                         "[fluid] runs on plane domains only (domain.kind = \"plane\"); box domains are not supported yet");
+    const auto& bb = world.domain.bbox();
+    if (bb.dim().x() < 4 || bb.dim().y() < 4)
+        throw SceneError(world.sceneLabel, 0, "fluid", "[fluid] needs a domain of at least 4 x 4 cells");
+    return fx;
+}
+
+openvdb::Vec2d FluidEffect::auxPosition(double i, double j) const
+{
+    if (!mHex) return {i, j};
+    return {i + 0.5 * j, j * kSqrt3Over2};
+}
+
+void FluidEffect::initialize(World& world)
+{
+    ice::requireIceFields(world);
+    const Domain& dom = world.domain;
+    mHex = dom.lattice().kind() == LatticeKind::Hexagonal;
+    const int nx = dom.bbox().dim().x(), ny = dom.bbox().dim().y();
+    int ax = nx, ay = ny;
+    if (mHex) { // the axis-aligned rectangle around the sheared domain, same spacing
+        ax = int(std::ceil(nx - 1 + 0.5 * (ny - 1) - 1e-9)) + 1;
+        ay = int(std::ceil((ny - 1) * kSqrt3Over2 - 1e-9)) + 1;
+    }
+    mFluid = std::make_unique<ice::StableFluid2D>(mParams, ax, ay, dom.lattice().spacing());
+    updateObstacles(world);
+    mFluid->setFreeStream();
+    mFluid->project();
+    writeVelocityField(world);
+}
+
+void FluidEffect::updateObstacles(World& world)
+{
+    const auto t0 = Clock::now();
+    auto p = world.fields.get<openvdb::FloatGrid>(ice::kPhase);
+    const int W = mFluid->nx(), H = mFluid->ny();
+    std::vector<uint8_t> solid(size_t(W) * H, 0);
+    if (p) {
+        const float thr = float(mParams.solidThreshold);
+        tbb::parallel_for(tbb::blocked_range<int>(0, H, 4), [&](const tbb::blocked_range<int>& r) {
+            auto acc = p->getConstAccessor();
+            for (int b = r.begin(); b != r.end(); ++b)
+                for (int a = 0; a < W; ++a) {
+                    float v;
+                    if (!mHex) {
+                        v = acc.getValue(openvdb::Coord(a, b, 0));
+                    } else {
+                        const double j = b / kSqrt3Over2, i = a - 0.5 * j;
+                        v = openvdb::tools::BoxSampler::sample(acc, openvdb::Vec3R(i, j, 0.0));
+                    }
+                    solid[size_t(b) * W + a] = v > thr ? 1 : 0;
+                }
+        });
+    }
+    mFluid->setSolid(std::move(solid));
+    mObstacleSeconds += since(t0);
+}
+
+void FluidEffect::writeVelocityField(World& world)
+{
+    const auto t0 = Clock::now();
+    auto vel = world.fields.require<openvdb::Vec3SGrid>(ice::kVelocity, openvdb::Vec3s(0.f));
+    vel->setVectorType(openvdb::VEC_CONTRAVARIANT_RELATIVE);
+    if (vel->activeVoxelCount() != world.domain.voxelCount()) {
+        vel->clear();
+        vel->denseFill(world.domain.bbox(), openvdb::Vec3s(0.f), true);
+    }
+    openvdb::tree::LeafManager<openvdb::Vec3STree> leaves(vel->tree());
+    tbb::parallel_for(leaves.leafRange(4), [&](const openvdb::tree::LeafManager<openvdb::Vec3STree>::LeafRange& r) {
+        for (auto leaf = r.begin(); leaf; ++leaf)
+            for (auto it = leaf->beginValueOn(); it; ++it) {
+                const openvdb::Coord c = it.getCoord();
+                const openvdb::Vec2d q = auxPosition(c.x(), c.y());
+                const openvdb::Vec2d u = mFluid->sample(q.x(), q.y());
+                it.setValue(openvdb::Vec3s(float(u.x()), float(u.y()), 0.f));
+            }
+    });
+    mVelOutSeconds += since(t0);
+}
+
+void FluidEffect::advectTemperature(World& world, double dt)
+{
+    const auto t0 = Clock::now();
+    auto T = world.fields.get<openvdb::FloatGrid>(ice::kTemperature);
+    if (!T) return;
+    const double h = world.domain.lattice().spacing();
+    // Max displacement in index cells (a hexagonal index step is at most 2/sqrt(3) plane cells).
+    double umax = 0;
+    for (int j = 0; j <= mFluid->ny(); ++j) // cheap: one pass over the faces
+        for (int i = 0; i <= mFluid->nx(); ++i) {
+            if (j < mFluid->ny()) umax = std::max(umax, std::fabs(mFluid->u(i, j)));
+            if (i < mFluid->nx()) umax = std::max(umax, std::fabs(mFluid->v(i, j)));
+        }
+    const int reach = int(std::ceil(umax * std::sqrt(2.0) * dt / h * (mHex ? 1.155 : 1.0))) + 1;
+
+    // Where the new T can differ from T_inf: the old T's stored voxels moved by the flow.
+    openvdb::MaskTree region(false);
+    region.topologyUnion(T->tree());
+    openvdb::tools::dilateActiveValues(region, reach, openvdb::tools::NN_FACE_EDGE, openvdb::tools::EXPAND_TILES);
+    region.clip(world.domain.bbox());
+
+    auto tNew = openvdb::FloatGrid::create(T->background());
+    tNew->setTransform(T->transformPtr());
+    tNew->tree().topologyUnion(region);
+    const double s = dt / h;
+    openvdb::tree::LeafManager<openvdb::FloatTree> leaves(tNew->tree());
+    tbb::parallel_for(leaves.leafRange(4), [&](const openvdb::tree::LeafManager<openvdb::FloatTree>::LeafRange& r) {
+        auto acc = T->getConstAccessor();
+        for (auto leaf = r.begin(); leaf; ++leaf)
+            for (auto it = leaf->beginValueOn(); it; ++it) {
+                const openvdb::Coord c = it.getCoord();
+                const openvdb::Vec2d q = auxPosition(c.x(), c.y());
+                const openvdb::Vec2d u = mFluid->sample(q.x(), q.y());
+                if (u.x() == 0.0 && u.y() == 0.0) { it.setValue(acc.getValue(c)); continue; }
+                const double x = q.x() - s * u.x(), y = q.y() - s * u.y();
+                double i = x, j = y;
+                if (mHex) { j = y / kSqrt3Over2; i = x - 0.5 * j; }
+                it.setValue(openvdb::tools::BoxSampler::sample(acc, openvdb::Vec3R(i, j, double(c.z()))));
+            }
+    });
+    if (!world.region.dense) truncateToTolerance(*tNew, world.region.tolerance);
+    world.fields.replace(ice::kTemperature, tNew);
+    mAdvectTSeconds += since(t0);
+}
+
+void FluidEffect::step(World& world, const StepInfo& info)
+{
+    const double dt = ice::shared(world).dt; // read every step: the phase field owns the clock
+    updateObstacles(world);
+    mFluid->step(dt);
+    const auto& st = mFluid->stats();
+    for (int j = 0; j < mFluid->ny(); ++j)
+        for (int i = 0; i <= mFluid->nx(); ++i)
+            if (!std::isfinite(mFluid->u(i, j))) {
+                std::ostringstream os;
+                os << "fluid velocity went non-finite at aux cell (" << i << ", " << j << ") in step " << info.step + 1
+                   << " (t = " << (info.step + 1) * dt << "); pressure solve " << st.pressureIterations
+                   << " iterations, residual " << st.pressureResidual << ". Nothing of this step was written.";
+                throw SimulationError(os.str());
+            }
+    writeVelocityField(world);
+    advectTemperature(world, dt);
+}
+
+void FluidEffect::addToFrame(World& world, Frame& frame)
+{
+    ice::addIceOutputs(world, frame);
+    auto vel = world.fields.get<openvdb::Vec3SGrid>(ice::kVelocity);
+    if (!vel) return;
+    // Frames carry world units: metres per unit of simulation time.
+    auto out = vel->deepCopy();
+    const float scale = float(world.domain.voxelSize() / world.domain.lattice().spacing());
+    openvdb::tools::foreach(out->beginValueOn(), [scale](const openvdb::Vec3SGrid::ValueOnIter& it) {
+        it.setValue(*it * scale);
+    });
+    out->setName("vel");
+    out->setVectorType(openvdb::VEC_CONTRAVARIANT_RELATIVE);
+    out->insertMeta("units", openvdb::StringMetadata("m per unit simulation time"));
+    frame.add(out);
+}
+
+bool FluidEffect::writePreview(World& world, const Frame& frame, const std::string& pngPath)
+{
+    // Top view of the flow: speed as a blue ramp, warm tint where T departs from T_inf, ice white.
+    auto p = world.fields.get<openvdb::FloatGrid>(ice::kPhase);
+    auto T = world.fields.get<openvdb::FloatGrid>(ice::kTemperature);
+    const int W = mFluid->nx(), H = mFluid->ny();
+    const int width = std::min(1024, std::max(512, W));
+    const double px = double(W - 1) / (width - 1);
+    const int height = std::max(1, int(std::round((H - 1) / px)) + 1);
+    ImageRGB img(width, height);
+    const double U = mParams.inflowSpeed > 0 ? mParams.inflowSpeed : 1.0;
+    const double tInf = ice::shared(world).farTemperature;
+    const double tSpan = std::max(1e-6, std::fabs(ice::shared(world).meltTemperature - tInf));
+    const auto& bb = world.domain.bbox();
+    tbb::parallel_for(tbb::blocked_range<int>(0, height, 8), [&](const tbb::blocked_range<int>& r) {
+        auto pa = p->getConstAccessor();
+        auto ta = T->getConstAccessor();
+        for (int y = r.begin(); y != r.end(); ++y)
+            for (int x = 0; x < width; ++x) {
+                const double qx = x * px, qy = (height - 1 - y) * px;
+                double i = qx, j = qy;
+                if (mHex) { j = qy / kSqrt3Over2; i = qx - 0.5 * j; }
+                if (i < bb.min().x() - 0.5 || i > bb.max().x() + 0.5 || j < bb.min().y() - 0.5 || j > bb.max().y() + 0.5) {
+                    img.set(x, y, 0, 0, 0);
+                    continue;
+                }
+                const openvdb::Vec3R ijk(i, j, 0.0);
+                const double speed = std::min(1.5, mFluid->sample(qx, qy).length() / U) / 1.5;
+                const double heat = std::min(1.0, std::fabs(openvdb::tools::BoxSampler::sample(ta, ijk) - tInf) / tSpan);
+                const double ice = std::min(1.0, std::max(0.0, double(openvdb::tools::BoxSampler::sample(pa, ijk))));
+                double cr = 0.05 + 0.15 * speed, cg = 0.10 + 0.45 * speed, cb = 0.25 + 0.65 * speed;
+                cr += (1.0 - cr) * heat * 0.9;
+                cg += (0.55 - cg) * heat * 0.9;
+                cb += (0.15 - cb) * heat * 0.9;
+                img.set(x, y, float(cr + (1 - cr) * ice), float(cg + (1 - cg) * ice), float(cb + (1 - cb) * ice));
+            }
+    });
+    writePngRGB(pngPath, img);
+    return true;
+}
+
+std::vector<std::pair<std::string, double>> FluidEffect::timings() const
+{
+    if (!mFluid) return {};
+    return {{"obstacles", mObstacleSeconds}, {"advect_u", mFluid->advectSeconds},
+            {"viscosity", mFluid->viscositySeconds}, {"project", mFluid->projectSeconds},
+            {"vel_out", mVelOutSeconds}, {"advect_T", mAdvectTSeconds}};
+}
+
+} // namespace frostvdb

@@ -1,0 +1,318 @@
+// [fluid]: the stable-fluid projection, obstacles, boundary conditions, symmetry, the advection
+// of T without diffusion, the upstream/downstream asymmetry of a dendrite in a flow (the ice
+// paper's Figure 4), thread-count determinism.
+#include "test_util.h"
+
+#include <frostvdb/core/Error.h>
+#include <frostvdb/ice/Fluid.h>
+#include <frostvdb/ice/IceState.h>
+
+#include <catch2/catch.hpp>
+
+#include <tbb/global_control.h>
+
+#include <cmath>
+#include <cstring>
+
+using namespace frostvdb;
+using namespace frostvdb::test;
+
+namespace {
+
+const double kH = 3.0 / 64.0;
+
+std::vector<uint8_t> discMask(int nx, int ny, double cx, double cy, double r)
+{
+    std::vector<uint8_t> m(size_t(nx) * ny, 0);
+    for (int j = 0; j < ny; ++j)
+        for (int i = 0; i < nx; ++i)
+            if ((i - cx) * (i - cx) + (j - cy) * (j - cy) <= r * r) m[size_t(j) * nx + i] = 1;
+    return m;
+}
+
+/// A bare world with an empty p (so no default crystal) and a [fluid] effect built from @a keys.
+struct FluidWorld {
+    World world;
+    std::unique_ptr<Effect> fx;
+    FluidWorld(int nx, int ny, const std::vector<std::pair<std::string, ParamValue>>& keys, bool emptyIce = true,
+               LatticeKind lattice = LatticeKind::Square)
+    {
+        world.domain = Domain(DomainKind::Plane, Lattice(lattice, kH), openvdb::Coord(nx, ny, 1), 1e-4);
+        world.fields = FieldSet(world.domain.transform());
+        if (emptyIce) world.fields.require<openvdb::FloatGrid>(ice::kPhase, 0.f);
+        ParamDict d("fluid");
+        for (auto& [k, v] : keys) d.set(k, v, {"test", 0});
+        fx = FluidEffect::create(d, world);
+        d.checkAllRead();
+    }
+    FluidEffect& fluid() { return static_cast<FluidEffect&>(*fx); }
+    void step(int n)
+    {
+        for (int s = 0; s < n; ++s) fx->step(world, StepInfo{s, 1});
+    }
+};
+
+/// Centroid of |T - T_inf| in index space.
+openvdb::Vec2d centroid(const openvdb::FloatGrid& T)
+{
+    double w = 0, x = 0, y = 0;
+    for (auto it = T.cbeginValueOn(); it; ++it) {
+        const double a = std::fabs(*it - T.background());
+        w += a;
+        x += a * it.getCoord().x();
+        y += a * it.getCoord().y();
+    }
+    return {x / w, y / w};
+}
+
+/// Farthest frozen cell from the domain centre along +x, -x, +y, -y (cells).
+struct Arms { double left = 0, right = 0, down = 0, up = 0; };
+Arms armLengths(const openvdb::FloatGrid& p, const Domain& dom)
+{
+    const auto c = dom.centre();
+    Arms a;
+    for (auto it = p.cbeginValueOn(); it; ++it) {
+        if (*it <= 0.5f) continue;
+        const double dx = it.getCoord().x() - c.x(), dy = it.getCoord().y() - c.y();
+        if (std::fabs(dy) <= 2) { a.right = std::max(a.right, dx); a.left = std::max(a.left, -dx); }
+        if (std::fabs(dx) <= 2) { a.up = std::max(a.up, dy); a.down = std::max(a.down, -dy); }
+    }
+    return a;
+}
+
+const char* kHybridScene = R"(
+[scene]
+name = "fluid_hybrid"
+frames = 1
+steps_per_frame = 700
+[domain]
+size = [80, 80]
+[phase_field]
+anisotropy_mode = 4
+delta = 0.05
+theta0 = 0.0
+[fluid]
+inflow_edge = "left"
+inflow_speed = 3.5
+)";
+
+} // namespace
+
+TEST_CASE("Fluid projection leaves the discrete divergence below the tolerance", "[fast][fluid]")
+{
+    for (auto edge : {ice::FluidEdge::Left, ice::FluidEdge::Top}) {
+        for (auto prof : {ice::InflowProfile::Uniform, ice::InflowProfile::Parabolic, ice::InflowProfile::RampQuadratic}) {
+            ice::FluidParams fp;
+            fp.inflowEdge = edge;
+            fp.profile = prof;
+            fp.tolerance = 1e-6;
+            ice::StableFluid2D f(fp, 64, 48, kH);
+            f.setSolid(discMask(64, 48, 25.3, 22.1, 6.5));
+            f.setFreeStream();
+            f.project();
+            CHECK(f.stats().pressureConverged);
+            CHECK(f.maxDivergence() * kH / fp.inflowSpeed <= 1e-6);
+            for (int s = 0; s < 10; ++s) f.step(0.002);
+            CHECK(f.stats().pressureConverged);
+            CHECK(f.maxDivergence() * kH / fp.inflowSpeed <= 1e-6);
+        }
+    }
+}
+
+TEST_CASE("Fluid velocity is zero inside obstacles and the vel field says so", "[fast][fluid]")
+{
+    FluidWorld fw(48, 40, {{"inflow_speed", 3.5}, {"viscosity", 0.05}}, false); // default crystal disc
+    fw.fx->initialize(fw.world);
+    fw.step(5);
+    const auto& f = fw.fluid().solver();
+    int solidCells = 0;
+    for (int j = 0; j < f.ny(); ++j)
+        for (int i = 0; i < f.nx(); ++i) {
+            if (!f.solid()[size_t(j) * f.nx() + i]) continue;
+            ++solidCells;
+            CHECK(f.u(i, j) == 0.0);
+            CHECK(f.u(i + 1, j) == 0.0);
+            CHECK(f.v(i, j) == 0.0);
+            CHECK(f.v(i, j + 1) == 0.0);
+        }
+    CHECK(solidCells > 10);
+    auto p = fw.world.fields.get<openvdb::FloatGrid>(ice::kPhase);
+    auto vel = fw.world.fields.get<openvdb::Vec3SGrid>(ice::kVelocity);
+    REQUIRE(vel);
+    CHECK(vel->activeVoxelCount() == fw.world.domain.voxelCount());
+    auto va = vel->getConstAccessor();
+    double maxFree = 0;
+    for (auto it = vel->cbeginValueOn(); it; ++it) {
+        if (p->tree().getValue(it.getCoord()) > 0.5f) CHECK(it->length() == 0.f);
+        else maxFree = std::max(maxFree, double(it->length()));
+    }
+    CHECK(maxFree > 3.0); // flow speeds up around the obstacle
+}
+
+TEST_CASE("Uniform inflow with no obstacle stays uniform on every edge", "[fast][fluid]")
+{
+    for (const char* edge : {"left", "right", "top", "bottom"}) {
+        for (const char* walls : {"outflow", "closed"}) {
+            FluidWorld fw(40, 32, {{"inflow_edge", std::string(edge)}, {"walls", std::string(walls)}, {"viscosity", 0.1}});
+            fw.fx->initialize(fw.world);
+            fw.step(10);
+            const bool horizontal = std::string(edge) == "left" || std::string(edge) == "right";
+            const double sign = (std::string(edge) == "left" || std::string(edge) == "bottom") ? 1.0 : -1.0;
+            auto vel = fw.world.fields.get<openvdb::Vec3SGrid>(ice::kVelocity);
+            double err = 0;
+            for (auto it = vel->cbeginValueOn(); it; ++it) {
+                const openvdb::Vec3d want = horizontal ? openvdb::Vec3d(sign * 3.5, 0, 0) : openvdb::Vec3d(0, sign * 3.5, 0);
+                err = std::max(err, (openvdb::Vec3d(*it) - want).length());
+            }
+            INFO(edge << " " << walls);
+            CHECK(err < 1e-5);
+        }
+    }
+}
+
+TEST_CASE("A symmetric obstacle in a symmetric flow gives a mirror-symmetric velocity", "[fast][fluid]")
+{
+    for (auto prof : {ice::InflowProfile::Uniform, ice::InflowProfile::Parabolic}) {
+        ice::FluidParams fp;
+        fp.profile = prof;
+        fp.tolerance = 1e-9;
+        fp.viscosity = 0.02;
+        const int nx = 64, ny = 41;
+        ice::StableFluid2D f(fp, nx, ny, kH);
+        f.setSolid(discMask(nx, ny, 20.0, 20.0, 5.2)); // centred on the mirror line j = 20
+        f.setFreeStream();
+        f.project();
+        for (int s = 0; s < 30; ++s) f.step(0.004);
+        double err = 0, vmax = 0;
+        for (int j = 0; j < ny; ++j)
+            for (int i = 0; i <= nx; ++i) err = std::max(err, std::fabs(f.u(i, j) - f.u(i, ny - 1 - j)));
+        for (int j = 0; j <= ny; ++j)
+            for (int i = 0; i < nx; ++i) {
+                err = std::max(err, std::fabs(f.v(i, j) + f.v(i, ny - j)));
+                vmax = std::max(vmax, std::fabs(f.v(i, j)));
+            }
+        CHECK(vmax > 0.5); // the obstacle really deflects the flow
+        CHECK(err < 1e-5);
+    }
+}
+
+TEST_CASE("T is carried without diffusion: unchanged at u = 0, shifted by u dt steps in a uniform flow", "[fast][fluid]")
+{
+    auto stampBlob = [](World& w, double cx, double cy) {
+        auto T = w.fields.get<openvdb::FloatGrid>(ice::kTemperature);
+        for (int j = 0; j < 32; ++j)
+            for (int i = 0; i < 64; ++i) {
+                const double r2 = (i - cx) * (i - cx) + (j - cy) * (j - cy);
+                if (r2 < 64) T->tree().setValue(openvdb::Coord(i, j, 0), float(0.8 * std::exp(-r2 / 6.0)));
+            }
+    };
+    SECTION("u = 0")
+    {
+        FluidWorld fw(64, 32, {{"inflow_speed", 0.0}});
+        fw.fx->initialize(fw.world);
+        stampBlob(fw.world, 30.3, 15.7);
+        auto before = fw.world.fields.get<openvdb::FloatGrid>(ice::kTemperature)->deepCopy();
+        fw.step(20);
+        auto after = fw.world.fields.get<openvdb::FloatGrid>(ice::kTemperature);
+        CHECK(maxAbsDiff(*before, *after) == 0.0);
+    }
+    SECTION("uniform u")
+    {
+        FluidWorld fw(64, 32, {{"inflow_speed", 3.5}});
+        fw.fx->initialize(fw.world);
+        ice::shared(fw.world).dt = 0.002; // read at step time, after creation
+        stampBlob(fw.world, 20.0, 15.5);
+        auto T = fw.world.fields.get<openvdb::FloatGrid>(ice::kTemperature);
+        const auto c0 = centroid(*T);
+        const int steps = 20;
+        fw.step(steps);
+        T = fw.world.fields.get<openvdb::FloatGrid>(ice::kTemperature);
+        const auto c1 = centroid(*T);
+        const double expected = 3.5 * 0.002 * steps / kH; // cells
+        CHECK(std::fabs((c1.x() - c0.x()) - expected) < 0.1);
+        CHECK(std::fabs(c1.y() - c0.y()) < 1e-3);
+        CHECK(expected > 2.5);
+    }
+}
+
+TEST_CASE("Hexagonal lattice: the fluid runs on the square auxiliary grid and vel is uniform", "[fast][fluid]")
+{
+    FluidWorld fw(40, 40, {{"inflow_edge", std::string("bottom")}}, true, LatticeKind::Hexagonal);
+    fw.fx->initialize(fw.world);
+    fw.step(5);
+    CHECK(fw.fluid().solver().nx() == 40 + 20);
+    CHECK(fw.fluid().solver().ny() == 35);
+    auto vel = fw.world.fields.get<openvdb::Vec3SGrid>(ice::kVelocity);
+    double err = 0;
+    for (auto it = vel->cbeginValueOn(); it; ++it) err = std::max(err, (openvdb::Vec3d(*it) - openvdb::Vec3d(0, 3.5, 0)).length());
+    CHECK(err < 1e-5);
+}
+
+TEST_CASE("Fluid refuses box domains with a scene error", "[fast][fluid]")
+{
+    const char* scene = R"(
+[domain]
+kind = "box"
+size = [16, 16, 16]
+[fluid]
+)";
+    CHECK_THROWS_AS(makeSim(scene), SceneError);
+    try { makeSim(scene); } catch (const SceneError& e) { CHECK(std::string(e.what()).find("plane") != std::string::npos); }
+}
+
+TEST_CASE("A dendrite in a flow grows faster upstream than downstream (ice paper Figure 4)", "[fast][fluid]")
+{
+    auto run = [](const std::string& speed) {
+        auto sim = makeSim(kHybridScene, {"fluid.inflow_speed=" + speed});
+        sim.initialize();
+        for (int s = 0; s < 700; ++s) sim.step();
+        auto p = sim.world().fields.get<openvdb::FloatGrid>(ice::kPhase);
+        auto T = sim.world().fields.get<openvdb::FloatGrid>(ice::kTemperature);
+        for (auto it = T->cbeginValueOn(); it; ++it) REQUIRE(std::isfinite(*it));
+        return armLengths(*p, sim.world().domain);
+    };
+    const Arms still = run("0");
+    const Arms flow = run("3.5");
+    INFO("still: left " << still.left << " right " << still.right << " up " << still.up << " down " << still.down);
+    INFO("flow:  left " << flow.left << " right " << flow.right << " up " << flow.up << " down " << flow.down);
+    CHECK(std::fabs(still.left - still.right) <= 1.0);
+    CHECK(flow.left > flow.right + 1.0); // upstream arm longer than the downstream one
+    CHECK(flow.left > still.left);       // and longer than without flow
+}
+
+TEST_CASE("Fluid hybrid runs are bit-identical with 1 and 2 threads and finite", "[fast][fluid][determinism]")
+{
+    auto run = [](int threads) {
+        tbb::global_control gc(tbb::global_control::max_allowed_parallelism, threads);
+        auto sim = makeSim(kHybridScene, {"domain.size=[48, 40]", "fluid.viscosity=0.05", "fluid.inflow_profile=\"parabolic\""});
+        sim.initialize();
+        for (int s = 0; s < 60; ++s) sim.step();
+        auto& w = sim.world();
+        return std::make_tuple(w.fields.get<openvdb::FloatGrid>(ice::kTemperature)->deepCopy(),
+                               w.fields.get<openvdb::FloatGrid>(ice::kPhase)->deepCopy(),
+                               w.fields.get<openvdb::Vec3SGrid>(ice::kVelocity)->deepCopy());
+    };
+    auto [t1, p1, v1] = run(1);
+    auto [t2, p2, v2] = run(2);
+    CHECK(maxAbsDiff(*t1, *t2) == 0.0);
+    CHECK(maxAbsDiff(*p1, *p2) == 0.0);
+    CHECK(t1->tree().hasSameTopology(t2->tree()));
+    auto a2 = v2->getConstAccessor();
+    bool same = true, finite = true;
+    for (auto it = v1->cbeginValueOn(); it; ++it) {
+        same = same && std::memcmp(&*it, &a2.getValue(it.getCoord()), sizeof(openvdb::Vec3s)) == 0;
+        finite = finite && std::isfinite((*it)[0]) && std::isfinite((*it)[1]);
+    }
+    CHECK(same);
+    CHECK(finite);
+    for (auto it = t1->cbeginValueOn(); it; ++it) REQUIRE(std::isfinite(*it));
+}
+
+TEST_CASE("The fluid scene files load", "[fast][fluid]")
+{
+    for (const char* f : {"scenes/fluid_dendrite_flow.toml"}) {
+        INFO(f);
+        Scene scene = Scene::fromString(readFile(std::string(FROSTVDB_SOURCE_DIR) + "/" + f), f);
+        CHECK_NOTHROW(Simulation(std::move(scene)));
+    }
+}
