@@ -61,6 +61,8 @@ Stencil Lattice::stencil(bool withZ) const
         }
     }
     s.radius = 1;
+    s.spacing = h;
+    s.hexagonal = mKind == LatticeKind::Hexagonal;
     return s;
 }
 

@@ -17,8 +17,30 @@ std::unique_ptr<Effect> PhaseFieldEffect::create(ParamDict& d, const World& worl
 {
     auto fx = std::make_unique<PhaseFieldEffect>();
     KobayashiParams& k = fx->mParams;
-    d.getString("scheme", "euler", {"euler"}, "time integration: euler (forward Euler, eqs. 1-5)");
-    k.dt = d.getFloat("dt", 0.0002, 1e-8, 0.1, "", "time step (dimensionless; the paper's Euler step is 0.0002)");
+    const std::string scheme =
+        d.getString("scheme", "euler", {"euler", "lw_cn"},
+                    "time integration: euler (full eqs. 1-5, forward Euler) or lw_cn (simplified eq. 8: "
+                    "Lax-Wendroff advection, Crank-Nicolson diffusion, implicit solve; the paper's section 5)");
+    k.scheme = scheme == "euler" ? PhaseFieldScheme::Euler : PhaseFieldScheme::SecondOrder;
+    const bool euler = k.scheme == PhaseFieldScheme::Euler;
+    k.dt = d.getFloat("dt", euler ? 0.0002 : 0.0008, 1e-8, 0.1, "",
+                      "time step (dimensionless; the paper uses 0.0002 for euler and 0.0008 for lw_cn, the defaults)");
+    const std::string precision = d.getString(
+        "precision", "wp", {"wp", "rp", "custom"},
+        "lw_cn: solve the implicit systems to working precision (residual 1e-8), reduced precision (5e-3, the "
+        "paper's RP) or solver_tolerance");
+    const double customTol = d.getFloat("solver_tolerance", 1e-6, 1e-14, 1.0, "",
+                                        "lw_cn with precision = custom: max-norm residual of the implicit solves");
+    k.solverTolerance = precision == "wp" ? 1e-8 : precision == "rp" ? 5e-3 : customTol;
+    k.solverMaxIterations = int(d.getInt("max_iterations", 500, 1, 100000, "",
+                                         "lw_cn: iteration cap of the implicit solves (a run reports unconverged solves)"));
+    k.useBiCGSTAB = d.getString("solver", "gauss_seidel", {"gauss_seidel", "bicgstab"},
+                                "lw_cn: multi-colour Gauss-Seidel (red-black; 3 colours on hexagonal) or Eigen "
+                                "BiCGSTAB on the same system") == "bicgstab";
+    const std::string substeps =
+        d.getString("substeps", "none", {"none", "auto"},
+                    "none: a dt above the stability limit is refused; auto: each step is split into equal "
+                    "substeps below the limit");
     k.tau = d.getFloat("tau", 0.0003, 1e-6, 10.0, "", "relaxation time tau");
     k.epsBar = d.getFloat("epsilon", 0.01, 1e-5, 1.0, "", "mean interface width eps_bar");
     k.delta = d.getFloat("delta", 0.1, 0.0, 0.5, "", "strength of anisotropy (critical value 1/(j^2-1))");
@@ -32,12 +54,19 @@ std::unique_ptr<Effect> PhaseFieldEffect::create(ParamDict& d, const World& worl
     k.farTemperature = d.getFloat("far_temperature", 0.0, -10.0, 10.0, "",
                                   "initial and far-field temperature T_inf (undercooling is T_e - T_inf)");
     k.noise = d.getFloat("noise", 0.0, 0.0, 0.1, "", "amplitude a of Kobayashi's interface noise (0: none)");
-    const double limit = k.explicitStabilityLimit(world.domain.stencil());
+    const double limit = k.stabilityLimit(world.domain.stencil(), !world.domain.isPlane());
+    fx->mStabilityLimit = limit;
+    fx->mSubsteps = 1;
     if (k.dt > limit) {
-        std::ostringstream os;
-        os << k.dt << " exceeds the explicit (forward Euler) stability limit " << limit
-           << " for this lattice spacing (" << world.domain.lattice().spacing() << ") and epsilon/delta/tau";
-        d.fail("dt", os.str());
+        if (substeps == "auto") {
+            fx->mSubsteps = int(std::ceil(k.dt / limit * (1.0 + 1e-9)));
+        } else {
+            std::ostringstream os;
+            os << k.dt << " exceeds the " << (euler ? "explicit (forward Euler)" : "Lax-Wendroff advection")
+               << " stability limit " << limit << " for this lattice spacing (" << world.domain.lattice().spacing()
+               << ") and epsilon/delta/tau; lower dt or set substeps = \"auto\"";
+            d.fail("dt", os.str());
+        }
     }
     return fx;
 }
@@ -52,19 +81,27 @@ void PhaseFieldEffect::initialize(World& world)
     shared.meltTemperature = mParams.meltTemperature;
     shared.temperatureEvolves = true;
     ice::requireIceFields(world);
-    mSolver = std::make_unique<PhaseFieldSolver>(mParams, world.domain, world.region);
+    KobayashiParams solverParams = mParams;
+    solverParams.dt = mParams.dt / mSubsteps;
+    mSolver = std::make_unique<PhaseFieldSolver>(solverParams, world.domain, world.region);
     mTime = 0.0;
 }
 
 void PhaseFieldEffect::step(World& world, const StepInfo& info)
 {
-    auto p = world.fields.get<openvdb::FloatGrid>("p");
-    auto T = world.fields.get<openvdb::FloatGrid>("T");
-    auto growth = world.fields.get<openvdb::FloatGrid>("growth_acc");
-    auto freeze = world.fields.get<openvdb::FloatGrid>("freeze_time");
-    mSolver->step(p, T, growth.get(), freeze.get(), info.step, mTime, world.seed, &mStats);
-    world.fields.replace("p", p);
-    world.fields.replace("T", T);
+    auto p = world.fields.get<openvdb::FloatGrid>(ice::kPhase);
+    auto T = world.fields.get<openvdb::FloatGrid>(ice::kTemperature);
+    auto growth = world.fields.get<openvdb::FloatGrid>(ice::kGrowth);
+    auto freeze = world.fields.get<openvdb::FloatGrid>(ice::kFreezeTime);
+    mSolver->setMeltMap(world.fields.get<openvdb::FloatGrid>(ice::kMelt).get());
+    const double subDt = mParams.dt / mSubsteps;
+    for (int s = 0; s < mSubsteps; ++s) {
+        // Substeps key the noise by their own index so that each draws fresh values.
+        const int64_t index = info.step * mSubsteps + s;
+        mSolver->step(p, T, growth.get(), freeze.get(), index, mTime + s * subDt, world.seed, &mStats);
+    }
+    world.fields.replace(ice::kPhase, p);
+    world.fields.replace(ice::kTemperature, T);
     mTime += mParams.dt;
 }
 
@@ -72,7 +109,18 @@ void PhaseFieldEffect::addToFrame(World& world, Frame& frame) { ice::addIceOutpu
 
 std::vector<std::pair<std::string, double>> PhaseFieldEffect::timings() const
 {
-    return {{"region", mStats.regionSeconds}, {"kernel", mStats.kernelSeconds}, {"truncate", mStats.truncateSeconds}};
+    std::vector<std::pair<std::string, double>> t{
+        {"region", mStats.regionSeconds}, {"kernel", mStats.kernelSeconds}, {"truncate", mStats.truncateSeconds}};
+    if (mParams.scheme == PhaseFieldScheme::SecondOrder) {
+        t.push_back({"solve", mStats.solveSeconds});
+        const double n = std::max<int64_t>(1, mStats.solves);
+        t.push_back({"mean_iterations_p", mStats.solverIterationsP / n});
+        t.push_back({"mean_iterations_T", mStats.solverIterationsT / n});
+        t.push_back({"unconverged_solves", double(mStats.unconverged)});
+    }
+    t.push_back({"substeps", double(mSubsteps)});
+    t.push_back({"stability_limit_dt", mStabilityLimit});
+    return t;
 }
 
 } // namespace frostvdb

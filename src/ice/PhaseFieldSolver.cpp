@@ -1,6 +1,7 @@
 #include <frostvdb/ice/PhaseFieldSolver.h>
 #include <frostvdb/core/Error.h>
 #include <frostvdb/core/Random.h>
+#include <frostvdb/ice/ImplicitSystem.h>
 
 #include <openvdb/tools/Prune.h>
 #include <openvdb/tree/LeafManager.h>
@@ -9,6 +10,7 @@
 #include <tbb/parallel_for.h>
 
 #include <chrono>
+#include <memory>
 #include <cmath>
 #include <mutex>
 #include <sstream>
@@ -29,11 +31,12 @@ struct Block {
     int bx, by, bz;
     bool plane;
     std::vector<float> p, T, a, cx, cy, gx, gy, gz;
+    std::vector<float> melt, pe, te; ///< melt map; midpoint estimates (second-order scheme)
     explicit Block(bool isPlane)
         : bx(kDim + 2 * kHalo), by(kDim + 2 * kHalo), bz(isPlane ? 1 : kDim + 2 * kHalo), plane(isPlane)
     {
         const size_t n = size_t(bx) * by * bz;
-        for (auto* v : {&p, &T, &a, &cx, &cy, &gx, &gy, &gz}) v->assign(n, 0.f);
+        for (auto* v : {&p, &T, &a, &cx, &cy, &gx, &gy, &gz, &melt, &pe, &te}) v->assign(n, 0.f);
     }
     size_t index(int x, int y, int z) const { return (size_t(z) * by + y) * bx + x; }
     openvdb::Coord origin(const openvdb::Coord& leafOrigin) const
@@ -77,19 +80,27 @@ void gather(const openvdb::FloatGrid::ConstAccessor& acc, const Block& b, const 
             }
 }
 
-/// Pass 1 over the block's cells that have a full ring of neighbours.
-void auxPass(Block& b, const FlatStencil& st, const Anisotropy& an)
+/// Pass 1 over the block's cells that have a full ring of neighbours, on @a phase.
+void auxPass(Block& b, const std::vector<float>& phase, const FlatStencil& st, const Anisotropy& an)
 {
     const int zs = b.plane ? 0 : 1, ze = b.plane ? 1 : b.bz - 1;
     for (int z = zs; z < ze; ++z)
         for (int y = 1; y < b.by - 1; ++y)
             for (int x = 1; x < b.bx - 1; ++x)
-                kobayashiAux(b.p.data(), b.index(x, y, z), st, an, b.a.data(), b.cx.data(), b.cy.data(),
+                kobayashiAux(phase.data(), b.index(x, y, z), st, an, b.a.data(), b.cx.data(), b.cy.data(),
                              b.gx.data(), b.gy.data(), b.gz.data());
 }
 
+/// Local T_e from the melt map (1 where there is none).
+inline double meltTemperatureAt(const KobayashiParams& k, const Block& b, size_t i, bool haveMelt)
+{
+    return haveMelt ? k.localMeltTemperature(b.melt[i]) : k.meltTemperature;
+}
+
+} // namespace
+
 /// The first bad voxel found (smallest coordinate, so the report does not depend on threads).
-struct Failure {
+struct PhaseFieldSolver::Failure {
     std::mutex mutex;
     bool any = false;
     openvdb::Coord where;
@@ -102,6 +113,9 @@ struct Failure {
     }
 };
 
+namespace {
+using Failure = PhaseFieldSolver::Failure;
+
 /// The kernel over every leaf of the new grids (whose topology is the region): gather, pass 1,
 /// pass 2. Accumulator leaves and the failure report are optional (benchmarks pass none).
 struct LeafKernel {
@@ -109,6 +123,7 @@ struct LeafKernel {
     const Domain& domain;
     const openvdb::FloatGrid& p;
     const openvdb::FloatGrid& T;
+    const openvdb::FloatGrid* melt = nullptr;
     int64_t stepIndex = 0;
     double tNext = 0;
     uint64_t seed = 0;
@@ -127,13 +142,16 @@ struct LeafKernel {
             Block b(plane);
             auto pAcc = p.getConstAccessor();
             auto tAcc = T.getConstAccessor();
+            std::unique_ptr<openvdb::FloatGrid::ConstAccessor> mAcc;
+            if (melt) mAcc = std::make_unique<openvdb::FloatGrid::ConstAccessor>(melt->getConstAccessor());
             for (size_t li = r.begin(); li != r.end(); ++li) {
                 FloatLeaf& pl = pLeaves.leaf(li);
                 FloatLeaf& tl = tLeaves.leaf(li);
                 const openvdb::Coord origin = pl.origin();
                 gather(pAcc, b, origin, b.p);
                 gather(tAcc, b, origin, b.T);
-                auxPass(b, st, an);
+                if (mAcc) gather(*mAcc, b, origin, b.melt);
+                auxPass(b, b.p, st, an);
                 FloatLeaf* gl = growthLeaves ? (*growthLeaves)[li] : nullptr;
                 FloatLeaf* fl = freezeLeaves ? (*freezeLeaves)[li] : nullptr;
                 for (auto it = pl.cbeginValueOn(); it; ++it) {
@@ -146,7 +164,8 @@ struct LeafKernel {
                         chi = toUnit(hashCounters(seed, uint64_t(stepIndex), coordKey(c.x(), c.y(), c.z()))) - 0.5;
                     float pn, tn;
                     const double dp = kobayashiEuler(b.p.data(), b.T.data(), b.a.data(), b.cx.data(), b.cy.data(),
-                                                     b.gx.data(), b.gy.data(), b.gz.data(), i, st, k, chi, pn, tn);
+                                                     b.gx.data(), b.gy.data(), b.gz.data(), i, st, k,
+                                                     meltTemperatureAt(k, b, i, melt != nullptr), chi, pn, tn);
                     if (failure) {
                         if (!std::isfinite(pn) || pn < -0.05f || pn > 1.05f) failure->report(c, "p (ice)", pn);
                         if (!std::isfinite(tn)) failure->report(c, "T (temperature)", tn);
@@ -201,14 +220,18 @@ void PhaseFieldSolver::step(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::Ptr&
     const KobayashiParams& k = mParams;
     const double tNext = time + k.dt;
     Failure failure;
-    LeafKernel kernel{k, mDomain, *p, *T, stepIndex, tNext, seed, &gLeaves, &fLeaves, &failure};
-    kernel.run(pLeaves, tLeaves);
+    if (k.scheme == PhaseFieldScheme::Euler) {
+        LeafKernel kernel{k, mDomain, *p, *T, mMelt, stepIndex, tNext, seed, &gLeaves, &fLeaves, &failure};
+        kernel.run(pLeaves, tLeaves);
+    } else {
+        stepSecondOrder(*p, *T, pLeaves, tLeaves, gLeaves, fLeaves, stepIndex, tNext, seed, failure, stats);
+    }
     if (stats) stats->kernelSeconds += since(t0);
     if (failure.any) {
         std::ostringstream os;
         os << "phase field left its bounds: " << failure.field << " = " << failure.value << " at voxel "
            << failure.where << " in step " << stepIndex + 1 << " (t = " << tNext << "); dt = " << k.dt
-           << ", explicit limit " << k.explicitStabilityLimit(mDomain.stencil())
+           << ", stability limit " << k.stabilityLimit(mDomain.stencil(), !mDomain.isPlane())
            << ". Lower phase_field.dt or the anisotropy/latent heat; nothing of this step was written.";
         throw SimulationError(os.str());
     }
@@ -225,6 +248,135 @@ void PhaseFieldSolver::step(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::Ptr&
     T = tNew;
 }
 
+void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvdb::FloatGrid& T,
+                                       openvdb::tree::LeafManager<openvdb::FloatTree>& pLeaves,
+                                       openvdb::tree::LeafManager<openvdb::FloatTree>& tLeaves,
+                                       const std::vector<FloatLeaf*>& gLeaves, const std::vector<FloatLeaf*>& fLeaves,
+                                       int64_t stepIndex, double tNext, uint64_t seed, Failure& failure,
+                                       PhaseFieldStepStats* stats)
+{
+    const KobayashiParams& k = mParams;
+    const bool plane = mDomain.isPlane();
+    const Stencil stencil = mDomain.stencil();
+    const SlotLayout layout(pLeaves, stencil, plane);
+    ImplicitSystem ps(layout), ts(layout);
+    ps.outside = p.background();
+    ts.outside = T.background();
+    std::vector<double> p0(ps.x.size(), 0.0), T0(ps.x.size(), 0.0);
+    const double halfDt = 0.5 * k.dt;
+    const double tScale = halfDt, tDiag = 1.0 + halfDt * -stencil.wLapCentre;
+    const openvdb::FloatGrid* dP = mLastDp.get();
+    const openvdb::FloatGrid* dT = mLastDt.get();
+
+    // Explicit parts, per leaf on the padded block.
+    {
+        const Block proto(plane);
+        const FlatStencil st(stencil, proto.bx, std::ptrdiff_t(proto.bx) * proto.by);
+        const Anisotropy an(k);
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, pLeaves.leafCount(), 8), [&](const tbb::blocked_range<size_t>& r) {
+            Block b(plane);
+            std::vector<float> incP(b.p.size(), 0.f), incT(b.p.size(), 0.f);
+            auto pAcc = p.getConstAccessor();
+            auto tAcc = T.getConstAccessor();
+            std::unique_ptr<openvdb::FloatGrid::ConstAccessor> mAcc, dpAcc, dtAcc;
+            if (mMelt) mAcc = std::make_unique<openvdb::FloatGrid::ConstAccessor>(mMelt->getConstAccessor());
+            if (dP) dpAcc = std::make_unique<openvdb::FloatGrid::ConstAccessor>(dP->getConstAccessor());
+            if (dT) dtAcc = std::make_unique<openvdb::FloatGrid::ConstAccessor>(dT->getConstAccessor());
+            for (size_t li = r.begin(); li != r.end(); ++li) {
+                const FloatLeaf& pl = pLeaves.leaf(li);
+                const openvdb::Coord origin = pl.origin();
+                gather(pAcc, b, origin, b.p);
+                gather(tAcc, b, origin, b.T);
+                if (mAcc) gather(*mAcc, b, origin, b.melt);
+                // Midpoint estimates: p^n plus half of the last step's own increment.
+                if (dpAcc) gather(*dpAcc, b, origin, incP);
+                if (dtAcc) gather(*dtAcc, b, origin, incT);
+                for (size_t i = 0; i < b.p.size(); ++i) {
+                    b.pe[i] = std::min(1.f, std::max(0.f, b.p[i] + 0.5f * incP[i]));
+                    b.te[i] = b.T[i] + 0.5f * incT[i];
+                }
+                auxPass(b, b.pe, st, an);
+                for (auto it = pl.cbeginValueOn(); it; ++it) {
+                    const openvdb::Coord c = it.getCoord();
+                    const openvdb::Coord l = c - origin;
+                    const size_t i = b.index(l.x() + kHalo, l.y() + kHalo, plane ? 0 : l.z() + kHalo);
+                    double chi = 0;
+                    if (k.noise != 0)
+                        chi = toUnit(hashCounters(seed, uint64_t(stepIndex), coordKey(c.x(), c.y(), c.z()))) - 0.5;
+                    const SecondOrderRow row = kobayashiSecondOrderRow(
+                        b.p.data(), b.T.data(), b.pe.data(), b.te.data(), b.a.data(), i, st, k,
+                        meltTemperatureAt(k, b, i, mMelt != nullptr), chi);
+                    const size_t s = ps.slot(li, c);
+                    ps.diag[s] = row.diag;
+                    ps.scale[s] = row.scale;
+                    ps.rhs[s] = row.rhs;
+                    ps.x[s] = row.predictor;
+                    p0[s] = b.p[i];
+                    T0[s] = b.T[i];
+                    // Temperature: CN on lap T; the latent heat term is added once p' is known.
+                    ts.diag[s] = tDiag;
+                    ts.scale[s] = tScale;
+                    ts.rhs[s] = b.T[i] + halfDt * row.lapT;
+                    ts.x[s] = b.T[i] + k.dt * row.lapT;
+                }
+            }
+        });
+    }
+    auto t0 = Clock::now();
+    const LinearSolverKind kind = k.useBiCGSTAB ? LinearSolverKind::BiCGSTAB : LinearSolverKind::GaussSeidel;
+    const SolveReport rp = ps.solve(kind, k.solverTolerance, k.solverMaxIterations);
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, ts.x.size(), 4096), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t s = r.begin(); s != r.end(); ++s)
+            if (ts.active(s)) {
+                const double dp = ps.x[s] - p0[s];
+                ts.rhs[s] += k.latentHeat * dp;
+                ts.x[s] += k.latentHeat * dp;
+            }
+    });
+    const SolveReport rt = ts.solve(kind, k.solverTolerance, k.solverMaxIterations);
+    if (stats) {
+        stats->solveSeconds += since(t0);
+        stats->solverIterationsP += rp.iterations;
+        stats->solverIterationsT += rt.iterations;
+        stats->solves += 1;
+        if (!rp.converged || !rt.converged) stats->unconverged += 1;
+        stats->lastResidual = std::max(rp.residual, rt.residual);
+    }
+
+    // Write back, record growth and freezing, remember this step's increments.
+    auto lastDp = openvdb::FloatGrid::create(0.f), lastDt = openvdb::FloatGrid::create(0.f);
+    lastDp->tree().topologyUnion(pLeaves.tree());
+    lastDt->tree().topologyUnion(pLeaves.tree());
+    openvdb::tree::LeafManager<openvdb::FloatTree> dpLeaves(lastDp->tree()), dtLeaves(lastDt->tree());
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, pLeaves.leafCount(), 16), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t li = r.begin(); li != r.end(); ++li) {
+            FloatLeaf& pl = pLeaves.leaf(li);
+            FloatLeaf& tl = tLeaves.leaf(li);
+            FloatLeaf& dpl = dpLeaves.leaf(li);
+            FloatLeaf& dtl = dtLeaves.leaf(li);
+            FloatLeaf* gl = gLeaves[li];
+            FloatLeaf* fl = fLeaves[li];
+            for (auto it = pl.cbeginValueOn(); it; ++it) {
+                const openvdb::Index n = it.pos();
+                const openvdb::Coord c = it.getCoord();
+                const size_t s = ps.slot(li, c);
+                const float pn = float(ps.x[s]), tn = float(ts.x[s]);
+                if (!std::isfinite(pn) || pn < -0.05f || pn > 1.05f) failure.report(c, "p (ice)", pn);
+                if (!std::isfinite(tn)) failure.report(c, "T (temperature)", tn);
+                pl.setValueOnly(n, pn);
+                tl.setValueOnly(n, tn);
+                const double dp = ps.x[s] - p0[s];
+                dpl.setValueOnly(n, float(dp));
+                dtl.setValueOnly(n, float(ts.x[s] - T0[s]));
+                if (gl && dp > 0) gl->setValueOn(n, gl->getValue(n) + float(dp));
+                if (fl && pn > 0.5f && !fl->isValueOn(n)) fl->setValueOn(n, float(tNext));
+            }
+        }
+    });
+    mLastDp = lastDp;
+    mLastDt = lastDt;
+}
+
 uint64_t PhaseFieldSolver::kernelOnly(const openvdb::MaskGrid& region, const openvdb::FloatGrid& p,
                                       const openvdb::FloatGrid& T, openvdb::FloatGrid& pOut,
                                       openvdb::FloatGrid& tOut) const
@@ -233,7 +385,7 @@ uint64_t PhaseFieldSolver::kernelOnly(const openvdb::MaskGrid& region, const ope
     tOut.tree().topologyUnion(region.tree());
     openvdb::tree::LeafManager<openvdb::FloatTree> pLeaves(pOut.tree());
     openvdb::tree::LeafManager<openvdb::FloatTree> tLeaves(tOut.tree());
-    LeafKernel{mParams, mDomain, p, T}.run(pLeaves, tLeaves);
+    LeafKernel{mParams, mDomain, p, T, mMelt}.run(pLeaves, tLeaves);
     return pOut.activeVoxelCount();
 }
 
@@ -265,7 +417,7 @@ void DensePhaseField::step()
             for (int i = 0; i < mNx; ++i) {
                 const size_t idx = index(i, j);
                 kobayashiEuler(mP.data(), mT.data(), mA.data(), mCx.data(), mCy.data(), mGx.data(), mGy.data(),
-                               mGz.data(), idx, st, mParams, 0.0, mPn[idx], mTn[idx]);
+                               mGz.data(), idx, st, mParams, mParams.meltTemperature, 0.0, mPn[idx], mTn[idx]);
             }
     });
     // Halo cells are never written, so both buffer pairs keep the far field there.

@@ -33,6 +33,8 @@ struct Stencil {
     std::vector<StencilTap> taps;
     double wLapCentre = 0; ///< weight of u_0 in the Laplacian
     int radius = 1;        ///< index-space reach of one application
+    double spacing = 1;    ///< h: distance to every neighbour
+    bool hexagonal = false;
 };
 
 class Lattice {

@@ -9,6 +9,17 @@
 ///
 /// (a chi is Kobayashi's optional noise, chi uniform in [-1/2, 1/2], off by default.)
 ///
+/// Two schemes:
+///  - Euler: the full equations 1-2, forward Euler (the paper's dt 0.0002);
+///  - second order (section 5): the simplified equation 8,
+///      tau dp/dt = grad(eps^2) . grad p + eps^2 lap p + n(p, T),
+///    with Lax-Wendroff on the advection term, Crank-Nicolson on the diffusion term and on
+///    lap T, and the reaction linearised about p^n and split trapezoidally (n + n'/2 (p' - p)),
+///    so that its stiff decay at p = 0 and 1 does not limit dt (the paper's dt 0.0008 exceeds
+///    2 tau / |n'| where T is warm). The implicit systems are solved by ImplicitSystem.
+/// The melt map (field `melt`, 1 where absent) scales the undercooling locally:
+///   T_e(x) = T_inf + melt(x) (T_e - T_inf).
+///
 /// The per-cell arithmetic lives here as inline functions over flat arrays with precomputed
 /// neighbour offsets, so the sparse VDB kernel (per leaf, on a padded block) and the plain
 /// dense-array reference loop run literally the same code.
@@ -19,6 +30,8 @@
 #include <cstdint>
 
 namespace frostvdb {
+
+enum class PhaseFieldScheme { Euler, SecondOrder };
 
 struct KobayashiParams {
     double tau = 0.0003;
@@ -33,6 +46,16 @@ struct KobayashiParams {
     double farTemperature = 0.0;  ///< T_inf: initial and far-field temperature
     double noise = 0.0;           ///< a
     double dt = 0.0002;
+    PhaseFieldScheme scheme = PhaseFieldScheme::Euler;
+    double solverTolerance = 1e-8; ///< max-norm residual of the implicit systems (second order)
+    int solverMaxIterations = 500;
+    bool useBiCGSTAB = false;      ///< second order: Eigen BiCGSTAB instead of Gauss-Seidel
+
+    /// T_e at a voxel with melt-map value @a melt.
+    double localMeltTemperature(double melt) const
+    {
+        return farTemperature + melt * (meltTemperature - farTemperature);
+    }
 
     /// Largest stable forward-Euler dt for a stencil: the heat equation needs dt <= 1/|w0| and
     /// the phase equation dt <= tau / (eps_max^2 |w0|), w0 the Laplacian's centre weight.
@@ -42,6 +65,24 @@ struct KobayashiParams {
         const double epsMax = epsBar * (1.0 + std::fabs(delta));
         return std::fmin(1.0 / w0, tau / (epsMax * epsMax * w0));
     }
+
+    /// Largest stable dt of the second-order scheme's explicit part, the Lax-Wendroff advection
+    /// with velocity grad(eps^2)/tau: dt |v|_1 / h <= 1. On the lattice each gradient component
+    /// of eps^2 is at most (eps_max^2 - eps_min^2)/h, so |v|_1 <= d (eps_max^2 - eps_min^2)/(h tau)
+    /// with d the number of independent directions. Diffusion and reaction are implicit.
+    double secondOrderStabilityLimit(const Stencil& s, bool withZ) const
+    {
+        const double epsMax = epsBar * (1.0 + std::fabs(delta)), epsMin = epsBar * std::fmax(0.0, 1.0 - std::fabs(delta));
+        const double dAlpha = epsMax * epsMax - epsMin * epsMin;
+        if (dAlpha <= 0) return 1e30;
+        const double d = withZ ? 3.0 : 2.0;
+        return tau * s.spacing * s.spacing / (d * dAlpha);
+    }
+
+    double stabilityLimit(const Stencil& s, bool withZ) const
+    {
+        return scheme == PhaseFieldScheme::Euler ? explicitStabilityLimit(s) : secondOrderStabilityLimit(s, withZ);
+    }
 };
 
 /// A stencil flattened for one array layout: neighbour k of cell i is at i + off[k].
@@ -50,6 +91,9 @@ struct FlatStencil {
     int n = 0;
     std::ptrdiff_t off[kMaxTaps];
     double ex[kMaxTaps], ey[kMaxTaps], ez[kMaxTaps], wGrad[kMaxTaps], wLap[kMaxTaps];
+    double invH2 = 1;       ///< 1/h^2: weight of a directional second difference
+    bool hexagonal = false; ///< in-plane taps are the 3 hexagonal directions
+    double wLapSum = 0;     ///< -(centre weight of the Laplacian)
 
     /// @a strideY, @a strideZ: distance between rows and slices of the layout.
     FlatStencil(const Stencil& s, std::ptrdiff_t strideY, std::ptrdiff_t strideZ)
@@ -63,6 +107,9 @@ struct FlatStencil {
             wLap[n] = t.wLap;
             ++n;
         }
+        invH2 = 1.0 / (s.spacing * s.spacing);
+        hexagonal = s.hexagonal;
+        wLapSum = -s.wLapCentre;
     }
 };
 
@@ -129,12 +176,12 @@ inline void kobayashiAux(const float* p, std::size_t i, const FlatStencil& st, c
     gz[i] = float(sz);
 }
 
-/// Pass 2 at cell i: forward-Euler update of p and T (eqs. 1-2). @a chi is the noise draw in
-/// [-1/2, 1/2] (ignored when noise is 0). Returns dp.
+/// Pass 2 at cell i: forward-Euler update of p and T (eqs. 1-2). @a Te is the local melt
+/// temperature, @a chi the noise draw in [-1/2, 1/2] (ignored when noise is 0). Returns dp.
 inline double kobayashiEuler(const float* p, const float* T, const float* a, const float* cx, const float* cy,
                              const float* gx, const float* gy, const float* gz, std::size_t i,
-                             const FlatStencil& st, const KobayashiParams& k, double chi, float& pOut,
-                             float& tOut)
+                             const FlatStencil& st, const KobayashiParams& k, double Te, double chi,
+                             float& pOut, float& tOut)
 {
     const double p0 = p[i], t0 = T[i], a0 = a[i], cx0 = cx[i], cy0 = cy[i];
     double lapP = 0, lapT = 0, dax = 0, day = 0, daz = 0, cross = 0;
@@ -149,12 +196,76 @@ inline double kobayashiEuler(const float* p, const float* T, const float* a, con
         cross += st.wGrad[q] * (-st.ex[q] * (double(cy[j]) - cy0) + st.ey[q] * (double(cx[j]) - cx0));
     }
     const double div = a0 * lapP + dax * gx[i] + day * gy[i] + daz * gz[i];
-    const double m = k.alpha / M_PI * std::atan(k.gamma * (k.meltTemperature - t0));
+    const double m = k.alpha / M_PI * std::atan(k.gamma * (Te - t0));
     const double reaction = p0 * (1.0 - p0) * (p0 - 0.5 + m + k.noise * chi);
     const double dp = k.dt / k.tau * (div + cross + reaction);
     pOut = float(p0 + dp);
     tOut = float(t0 + k.dt * lapT + k.latentHeat * dp);
     return dp;
+}
+
+/// The explicit parts of one second-order step at cell i (eq. 8), for the implicit system
+///   (1 + r/2 a W - r/2 n') p' - r/2 a sum_q w_q p'_q = rhs,   r = dt/tau, a = eps^2,
+/// returned as diag, scale (= r/2 a) and rhs; @a predictor (fully explicit) is the solver's
+/// first guess. Coefficients (a, its gradient c, m(T), n') are taken at the step's midpoint,
+/// extrapolated from the last two steps (pe = 3/2 p^n - 1/2 p^{n-1}, the same for T), which
+/// keeps the scheme second order in time although they depend on the solution; @a a holds
+/// eps^2 of pe (kobayashiAux on pe). Lax-Wendroff on the advection with velocity c/tau:
+///   increment = r [c . grad p^n + dt/(2 tau) c^T H(p^n) c],
+/// c^T H c from the lattice's directional second differences D_k: sum_k (c.e_k)^2 D_k on the
+/// square lattice (the paper's per-axis form), and on the hexagonal one the exact
+/// sum_k (4/3 (c.e_k)^2 - 1/3 |c|^2) D_k over its three directions. The reaction is
+/// n(pe) + n'(pe) ((p^n + p')/2 - pe): linearised about the midpoint, trapezoidal in p.
+/// Also returns lap T^n for the temperature system.
+struct SecondOrderRow {
+    double diag, scale, rhs, predictor, lapT;
+};
+
+inline SecondOrderRow kobayashiSecondOrderRow(const float* p, const float* T, const float* pe, const float* te,
+                                              const float* a, std::size_t i, const FlatStencil& st,
+                                              const KobayashiParams& k, double Te, double chi)
+{
+    const double p0 = p[i], t0 = T[i], a0 = a[i];
+    double lapP = 0, lapT = 0, cx = 0, cy = 0, cz = 0, gx = 0, gy = 0, gz = 0;
+    for (int q = 0; q < st.n; ++q) {
+        const std::size_t j = i + st.off[q];
+        const double dpq = double(p[j]) - p0;
+        lapP += st.wLap[q] * dpq;
+        lapT += st.wLap[q] * (double(T[j]) - t0);
+        gx += st.wGrad[q] * dpq * st.ex[q];
+        gy += st.wGrad[q] * dpq * st.ey[q];
+        gz += st.wGrad[q] * dpq * st.ez[q];
+        const double da = st.wGrad[q] * (double(a[j]) - a0);
+        cx += da * st.ex[q];
+        cy += da * st.ey[q];
+        cz += da * st.ez[q];
+    }
+    const double cxy2 = cx * cx + cy * cy;
+    double cHc = 0;
+    for (int q = 0; q < st.n; ++q) {
+        const double ce = cx * st.ex[q] + cy * st.ey[q] + cz * st.ez[q];
+        const bool inPlane = st.ez[q] == 0.0;
+        const double w = (st.hexagonal && inPlane) ? (4.0 / 3.0) * ce * ce - (1.0 / 3.0) * cxy2 : ce * ce;
+        cHc += w * (double(p[i + st.off[q]]) - p0);
+    }
+    cHc *= st.invH2;
+    const double r = k.dt / k.tau;
+    const double pm = pe[i];
+    const double m = k.alpha / M_PI * std::atan(k.gamma * (Te - double(te[i])));
+    const double g = pm - 0.5 + m + k.noise * chi;
+    const double nm = pm * (1.0 - pm) * g;
+    double dn = (1.0 - 2.0 * pm) * g + pm * (1.0 - pm); // dn/dp at the midpoint
+    // The growing part of the reaction (dn > 0, at most ~0.3) stays implicit unless it would
+    // cost the system its diagonal dominance (r dn > 1, i.e. dt far beyond the paper's).
+    if (dn > 0 && r * dn > 1.0) dn = 0;
+    const double advection = cx * gx + cy * gy + cz * gz + 0.5 * k.dt / k.tau * cHc;
+    SecondOrderRow row;
+    row.scale = 0.5 * r * a0;
+    row.diag = 1.0 + row.scale * st.wLapSum - 0.5 * r * dn;
+    row.rhs = p0 + r * (advection + 0.5 * a0 * lapP + nm + dn * (0.5 * p0 - pm));
+    row.predictor = p0 + r * (advection + a0 * lapP + nm + dn * (p0 - pm));
+    row.lapT = lapT;
+    return row;
 }
 
 } // namespace frostvdb

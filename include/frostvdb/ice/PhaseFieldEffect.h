@@ -1,6 +1,7 @@
 #pragma once
 /// @file PhaseFieldEffect.h
-/// @brief Section [phase_field]: the Kobayashi phase field (p, T) of the ice paper as an effect.
+/// @brief Section [phase_field]: the Kobayashi phase field (p, T) of the ice paper as an effect,
+/// with either scheme of Kobayashi.h (forward Euler on eqs. 1-5, or the second-order lw_cn on eq. 8).
 /// Writes the fields p, T, growth_acc, freeze_time and the output grids `ice` (fog volume,
 /// p clamped to [0,1]), `temperature`, `growth` (accumulated positive dp normalised to [0,1],
 /// the paper's displacement map) and `freeze_time` (time p first exceeded 1/2).
@@ -29,6 +30,8 @@ public:
 private:
     KobayashiParams mParams;
     double mTime = 0.0;
+    double mStabilityLimit = 0.0;
+    int mSubsteps = 1; ///< solver steps per scene step (substeps = auto above the limit)
     std::unique_ptr<PhaseFieldSolver> mSolver;
     PhaseFieldStepStats mStats;
 };

@@ -14,6 +14,7 @@
 #include <frostvdb/ice/Kobayashi.h>
 
 #include <openvdb/openvdb.h>
+#include <openvdb/tree/LeafManager.h>
 
 #include <vector>
 
@@ -22,6 +23,10 @@ namespace frostvdb {
 struct PhaseFieldStepStats {
     uint64_t regionVoxels = 0;
     double regionSeconds = 0, kernelSeconds = 0, truncateSeconds = 0;
+    // Second-order scheme: implicit solves (time is part of kernelSeconds).
+    double solveSeconds = 0;
+    int64_t solves = 0, solverIterationsP = 0, solverIterationsT = 0, unconverged = 0;
+    double lastResidual = 0;
 };
 
 class PhaseFieldSolver {
@@ -45,10 +50,26 @@ public:
     uint64_t kernelOnly(const openvdb::MaskGrid& region, const openvdb::FloatGrid& p, const openvdb::FloatGrid& T,
                         openvdb::FloatGrid& pOut, openvdb::FloatGrid& tOut) const;
 
+    /// The melt map (field `melt`, values in [0,1]); null for none. Not owned.
+    void setMeltMap(const openvdb::FloatGrid* melt) { mMelt = melt; }
+
+    struct Failure;
+
 private:
+    using FloatLeaf = openvdb::FloatTree::LeafNodeType;
+    void stepSecondOrder(const openvdb::FloatGrid& p, const openvdb::FloatGrid& T,
+                         openvdb::tree::LeafManager<openvdb::FloatTree>& pLeaves,
+                         openvdb::tree::LeafManager<openvdb::FloatTree>& tLeaves,
+                         const std::vector<FloatLeaf*>& gLeaves, const std::vector<FloatLeaf*>& fLeaves,
+                         int64_t stepIndex, double tNext, uint64_t seed, Failure& failure,
+                         PhaseFieldStepStats* stats);
+
     KobayashiParams mParams;
     Domain mDomain;
     RegionSettings mRegion;
+    const openvdb::FloatGrid* mMelt = nullptr;
+    /// The second-order scheme's last increments of p and T, for its midpoint coefficients.
+    openvdb::FloatGrid::Ptr mLastDp, mLastDt;
 };
 
 /// The plain dense-array loop of the same stencil and arithmetic, on a 2D nx x ny plane with a
