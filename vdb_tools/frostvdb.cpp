@@ -1,5 +1,5 @@
 /// frostvdb: grows ice, frost and snowflakes and makes procedural steam as OpenVDB volumes.
-///   frostvdb run [SCENE] [--out DIR] [--set K=V]... [--threads N] [--seed S] [--frames A-B]
+///   frostvdb run [SCENE] [--out DIR] [--set K=V]... [--threads N] [--seed S] [--frames A-B] [--keep-lattice]
 ///   frostvdb info FILE.vdb
 ///   frostvdb preview FILE.vdb -o FILE.png [--grid NAME]
 ///   frostvdb bench NAME [--threads N] [--quick]
@@ -67,6 +67,8 @@ int cmdRun(const std::vector<std::string>& args)
         ("threads,t", po::value<int>(&threads)->default_value(0), "worker threads (0: all cores)")
         ("seed", po::value<int64_t>(&seed), "random seed (overrides scene.seed)")
         ("frames", po::value<std::string>(&frames), "write only frames A-B (procedural effects skip the rest)")
+        ("keep-lattice", "hexagonal domains: write grids on the sheared lattice transform instead of resampling "
+                         "them to square voxels (output.keep_lattice = true)")
         ("quiet,q", "no progress output")
         ("print-default-scene", "print the built-in default scene and exit");
     po::positional_options_description pos;
@@ -87,6 +89,7 @@ int cmdRun(const std::vector<std::string>& args)
     Scene scene = vm.count("scene") ? Scene::load(vm["scene"].as<std::string>()) : Scene::builtinDefault();
     for (const auto& s : sets) scene.applyOverride(s);
     if (seed >= 0) scene.applyOverride("scene.seed=" + std::to_string(seed));
+    if (vm.count("keep-lattice")) scene.applyOverride("output.keep_lattice=true");
     RunOptions ro;
     ro.outDir = out;
     ro.threads = threads;

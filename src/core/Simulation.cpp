@@ -1,6 +1,7 @@
 #include <frostvdb/core/Simulation.h>
 #include <frostvdb/core/Error.h>
 #include <frostvdb/core/Progress.h>
+#include <frostvdb/io/Export.h>
 #include <frostvdb/io/Preview.h>
 #include <frostvdb/io/VdbIO.h>
 
@@ -80,6 +81,12 @@ void readOutputSection(ParamDict& d, OutputSettings& o)
     o.previewEvery = p == "every";
     o.previewGrid = d.getString("preview_grid", "", {}, "grid drawn in previews (default: ice, density or cells)");
     o.halfFloat = d.getBool("half_float", false, "store float grids as 16-bit half floats");
+    o.keepLattice = d.getBool("keep_lattice", false,
+        "hexagonal domains: write grids on the sheared lattice transform instead of resampling them to square voxels "
+        "(same as `frostvdb run --keep-lattice`)");
+    o.displacementPng = d.getBool("displacement_png", true,
+        "flat domains with ice: also write the displacement map (grid `growth`) as a 16-bit greyscale "
+        "<name>.<frame>.displacement.png on the square export raster");
 }
 
 } // namespace
@@ -177,13 +184,28 @@ std::string Simulation::writeFrame(const Frame& frame, const std::string& dir)
     meta.insertMeta("step", openvdb::Int64Metadata(frame.step));
     meta.insertMeta("time", openvdb::DoubleMetadata(frame.time));
     meta.insertMeta("voxel_size_m", openvdb::DoubleMetadata(mWorld.domain.voxelSize()));
-    for (auto& g : frame.grids) {
+    openvdb::GridPtrVec grids = exportGrids(frame.grids, mWorld.domain, mOutput.keepLattice);
+    for (auto& g : grids) {
         g->insertMeta("frostvdb_step", openvdb::Int64Metadata(frame.step));
         g->insertMeta("frostvdb_time", openvdb::DoubleMetadata(frame.time));
     }
     const std::string path = framePath(dir, mWorld.sceneName, frame.frame);
-    writeVdbAtomic(path, frame.grids, meta, mOutput.halfFloat);
+    writeVdbAtomic(path, grids, meta, mOutput.halfFloat);
     return path;
+}
+
+std::string Simulation::writeDisplacement(const Frame& frame, const std::string& dir)
+{
+    if (!mOutput.displacementPng || !mWorld.domain.isPlane()) return {};
+    for (auto& g : frame.grids) {
+        auto growth = openvdb::gridPtrCast<openvdb::FloatGrid>(g);
+        if (!growth || g->getName() != "growth") continue;
+        makeDirectories(dir);
+        const std::string path = framePath(dir, mWorld.sceneName, frame.frame, "displacement.png");
+        writeDisplacementPng(*growth, mWorld.domain, path);
+        return path;
+    }
+    return {};
 }
 
 RunSummary Simulation::run(const RunOptions& opt)
@@ -222,6 +244,7 @@ RunSummary Simulation::run(const RunOptions& opt)
         const auto t0 = Clock::now();
         Frame frame = currentFrame(f);
         if (mOutput.vdb) sum.files.push_back(writeFrame(frame, dir));
+        if (auto png = writeDisplacement(frame, dir); !png.empty()) sum.files.push_back(png);
         ++sum.framesWritten;
         if (mOutput.preview && (mOutput.previewEvery || f == last)) {
             makeDirectories(dir);

@@ -7,7 +7,7 @@
 ///   [scene]  name, seed, frames, steps_per_frame, description
 ///   [domain] kind, lattice, size, voxel_size, spacing
 ///   [region] tolerance, dense, front_travel
-///   [output] vdb, preview, preview_grid, half_float
+///   [output] vdb, preview, preview_grid, half_float, keep_lattice, displacement_png
 /// Every other section must be a registered effect; effects run in the order of their sections.
 #include <frostvdb/core/Effect.h>
 #include <frostvdb/core/Scene.h>
@@ -33,6 +33,8 @@ struct OutputSettings {
     bool previewEvery = false; ///< a PNG for every frame, not only the last
     std::string previewGrid; ///< "" -> first of ice, density, cells
     bool halfFloat = false;
+    bool keepLattice = false;     ///< hexagonal domains: write the sheared grids, not square resamples
+    bool displacementPng = true;  ///< flat domains with a `growth` grid: <name>.<frame>.displacement.png
 };
 
 struct RunSummary {
@@ -71,8 +73,12 @@ public:
     int64_t stepsTaken() const { return mStep; }
     /// Gathers the current frame's grids without writing.
     Frame currentFrame(int64_t frameNumber);
-    /// Writes a frame file (+ metadata) and returns its path.
+    /// Writes a frame file (+ metadata) and returns its path. Grids of a hexagonal domain are
+    /// resampled to a square grid unless output.keep_lattice (io/Export.h).
     std::string writeFrame(const Frame& frame, const std::string& dir);
+    /// Writes the frame's `growth` grid as a 16-bit PNG `<name>.<frame>.displacement.png` (flat
+    /// domains; "" when there is nothing to write or output.displacement_png is off).
+    std::string writeDisplacement(const Frame& frame, const std::string& dir);
 
 private:
     Scene mScene;

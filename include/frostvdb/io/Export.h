@@ -1,0 +1,49 @@
+#pragma once
+/// @file Export.h
+/// @brief What a frame looks like to DCC tools. Grids of a hexagonal-lattice domain live on a
+/// sheared transform (axial coordinates); most tools expect axis-aligned voxels, so exports
+/// resample them to a square grid: voxel size = the lattice spacing h in world units (z keeps
+/// its own), the same world placement (index 0 is world 0 on both), trilinear interpolation
+/// (tools::BoxSampler, which keeps fog volumes within [0,1]), level sets rebuilt by
+/// tools::resampleToMatch. Names, grid class and metadata are kept. `--keep-lattice` /
+/// output.keep_lattice writes the sheared grids as they are.
+///
+/// The displacement map (the paper's accumulated dp/dt, grid `growth`) is also written as a
+/// 16-bit greyscale PNG on the same square raster, row 0 at the top (+y), for flat domains.
+#include <frostvdb/core/Domain.h>
+
+#include <openvdb/openvdb.h>
+
+#include <string>
+
+namespace frostvdb {
+
+/// The square export raster of a flat domain: cells (a, b) at world (a h, b h), a in [a0, a1],
+/// b in [b0, b1], covering the centres of every domain cell (a hexagonal domain's rhombus sits in
+/// it with background corners).
+struct SquareRaster {
+    int a0 = 0, a1 = -1, b0 = 0, b1 = -1;
+    double h = 1.0;
+    int width() const { return a1 - a0 + 1; }
+    int height() const { return b1 - b0 + 1; }
+};
+SquareRaster squareRaster(const Domain& domain);
+
+/// The square transform exports use for @a domain: uniform scale h (z: the domain's z spacing).
+openvdb::math::Transform::Ptr squareTransform(const Domain& domain);
+
+/// Resamples one grid onto @a target (float, double and Vec3s grids trilinearly, integer grids by
+/// nearest value); other types are returned unchanged. Keeps name, class and all metadata.
+openvdb::GridBase::Ptr resampleGrid(const openvdb::GridBase& grid, const openvdb::math::Transform& target);
+
+/// The grids as written: on a hexagonal domain (unless @a keepLattice) every grid on the domain's
+/// transform is resampled to squareTransform(); grids on other transforms (e.g. effects that
+/// write their own resampled outputs) and every grid of a square domain are passed through.
+/// Each grid gains the metadata `frostvdb_lattice` saying which it is.
+openvdb::GridPtrVec exportGrids(const openvdb::GridPtrVec& grids, const Domain& domain, bool keepLattice);
+
+/// Writes @a growth (values in [0,1]) as a 16-bit greyscale PNG on squareRaster(domain), sampled
+/// in world space (so it works for sheared and resampled grids alike). Flat domains only.
+void writeDisplacementPng(const openvdb::FloatGrid& growth, const Domain& domain, const std::string& path);
+
+} // namespace frostvdb
