@@ -106,7 +106,7 @@ void FluidEffect::updateObstacles(World& world)
     std::vector<uint8_t> solid(size_t(W) * H, 0);
     if (p) {
         const float thr = float(mParams.solidThreshold);
-        tbb::parallel_for(tbb::blocked_range<int>(0, H, 4), [&](const tbb::blocked_range<int>& r) {
+        tbb::parallel_for(tbb::blocked_range<int>(0, H, std::max(1, 16384 / W)), [&](const tbb::blocked_range<int>& r) {
             auto acc = p->getConstAccessor();
             for (int b = r.begin(); b != r.end(); ++b)
                 for (int a = 0; a < W; ++a) {
@@ -134,14 +134,16 @@ void FluidEffect::writeVelocityField(World& world)
         vel->clear();
         vel->denseFill(world.domain.bbox(), openvdb::Vec3s(0.f), true);
     }
+    // World units (metres per unit of simulation time), as IceState.h and [dla] expect.
+    const double scale = world.domain.voxelSize() / world.domain.lattice().spacing();
     openvdb::tree::LeafManager<openvdb::Vec3STree> leaves(vel->tree());
-    tbb::parallel_for(leaves.leafRange(4), [&](const openvdb::tree::LeafManager<openvdb::Vec3STree>::LeafRange& r) {
+    tbb::parallel_for(leaves.leafRange(64), [&](const openvdb::tree::LeafManager<openvdb::Vec3STree>::LeafRange& r) {
         for (auto leaf = r.begin(); leaf; ++leaf)
             for (auto it = leaf->beginValueOn(); it; ++it) {
                 const openvdb::Coord c = it.getCoord();
                 const openvdb::Vec2d q = auxPosition(c.x(), c.y());
                 const openvdb::Vec2d u = mFluid->sample(q.x(), q.y());
-                it.setValue(openvdb::Vec3s(float(u.x()), float(u.y()), 0.f));
+                it.setValue(openvdb::Vec3s(float(u.x() * scale), float(u.y() * scale), 0.f));
             }
     });
     mVelOutSeconds += since(t0);
@@ -173,7 +175,7 @@ void FluidEffect::advectTemperature(World& world, double dt)
     tNew->tree().topologyUnion(region);
     const double s = dt / h;
     openvdb::tree::LeafManager<openvdb::FloatTree> leaves(tNew->tree());
-    tbb::parallel_for(leaves.leafRange(4), [&](const openvdb::tree::LeafManager<openvdb::FloatTree>::LeafRange& r) {
+    tbb::parallel_for(leaves.leafRange(64), [&](const openvdb::tree::LeafManager<openvdb::FloatTree>::LeafRange& r) {
         auto acc = T->getConstAccessor();
         for (auto leaf = r.begin(); leaf; ++leaf)
             for (auto it = leaf->beginValueOn(); it; ++it) {
@@ -216,12 +218,7 @@ void FluidEffect::addToFrame(World& world, Frame& frame)
     ice::addIceOutputs(world, frame);
     auto vel = world.fields.get<openvdb::Vec3SGrid>(ice::kVelocity);
     if (!vel) return;
-    // Frames carry world units: metres per unit of simulation time.
-    auto out = vel->deepCopy();
-    const float scale = float(world.domain.voxelSize() / world.domain.lattice().spacing());
-    openvdb::tools::foreach(out->beginValueOn(), [scale](const openvdb::Vec3SGrid::ValueOnIter& it) {
-        it.setValue(*it * scale);
-    });
+    auto out = vel->deepCopy(); // already in world units
     out->setName("vel");
     out->setVectorType(openvdb::VEC_CONTRAVARIANT_RELATIVE);
     out->insertMeta("units", openvdb::StringMetadata("m per unit simulation time"));

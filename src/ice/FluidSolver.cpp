@@ -20,10 +20,13 @@ namespace {
 using Clock = std::chrono::steady_clock;
 double since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
 
+/// Rows in parallel, about 16k cells per task (small grids run serially: a parallel_for per
+/// vector operation costs more than it saves below that).
 template <typename F>
-void forRows(int rows, const F& f)
+void forRows(int rows, int width, const F& f)
 {
-    tbb::parallel_for(tbb::blocked_range<int>(0, rows, 4), [&](const tbb::blocked_range<int>& r) {
+    const int grain = std::max(1, 16384 / std::max(1, width));
+    tbb::parallel_for(tbb::blocked_range<int>(0, rows, grain), [&](const tbb::blocked_range<int>& r) {
         for (int j = r.begin(); j != r.end(); ++j) f(j);
     });
 }
@@ -38,7 +41,7 @@ struct Grid2 {
 double dot(const Grid2& g, const std::vector<double>& a, const std::vector<double>& b)
 {
     std::vector<double> part(g.H, 0.0);
-    forRows(g.H, [&](int j) {
+    forRows(g.H, g.W, [&](int j) {
         double s = 0;
         const size_t o = size_t(j) * g.W;
         for (int i = 0; i < g.W; ++i) s += a[o + i] * b[o + i];
@@ -52,7 +55,7 @@ double dot(const Grid2& g, const std::vector<double>& a, const std::vector<doubl
 double maxAbs(const Grid2& g, const std::vector<double>& a)
 {
     std::vector<double> part(g.H, 0.0);
-    forRows(g.H, [&](int j) {
+    forRows(g.H, g.W, [&](int j) {
         double m = 0;
         const size_t o = size_t(j) * g.W;
         for (int i = 0; i < g.W; ++i) m = std::max(m, std::fabs(a[o + i]));
@@ -71,8 +74,8 @@ int conjugateGradient(const Grid2& g, const std::vector<double>& invDiag, const 
 {
     const size_t n = g.size();
     std::vector<double> r(n), z(n), p(n), q(n);
-    forRows(g.H, [&](int j) { applyRow(x, q, j); });
-    forRows(g.H, [&](int j) {
+    forRows(g.H, g.W, [&](int j) { applyRow(x, q, j); });
+    forRows(g.H, g.W, [&](int j) {
         for (size_t k = size_t(j) * g.W, e = k + g.W; k < e; ++k) {
             r[k] = invDiag[k] != 0 ? b[k] - q[k] : 0.0;
             z[k] = r[k] * invDiag[k];
@@ -83,11 +86,11 @@ int conjugateGradient(const Grid2& g, const std::vector<double>& invDiag, const 
     residual = maxAbs(g, r);
     int it = 0;
     while (residual > tol && it < maxIt) {
-        forRows(g.H, [&](int j) { applyRow(p, q, j); });
+        forRows(g.H, g.W, [&](int j) { applyRow(p, q, j); });
         const double pq = dot(g, p, q);
         if (!(pq > 0)) break; // singular direction (enclosed pocket): nothing more to gain
         const double alpha = rz / pq;
-        forRows(g.H, [&](int j) {
+        forRows(g.H, g.W, [&](int j) {
             for (size_t k = size_t(j) * g.W, e = k + g.W; k < e; ++k) {
                 x[k] += alpha * p[k];
                 r[k] -= alpha * q[k];
@@ -99,7 +102,7 @@ int conjugateGradient(const Grid2& g, const std::vector<double>& invDiag, const 
         const double rzNew = dot(g, r, z);
         const double beta = rz != 0 ? rzNew / rz : 0.0;
         rz = rzNew;
-        forRows(g.H, [&](int j) {
+        forRows(g.H, g.W, [&](int j) {
             for (size_t k = size_t(j) * g.W, e = k + g.W; k < e; ++k) p[k] = z[k] + beta * p[k];
         });
     }
@@ -185,12 +188,12 @@ bool StableFluid2D::vFixed(int i, int j, double& value) const
 
 void StableFluid2D::applyBoundaries()
 {
-    forRows(mNy, [&](int j) {
+    forRows(mNy, mNx + 1, [&](int j) {
         double val;
         for (int i = 0; i <= mNx; ++i)
             if (uFixed(i, j, val)) u(i, j) = val;
     });
-    forRows(mNy + 1, [&](int j) {
+    forRows(mNy + 1, mNx, [&](int j) {
         double val;
         for (int i = 0; i < mNx; ++i)
             if (vFixed(i, j, val)) v(i, j) = val;
@@ -238,7 +241,7 @@ void StableFluid2D::advect(double dt)
 {
     const double s = dt / mH; // cells per unit velocity per step
     std::vector<double> un(mU.size()), vn(mV.size());
-    forRows(mNy, [&](int j) {
+    forRows(mNy, mNx + 1, [&](int j) {
         double val;
         for (int i = 0; i <= mNx; ++i) {
             const size_t k = size_t(j) * (mNx + 1) + i;
@@ -248,7 +251,7 @@ void StableFluid2D::advect(double dt)
             un[k] = bilinear(mU, mNx + 1, mNy, x - s * vel.x() + 0.5, y - s * vel.y());
         }
     });
-    forRows(mNy + 1, [&](int j) {
+    forRows(mNy + 1, mNx, [&](int j) {
         double val;
         for (int i = 0; i < mNx; ++i) {
             const size_t k = size_t(j) * mNx + i;
@@ -273,11 +276,11 @@ void StableFluid2D::diffuse(double dt)
         const Grid2 g{W, H};
         std::vector<double> invDiag(g.size(), 0.0), b(g.size(), 0.0);
         std::vector<uint8_t> isFree(g.size(), 0);
-        forRows(H, [&](int j) {
+        forRows(H, W, [&](int j) {
             double val;
             for (int i = 0; i < W; ++i) isFree[size_t(j) * W + i] = !fixed(i, j, val);
         });
-        forRows(H, [&](int j) {
+        forRows(H, W, [&](int j) {
             for (int i = 0; i < W; ++i) {
                 const size_t k = size_t(j) * W + i;
                 if (!isFree[k]) continue;
@@ -311,7 +314,7 @@ void StableFluid2D::diffuse(double dt)
             }
         };
         std::vector<double> x(f);
-        forRows(H, [&](int j) {
+        forRows(H, W, [&](int j) {
             for (int i = 0; i < W; ++i)
                 if (!isFree[size_t(j) * W + i]) x[size_t(j) * W + i] = 0;
         });
@@ -334,7 +337,7 @@ void StableFluid2D::project()
     // (outflow) is Dirichlet phi = 0 beyond it.
     std::vector<uint8_t> link(g.size(), 0);
     std::vector<double> invDiag(g.size(), 0.0), b(g.size(), 0.0);
-    forRows(mNy, [&](int j) {
+    forRows(mNy, mNx + 1, [&](int j) {
         double val;
         for (int i = 0; i < mNx; ++i) {
             const size_t k = size_t(j) * mNx + i;
@@ -374,12 +377,12 @@ void StableFluid2D::project()
     auto phi = [&](int i, int j) {
         return (i < 0 || j < 0 || i >= mNx || j >= mNy) ? 0.0 : mPhi[size_t(j) * mNx + i];
     };
-    forRows(mNy, [&](int j) {
+    forRows(mNy, mNx + 1, [&](int j) {
         double val;
         for (int i = 0; i <= mNx; ++i)
             if (!uFixed(i, j, val)) u(i, j) -= phi(i, j) - phi(i - 1, j);
     });
-    forRows(mNy + 1, [&](int j) {
+    forRows(mNy + 1, mNx, [&](int j) {
         double val;
         for (int i = 0; i < mNx; ++i)
             if (!vFixed(i, j, val)) v(i, j) -= phi(i, j) - phi(i, j - 1);

@@ -12,9 +12,9 @@
 /// not sparse (see docs/fluid.md). Plane domains only.
 ///
 /// Units: lengths in the PDE's dimensionless units (one cell = h = [domain] spacing), time in
-/// the ice clock's units, so a velocity moves a point by u * dt / h cells per step. The field
-/// `vel` in World holds these dimensionless velocities at every domain cell; frames get `vel` in
-/// world metres per unit time (u * voxel_size / h).
+/// the ice clock's units, so a velocity u moves a point by u * dt / h cells per step. The field
+/// `vel` in World (and in frames) holds u * voxel_size / h at every domain cell: world metres per
+/// unit of simulation time, as ice/IceState.h documents and [dla] reads it.
 #include <frostvdb/core/Effect.h>
 
 #include <openvdb/openvdb.h>
