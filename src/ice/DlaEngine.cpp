@@ -8,6 +8,8 @@
 #include <frostvdb/ice/Dla.h>
 #include <frostvdb/core/Error.h>
 
+#include <openvdb/tree/LeafManager.h>
+
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
@@ -200,23 +202,52 @@ void DlaEngine::rebuild(const openvdb::FloatGrid& p)
 
 void DlaEngine::sync(const openvdb::FloatGrid& p)
 {
-    std::vector<int64_t> fresh;
-    uint64_t count = 0;
-    for (auto it = p.cbeginValueOn(); it; ++it) {
+    // p > 1/2 cells: counted and the new ones collected leaf by leaf in parallel (the order of
+    // freezing does not matter: the capped distances are the unique BFS minimum)
+    openvdb::tree::LeafManager<const openvdb::FloatTree> leaves(p.tree());
+    const size_t nl = leaves.leafCount();
+    std::vector<uint64_t> counts(nl, 0);
+    std::vector<std::vector<int64_t>> fresh(nl);
+    const openvdb::CoordBBox dom = mDomain.bbox();
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, nl, 8), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t l = r.begin(); l != r.end(); ++l) {
+            const auto& leaf = leaves.leaf(l);
+            for (auto it = leaf.cbeginValueOn(); it; ++it) {
+                if (!(*it > 0.5f)) continue;
+                const openvdb::Coord c = it.getCoord();
+                if (!dom.isInside(c)) continue;
+                ++counts[l];
+                const int64_t i = index(c);
+                if (mFine[size_t(i)] != 0) fresh[l].push_back(i);
+            }
+        }
+    });
+    uint64_t count = 0, nfresh = 0;
+    for (size_t l = 0; l < nl; ++l) {
+        count += counts[l];
+        nfresh += fresh[l].size();
+    }
+    std::vector<int64_t> tiles; // active tiles above 1/2 (rare: a pruned block of ice)
+    auto tileIt = p.tree().cbeginValueOn();
+    tileIt.setMaxDepth(openvdb::FloatTree::ValueOnCIter::LEAF_DEPTH - 1); // tiles only
+    for (auto& it = tileIt; it; ++it) {
         if (!(*it > 0.5f)) continue;
         openvdb::CoordBBox bb = it.getBoundingBox();
-        bb.intersect(mDomain.bbox());
+        bb.intersect(dom);
         for (auto c = bb.begin(); c; ++c) {
-            const int64_t i = index(*c);
             ++count;
-            if (mFine[size_t(i)] != 0) fresh.push_back(i);
+            const int64_t i = index(*c);
+            if (mFine[size_t(i)] != 0) tiles.push_back(i);
         }
     }
-    if (count != mIceCount + fresh.size()) {
+    nfresh += tiles.size();
+    if (count != mIceCount + nfresh) {
         rebuild(p); // some ice melted: start again
         return;
     }
-    for (int64_t i : fresh) freeze(i);
+    for (const auto& f : fresh)
+        for (int64_t i : f) freeze(i);
+    for (int64_t i : tiles) freeze(i);
 }
 
 double DlaEngine::stickingProbability(const Inputs& in, int64_t cell) const

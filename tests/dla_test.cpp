@@ -1,0 +1,449 @@
+// [dla]: lattice symmetry of the arms, multiple hits, humidity, heat release (eq. 6), exact
+// empty-space jumps, determinism, melt map, flow drift, steam humidity.
+#include "test_util.h"
+
+#include <frostvdb/core/Error.h>
+#include <frostvdb/ice/Dla.h>
+#include <frostvdb/ice/IceState.h>
+
+#include <catch2/catch.hpp>
+
+#include <tbb/global_control.h>
+
+#include <cmath>
+#include <complex>
+
+using namespace frostvdb;
+using namespace frostvdb::test;
+
+namespace {
+
+std::string dlaScene(const std::string& lattice, int size, const std::string& extra = "")
+{
+    return "[scene]\nname = \"dla\"\nframes = 1\nsteps_per_frame = 100\nseed = 7\n"
+           "[domain]\nlattice = \"" + lattice + "\"\nsize = [" + std::to_string(size) + ", " + std::to_string(size) +
+           "]\nvoxel_size = 0.0001\n[dla]\n" + extra;
+}
+
+std::unique_ptr<Simulation> runSteps(const std::string& text, int steps, const std::vector<std::string>& overrides = {})
+{
+    Scene scene = Scene::fromString(text, "test.toml");
+    for (auto& o : overrides) scene.applyOverride(o);
+    auto sim = std::make_unique<Simulation>(std::move(scene));
+    sim->initialize();
+    for (int s = 0; s < steps; ++s) sim->step();
+    return sim;
+}
+
+ice::DlaEffect& dla(Simulation& sim) { return dynamic_cast<ice::DlaEffect&>(*sim.effect("dla")); }
+ice::DlaEffect& dla(const std::unique_ptr<Simulation>& sim) { return dla(*sim); }
+
+openvdb::Vec2d centre2(const Domain& dom)
+{
+    const auto c = dom.centre();
+    return dom.lattice().planePosition(c.x(), c.y());
+}
+
+/// Angular Fourier amplitudes of the frozen cells beyond 40% of the largest radius (the arms),
+/// weighted by radius, normalised by the total weight: 0 for an isotropic cloud, 1 for one ray.
+std::vector<double> armModes(const openvdb::FloatGrid& p, const Domain& dom)
+{
+    const auto c = centre2(dom);
+    double rmax = 0;
+    for (auto it = p.cbeginValueOn(); it; ++it)
+        if (*it > 0.5f) rmax = std::max(rmax, (dom.lattice().planePosition(it.getCoord().x(), it.getCoord().y()) - c).length());
+    std::vector<std::complex<double>> f(9);
+    double total = 0;
+    for (auto it = p.cbeginValueOn(); it; ++it) {
+        if (*it <= 0.5f) continue;
+        const auto q = dom.lattice().planePosition(it.getCoord().x(), it.getCoord().y()) - c;
+        const double r = q.length();
+        if (r < 0.4 * rmax) continue;
+        const double phi = std::atan2(q.y(), q.x());
+        total += r;
+        for (int m = 1; m <= 8; ++m) f[m] += r * std::polar(1.0, m * phi);
+    }
+    std::vector<double> a(9, 0.0);
+    for (int m = 1; m <= 8; ++m) a[m] = total > 0 ? std::abs(f[m]) / total : 0.0;
+    return a;
+}
+
+/// Ice cells and ice/non-ice neighbour pairs (the perimeter) on the domain's own lattice.
+std::pair<double, double> areaPerimeter(const openvdb::FloatGrid& p, const Domain& dom)
+{
+    auto acc = p.getConstAccessor();
+    double area = 0, perim = 0;
+    for (auto it = p.cbeginValueOn(); it; ++it) {
+        if (*it <= 0.5f) continue;
+        area += 1;
+        for (const auto& o : dom.lattice().planeNeighbours())
+            if (!(acc.getValue(it.getCoord() + o) > 0.5f)) perim += 1;
+    }
+    return {area, perim};
+}
+
+/// Sum of (value - background) over active voxels, in double.
+double excess(const openvdb::FloatGrid& g)
+{
+    double s = 0;
+    for (auto it = g.cbeginValueOn(); it; ++it) s += double(*it) - double(g.background());
+    return s;
+}
+
+/// Ice cells left and right of x = xs (index space).
+std::pair<int, int> leftRight(const openvdb::FloatGrid& p, double xs)
+{
+    int l = 0, r = 0;
+    for (auto it = p.cbeginValueOn(); it; ++it)
+        if (*it > 0.5f) (it.getCoord().x() < xs ? l : r) += 1;
+    return {l, r};
+}
+
+std::string modesText(const std::vector<double>& m)
+{
+    std::ostringstream os;
+    for (int k = 1; k <= 8; ++k) os << " m" << k << "=" << m[k];
+    return os.str();
+}
+
+} // namespace
+
+TEST_CASE("Hexagonal DLA grows 6 arms and square DLA 4 arms", "[fast][dla]")
+{
+    for (const std::string lattice : {"hexagonal", "square"}) {
+        const int j = lattice == "hexagonal" ? 6 : 4;
+        auto sim = runSteps(dlaScene(lattice, 160, "humidity = 1500\nhits = 24\n"), 150);
+        auto p = sim->world().fields.get<openvdb::FloatGrid>("p");
+        const auto modes = armModes(*p, sim->world().domain);
+        INFO(lattice << " modes:" << modesText(modes) << " frozen " << dla(sim).stats().frozen);
+        int best = 2;
+        for (int m = 2; m <= 8; ++m)
+            if (modes[m] > modes[best]) best = m;
+        CHECK(best == j);
+        for (int m = 2; m <= 8; ++m)
+            if (m != j && 2 * m != j && m != 2 * j) CHECK(modes[j] > 2.0 * modes[m]);
+        CHECK(dla(sim).stats().frozen > 800);
+    }
+}
+
+TEST_CASE("More hits per cell give more regular arms", "[fast][dla]")
+{
+    // at about the same mass (~2000 cells), the 6-fold arm mode is much stronger with n = 24
+    auto plain = runSteps(dlaScene("hexagonal", 160, "humidity = 60\nhits = 1\n"), 100);
+    auto noiseReduced = runSteps(dlaScene("hexagonal", 160, "humidity = 1500\nhits = 24\n"), 150);
+    const auto m1 = armModes(*plain->world().fields.get<openvdb::FloatGrid>("p"), plain->world().domain);
+    const auto m8 = armModes(*noiseReduced->world().fields.get<openvdb::FloatGrid>("p"), noiseReduced->world().domain);
+    INFO("n=1 frozen " << dla(plain).stats().frozen << modesText(m1));
+    INFO("n=24 frozen " << dla(noiseReduced).stats().frozen << modesText(m8));
+    CHECK(m8[6] > 3.0 * m1[6]);
+    CHECK(dla(plain).stats().frozen > 500);
+}
+
+TEST_CASE("Higher humidity makes hybrid ice more branched", "[fast][dla][hybrid]")
+{
+    // phase field + DLA, compared when the ice first covers 800 cells: more walkers per step give
+    // more perimeter per unit of ice area (the phase field alone smooths; DLA branches)
+    const std::string scene = "[scene]\nname = \"hy\"\nframes = 1\nsteps_per_frame = 100\nseed = 3\n"
+                              "[domain]\nlattice = \"hexagonal\"\nsize = [112, 112]\n"
+                              "[phase_field]\nanisotropy_mode = 6\n[dla]\n";
+    std::vector<double> ratio;
+    for (int H : {3, 30, 150}) {
+        auto sim = runSteps(scene, 0, {"dla.humidity=" + std::to_string(H)});
+        std::pair<double, double> ap;
+        int s = 0;
+        for (; s < 400; ++s) {
+            sim->step();
+            ap = areaPerimeter(*sim->world().fields.get<openvdb::FloatGrid>("p"), sim->world().domain);
+            if (ap.first >= 800) break;
+        }
+        ratio.push_back(ap.second / ap.first);
+        WARN("H=" << H << ": area " << ap.first << " at step " << s + 1 << ", perimeter " << ap.second << ", ratio "
+                  << ratio.back());
+        CHECK(ap.first >= 800);
+    }
+    CHECK(ratio[1] > ratio[0] * 1.1);
+    CHECK(ratio[2] > ratio[1] * 1.1);
+}
+
+TEST_CASE("DLA heat release adds L times the DLA change of p to T", "[fast][dla][heat]")
+{
+    // no [phase_field]: T is otherwise constant; L = K/6 by default and a set value when given
+    for (double L : {-1.0, 0.7}) {
+        auto sim = makeSim(dlaScene("hexagonal", 64, "humidity = 100\nhits = 2\nheat_release = " + std::to_string(L) + "\n"));
+        sim.initialize();
+        ice::shared(sim.world()).temperatureEvolves = true; // as if a heat solver owned T
+        auto& w = sim.world();
+        const double p0 = excess(*w.fields.get<openvdb::FloatGrid>("p"));
+        const double T0 = excess(*w.fields.get<openvdb::FloatGrid>("T"));
+        for (int s = 0; s < 30; ++s) sim.step();
+        const double dp = excess(*w.fields.get<openvdb::FloatGrid>("p")) - p0;
+        const double dT = excess(*w.fields.get<openvdb::FloatGrid>("T")) - T0;
+        const double Lused = L < 0 ? ice::shared(w).latentHeat / 6.0 : L;
+        INFO("L " << Lused << " dp " << dp << " dT " << dT << " dpDla " << dla(sim).stats().dpDla);
+        REQUIRE(dp > 50);
+        CHECK(dla(sim).stats().dpDla == Approx(dp).epsilon(1e-6));
+        CHECK(dT == Approx(Lused * dp).epsilon(1e-5));
+    }
+    // and nothing is added while T is not a live field
+    auto sim = runSteps(dlaScene("square", 64, "humidity = 100\n"), 10);
+    CHECK(excess(*sim->world().fields.get<openvdb::FloatGrid>("T")) == 0.0);
+}
+
+TEST_CASE("Hybrid heat balance is K dp_PF plus L dp_DLA", "[fast][dla][heat][hybrid]")
+{
+    // the front stays far from the edge, so no heat leaves: sum(T - T_inf) = K dp_PF + L dp_DLA
+    const std::string scene = "[scene]\nname = \"hb\"\nframes = 1\nsteps_per_frame = 100\nseed = 3\n"
+                              "[domain]\nlattice = \"hexagonal\"\nsize = [128, 128]\n[region]\ntolerance = 0\n"
+                              "[phase_field]\nanisotropy_mode = 6\n[dla]\nhumidity = 40\nheat_release = ";
+    for (double L : {0.25, 1.0}) {
+        auto sim = makeSim(scene + std::to_string(L) + "\n");
+        sim.initialize();
+        auto& w = sim.world();
+        const double K = ice::shared(w).latentHeat;
+        const double p0 = excess(*w.fields.get<openvdb::FloatGrid>("p"));
+        const double T0 = excess(*w.fields.get<openvdb::FloatGrid>("T"));
+        for (int s = 0; s < 150; ++s) sim.step();
+        const double dp = excess(*w.fields.get<openvdb::FloatGrid>("p")) - p0;
+        const double dT = excess(*w.fields.get<openvdb::FloatGrid>("T")) - T0;
+        const double dpDla = dla(sim).stats().dpDla, dpPf = dp - dpDla;
+        INFO("L " << L << " K " << K << " dp " << dp << " dpDla " << dpDla << " dT " << dT << " expected "
+                  << K * dpPf + L * dpDla);
+        REQUIRE(dpDla > 20);
+        REQUIRE(dpPf > 20);
+        CHECK(dT == Approx(K * dpPf + L * dpDla).epsilon(2e-3));
+    }
+}
+
+TEST_CASE("Empty-space jumps keep the hitting statistics of the plain walk", "[fast][dla][jumps]")
+{
+    // A fixed, asymmetric seed; walkers released uniformly and never frozen. Histogram of where
+    // they stick (angle and distance from the centre) plus those that leave the domain, for the
+    // plain walk and the jumping walk (independent seeds); chi-square test of homogeneity.
+    for (auto kind : {LatticeKind::Hexagonal, LatticeKind::Square}) {
+        Domain dom(DomainKind::Plane, Lattice(kind), openvdb::Coord(64, 64, 1), 1e-4);
+        auto p = openvdb::FloatGrid::create(0.f);
+        for (int j = 28; j <= 35; ++j)
+            for (int i = 28; i <= 35; ++i)
+                if ((i - 31.5) * (i - 31.5) + (j - 31.5) * (j - 31.5) < 12) p->tree().setValue(openvdb::Coord(i, j, 0), 1.f);
+        for (int i = 42; i <= 47; ++i) p->tree().setValue(openvdb::Coord(i, 40, 0), 1.f); // a bar off centre
+        const int bins = 2 * 12 + 1;
+        auto histogram = [&](bool jumps, double bias, uint64_t seed, ice::DlaStats* st) {
+            ice::DlaParams prm;
+            prm.jumps = jumps;
+            prm.testJumpBias = bias;
+            prm.jumpMinRadius = 2;
+            ice::DlaEngine eng(dom, prm, seed);
+            eng.sync(*p);
+            std::vector<double> h(bins, 0.0);
+            std::vector<ice::WalkEnd> ends;
+            ice::DlaEngine::Inputs in;
+            const uint64_t n = 120000;
+            eng.walkBatch(0, 0, n, in, ends);
+            for (const auto& e : ends) {
+                st->moves += e.moves;
+                st->latticeSteps += e.latticeSteps;
+                st->jumps += e.jumps;
+                if (e.kind != ice::WalkEnd::Stuck) {
+                    h[bins - 1] += 1;
+                    continue;
+                }
+                const auto c = eng.coord(e.cell);
+                const auto q = dom.lattice().planePosition(c.x(), c.y()) - dom.lattice().planePosition(31.5, 31.5);
+                const int a = std::min(11, int((std::atan2(q.y(), q.x()) + M_PI) / (2 * M_PI) * 12));
+                h[size_t(a + (q.length() > 7 ? 12 : 0))] += 1;
+            }
+            return h;
+        };
+        auto chi2 = [&](const std::vector<double>& a, const std::vector<double>& b) {
+            double c = 0;
+            for (int k = 0; k < bins; ++k)
+                if (a[k] + b[k] > 0) c += (a[k] - b[k]) * (a[k] - b[k]) / (a[k] + b[k]);
+            return c;
+        };
+        ice::DlaStats sPlain, sJump, sBias;
+        const auto plain = histogram(false, 0.0, 11, &sPlain);
+        const auto jump = histogram(true, 0.0, 12, &sJump);
+        const auto biased = histogram(true, 0.3, 12, &sBias);
+        const double c0 = chi2(plain, jump), c1 = chi2(plain, biased);
+        // 24 degrees of freedom: P(chi2 > 51.2) = 0.001
+        WARN(Lattice::kindName(kind) << ": chi2 plain vs jump " << c0 << ", plain vs biased jump " << c1
+                                     << "; stuck " << (120000 - plain[bins - 1]) << " / " << (120000 - jump[bins - 1])
+                                     << "; moves per walker " << sPlain.moves / 120000.0 << " -> "
+                                     << sJump.moves / 120000.0 << " (" << sJump.jumps / 120000.0 << " jumps)");
+        CHECK(c0 < 51.2);
+        CHECK(c1 > 51.2);                          // the test sees a bias in the jump
+        CHECK(sJump.moves * 3 < sPlain.moves);     // and jumps save steps
+        CHECK(sJump.latticeSteps == Approx(sPlain.latticeSteps).epsilon(0.05)); // same walk length on average
+    }
+}
+
+TEST_CASE("Shell tables are normalised and lattice symmetric", "[fast][dla][jumps]")
+{
+    for (auto kind : {LatticeKind::Hexagonal, LatticeKind::Square}) {
+        Domain dom(DomainKind::Plane, Lattice(kind), openvdb::Coord(64, 64, 1), 1e-4);
+        for (int r : {2, 5, 16}) {
+            auto t = ice::shellTable(ice::walkerNeighbours(dom), r);
+            CHECK(t->exits.size() == size_t(kind == LatticeKind::Hexagonal ? 6 * r : 4 * r));
+            double sum = 0, mx = 0;
+            openvdb::Vec2d mean(0.0);
+            for (size_t k = 0; k < t->exits.size(); ++k) {
+                sum += t->prob[k];
+                mean += t->prob[k] * dom.lattice().planePosition(t->exits[k].x(), t->exits[k].y());
+                mx = std::max(mx, t->prob[k]);
+            }
+            CHECK(sum == Approx(1.0).epsilon(1e-12));
+            CHECK(mean.length() < 1e-9); // no drift
+            CHECK(t->solverResidual < 1e-12);
+            // the walk from the centre of a ball of radius r takes ~r^2 steps
+            CHECK(t->meanSteps > 0.5 * r * r);
+            CHECK(t->meanSteps < 1.0 * r * r);
+        }
+    }
+    Domain box(DomainKind::Box, Lattice(LatticeKind::Square), openvdb::Coord(32, 32, 32), 1e-4);
+    auto t = ice::shellTable(ice::walkerNeighbours(box), 6);
+    CHECK(t->exits.size() == size_t(4 * 36 + 2));
+}
+
+TEST_CASE("Same seed gives bit-identical DLA files with 1 and 2 threads", "[fast][dla][determinism]")
+{
+    const std::string scene = dlaScene("hexagonal", 96, "humidity = 600\nhits = 2\nbatch = 100\n") +
+                              "[phase_field]\nanisotropy_mode = 6\n";
+    std::string paths[2];
+    for (int threads : {1, 2}) {
+        auto sim = makeSim(scene, {"scene.steps_per_frame=60"});
+        RunOptions ro;
+        ro.progress = false;
+        ro.threads = threads;
+        ro.outDir = tempDir("dla_det" + std::to_string(threads));
+        sim.run(ro);
+        paths[threads - 1] = ro.outDir + "/dla.0001.vdb";
+        CHECK(dla(sim).stats().conflicts > 0); // the conflict path is exercised
+    }
+    std::string why;
+    CHECK(sameVdbContent(paths[0], paths[1], &why));
+    INFO(why);
+    auto other = makeSim(scene, {"scene.steps_per_frame=60", "scene.seed=8"});
+    RunOptions ro;
+    ro.progress = false;
+    ro.outDir = tempDir("dla_det_other");
+    other.run(ro);
+    CHECK(!sameVdbContent(ro.outDir + "/dla.0001.vdb", paths[0]));
+}
+
+TEST_CASE("A melt map of 0 gets no sticking", "[fast][dla][melt]")
+{
+    const std::string scene = dlaScene("square", 96, "humidity = 300\n");
+    const double xs = 48 - 6; // melt 0 left of this
+    auto run = [&](bool withMelt) {
+        auto sim = makeSim(scene);
+        sim.initialize();
+        if (withMelt) {
+            auto melt = sim.world().fields.require<openvdb::FloatGrid>(ice::kMelt, 1.f);
+            melt->tree().fill(openvdb::CoordBBox(openvdb::Coord(0, 0, 0), openvdb::Coord(int(xs) - 1, 95, 0)), 0.f);
+        }
+        for (int s = 0; s < 60; ++s) sim.step();
+        return leftRight(*sim.world().fields.get<openvdb::FloatGrid>("p"), xs);
+    };
+    const auto free = run(false), masked = run(true);
+    INFO("without melt map: " << free.first << " left, " << free.second << " right; with: " << masked.first << ", "
+                              << masked.second);
+    REQUIRE(free.first > 50); // it would grow there
+    CHECK(masked.first == 0);
+    CHECK(masked.second > 100);
+}
+
+TEST_CASE("Flow drift makes DLA grow into the flow", "[fast][dla][flow]")
+{
+    // vel = +x: walkers are carried from the left onto the crystal's upstream (left) side
+    const std::string scene = dlaScene("square", 96, "humidity = 300\n");
+    auto sim = makeSim(scene);
+    sim.initialize();
+    auto vel = sim.world().fields.require<openvdb::Vec3SGrid>(ice::kVelocity, openvdb::Vec3s(0.f));
+    // 0.15 cells per step: v dt / h = 0.075 * 0.0002 / 0.0001
+    vel->tree().fill(openvdb::CoordBBox(openvdb::Coord(0), openvdb::Coord(95, 95, 0)), openvdb::Vec3s(0.075f, 0.f, 0.f));
+    for (int s = 0; s < 60; ++s) sim.step();
+    const auto lr = leftRight(*sim.world().fields.get<openvdb::FloatGrid>("p"), 47.5);
+    INFO("left (upstream) " << lr.first << ", right " << lr.second);
+    CHECK(lr.first > 2 * lr.second);
+}
+
+TEST_CASE("Steam density raises the walker release and the growth on its side", "[fast][dla][steam]")
+{
+    auto run = [](double gain) {
+        auto sim = makeSim(dlaScene("square", 96, "humidity = 50\nsteam_reach = 0.0005\nsteam_humidity = " +
+                                                      std::to_string(gain) + "\n"));
+        sim.initialize();
+        auto& w = sim.world();
+        // steam on the right third, a little above the plate (world z = 0.0002 m)
+        auto density = openvdb::FloatGrid::create(0.f);
+        density->setTransform(w.fields.transform());
+        density->tree().fill(openvdb::CoordBBox(openvdb::Coord(64, 0, 2), openvdb::Coord(95, 95, 2)), 2.f);
+        w.fields.replace("density", density);
+        for (int s = 0; s < 60; ++s) sim.step();
+        const auto lr = leftRight(*w.fields.get<openvdb::FloatGrid>("p"), 47.5);
+        return std::make_tuple(lr.first, lr.second, dla(sim).stats().released);
+    };
+    const auto off = run(0.0), on = run(4.0);
+    INFO("gain 0: left " << std::get<0>(off) << " right " << std::get<1>(off) << " walkers " << std::get<2>(off));
+    INFO("gain 4: left " << std::get<0>(on) << " right " << std::get<1>(on) << " walkers " << std::get<2>(on));
+    CHECK(std::get<2>(off) == 50u * 60u);
+    CHECK(std::get<2>(on) > std::get<2>(off) * 2); // 1/3 of the cells at 1 + 4 * 2 * 0.6
+    CHECK(std::get<1>(on) > 1.5 * std::get<0>(on));
+}
+
+TEST_CASE("The humidity schedule changes H from its step on", "[fast][dla]")
+{
+    auto sim = runSteps(dlaScene("square", 48, "humidity = 30\nhumidity_schedule = [5, 50, 8, 10]\n"), 10);
+    CHECK(dla(sim).stats().released == 5u * 30u + 3u * 50u + 2u * 10u);
+    CHECK_THROWS_AS(makeSim(dlaScene("square", 48, "humidity_schedule = [5, 50, 8]\n")), SceneError);
+}
+
+TEST_CASE("dla experiment", "[.dlaexp]")
+{
+    const char* sc = std::getenv("DLA_SCENE");
+    const int steps = std::atoi(std::getenv("DLA_STEPS"));
+    std::string text = std::string(sc);
+    for (size_t k; (k = text.find("\\n")) != std::string::npos;) text.replace(k, 2, "\n");
+    auto sim = runSteps(text, 0);
+    for (int s = 0; s < steps; ++s) {
+        sim->step();
+        if (s % 10 == 9) {
+            const auto a = areaPerimeter(*sim->world().fields.get<openvdb::FloatGrid>("p"), sim->world().domain);
+            std::printf("  step %d area %g perim %g ratio %g\n", s + 1, a.first, a.second, a.second / a.first);
+        }
+    }
+    auto p = sim->world().fields.get<openvdb::FloatGrid>("p");
+    const auto modes = armModes(*p, sim->world().domain);
+    const auto ap = areaPerimeter(*p, sim->world().domain);
+    const auto lr = leftRight(*p, sim->world().domain.centre().x());
+    WARN("modes" << modesText(modes) << " area " << ap.first << " perim " << ap.second << " ratio " << ap.second / ap.first
+                 << " LR " << lr.first << " " << lr.second);
+}
+
+TEST_CASE("dla jump experiment", "[.dlajump]")
+{
+    const int lat = std::atoi(std::getenv("DLA_LAT"));
+    const int jmin = std::atoi(std::getenv("DLA_JMIN"));
+    Domain dom(DomainKind::Plane, Lattice(lat ? LatticeKind::Hexagonal : LatticeKind::Square), openvdb::Coord(64, 64, 1), 1e-4);
+    auto p = openvdb::FloatGrid::create(0.f);
+    for (int j = 28; j <= 35; ++j)
+        for (int i = 28; i <= 35; ++i)
+            if ((i - 31.5) * (i - 31.5) + (j - 31.5) * (j - 31.5) < 12) p->tree().setValue(openvdb::Coord(i, j, 0), 1.f);
+    for (int i = 42; i <= 47; ++i) p->tree().setValue(openvdb::Coord(i, 40, 0), 1.f);
+    for (bool jumps : {false, true}) {
+        double stuck = 0, n = 0, steps = 0;
+        for (uint64_t seed = 1; seed <= uint64_t(std::atoi(std::getenv("DLA_SEEDS"))); ++seed) {
+            ice::DlaParams prm;
+            prm.jumps = jumps;
+            prm.jumpMinRadius = jmin;
+            ice::DlaEngine eng(dom, prm, seed + (jumps ? 100 : 0));
+            eng.sync(*p);
+            std::vector<ice::WalkEnd> ends;
+            ice::DlaEngine::Inputs in;
+            eng.walkBatch(0, 0, 100000, in, ends);
+            for (auto& e : ends) { stuck += e.kind == ice::WalkEnd::Stuck; n += 1; steps += e.latticeSteps; }
+        }
+        std::printf("jumps %d: stuck fraction %.5f +- %.5f, mean steps %.3f\n", int(jumps), stuck / n,
+                    std::sqrt(stuck / n * (1 - stuck / n) / n), steps / n);
+    }
+}
