@@ -57,26 +57,54 @@ struct KobayashiParams {
         return farTemperature + melt * (meltTemperature - farTemperature);
     }
 
-    /// Largest stable forward-Euler dt for a stencil: the heat equation needs dt <= 1/|w0| and
-    /// the phase equation dt <= tau / (eps_max^2 |w0|), w0 the Laplacian's centre weight.
+    /// Bounds of the reaction's slope dn/dp over p in [0,1] and every m(T) in (-alpha/2, alpha/2)
+    /// (plus the noise): the largest growth rate (dn/dp > 0, inside the interface) and the
+    /// largest decay rate |dn/dp| (at p = 0 and 1). Sampled finely; n is a cubic in p.
+    void reactionSlopeBounds(double& maxGrowth, double& maxDecay) const
+    {
+        maxGrowth = 0;
+        maxDecay = 0;
+        const double mMax = 0.5 * std::fabs(alpha) + 0.5 * std::fabs(noise);
+        for (double m : {-mMax, 0.0, mMax})
+            for (int q = 0; q <= 1000; ++q) {
+                const double pp = q / 1000.0, g = pp - 0.5 + m;
+                const double dn = (1.0 - 2.0 * pp) * g + pp * (1.0 - pp);
+                maxGrowth = std::fmax(maxGrowth, dn);
+                maxDecay = std::fmax(maxDecay, -dn);
+            }
+    }
+
+    /// Largest stable forward-Euler dt for a stencil: the heat equation needs dt <= 1/|w0|, the
+    /// phase equation's diffusion dt <= tau / (eps_max^2 |w0|) (w0 the Laplacian's centre
+    /// weight) and its reaction dt <= 2 tau / max|dn/dp| where it decays.
     double explicitStabilityLimit(const Stencil& s) const
     {
         const double w0 = std::fabs(s.wLapCentre);
         const double epsMax = epsBar * (1.0 + std::fabs(delta));
-        return std::fmin(1.0 / w0, tau / (epsMax * epsMax * w0));
+        double growth, decay;
+        reactionSlopeBounds(growth, decay);
+        double limit = std::fmin(1.0 / w0, tau / (epsMax * epsMax * w0));
+        if (decay > 0) limit = std::fmin(limit, 2.0 * tau / decay);
+        return limit;
     }
 
-    /// Largest stable dt of the second-order scheme's explicit part, the Lax-Wendroff advection
-    /// with velocity grad(eps^2)/tau: dt |v|_1 / h <= 1. On the lattice each gradient component
-    /// of eps^2 is at most (eps_max^2 - eps_min^2)/h, so |v|_1 <= d (eps_max^2 - eps_min^2)/(h tau)
-    /// with d the number of independent directions. Diffusion and reaction are implicit.
+    /// Largest stable dt of the second-order scheme. Diffusion (Crank-Nicolson) and the decaying
+    /// reaction (trapezoidal) are unconditionally stable; what remains is
+    ///  - the Lax-Wendroff advection with velocity grad(eps^2)/tau: dt |v|_1 / h <= 1, where each
+    ///    gradient component of eps^2 is at most (eps_max^2 - eps_min^2)/h, so
+    ///    |v|_1 <= d (eps_max^2 - eps_min^2)/(h tau), d the number of independent directions;
+    ///  - the growing reaction inside the interface, whose trapezoidal factor (1 + r n'/2) /
+    ///    (1 - r n'/2), r = dt/tau, overshoots p's bounds once r n' > 1: dt <= tau / max n'.
     double secondOrderStabilityLimit(const Stencil& s, bool withZ) const
     {
         const double epsMax = epsBar * (1.0 + std::fabs(delta)), epsMin = epsBar * std::fmax(0.0, 1.0 - std::fabs(delta));
         const double dAlpha = epsMax * epsMax - epsMin * epsMin;
-        if (dAlpha <= 0) return 1e30;
-        const double d = withZ ? 3.0 : 2.0;
-        return tau * s.spacing * s.spacing / (d * dAlpha);
+        double limit = 1e30;
+        if (dAlpha > 0) limit = tau * s.spacing * s.spacing / ((withZ ? 3.0 : 2.0) * dAlpha);
+        double growth, decay;
+        reactionSlopeBounds(growth, decay);
+        if (growth > 0) limit = std::fmin(limit, tau / growth);
+        return limit;
     }
 
     double stabilityLimit(const Stencil& s, bool withZ) const
@@ -204,6 +232,26 @@ inline double kobayashiEuler(const float* p, const float* T, const float* a, con
     return dp;
 }
 
+/// c^T H(u) c at cell i from the lattice's directional second differences
+/// D_k = (u(+e_k) - 2 u + u(-e_k)) / h^2: sum_k (c.e_k)^2 D_k on the square lattice (the
+/// paper's per-axis Lax-Wendroff form: exact when u_xy = 0), and on the hexagonal lattice
+/// sum_k (4/3 (c.e_k)^2 - 1/3 |c|^2) D_k over its three directions, exact for every quadratic
+/// (from sum_k e_k e_k^T = 3/2 I and sum_k (c.e_k)^2 e_k e_k^T = 3/8 (|c|^2 I + 2 c c^T)).
+inline double directionalSecondDerivative(const float* u, std::size_t i, const FlatStencil& st, double cx, double cy,
+                                          double cz)
+{
+    const double u0 = u[i];
+    const double cxy2 = cx * cx + cy * cy;
+    double sum = 0;
+    for (int q = 0; q < st.n; ++q) {
+        const double ce = cx * st.ex[q] + cy * st.ey[q] + cz * st.ez[q];
+        const bool inPlane = st.ez[q] == 0.0;
+        const double w = (st.hexagonal && inPlane) ? (4.0 / 3.0) * ce * ce - (1.0 / 3.0) * cxy2 : ce * ce;
+        sum += w * (double(u[i + st.off[q]]) - u0);
+    }
+    return sum * st.invH2;
+}
+
 /// The explicit parts of one second-order step at cell i (eq. 8), for the implicit system
 ///   (1 + r/2 a W - r/2 n') p' - r/2 a sum_q w_q p'_q = rhs,   r = dt/tau, a = eps^2,
 /// returned as diag, scale (= r/2 a) and rhs; @a predictor (fully explicit) is the solver's
@@ -240,24 +288,14 @@ inline SecondOrderRow kobayashiSecondOrderRow(const float* p, const float* T, co
         cy += da * st.ey[q];
         cz += da * st.ez[q];
     }
-    const double cxy2 = cx * cx + cy * cy;
-    double cHc = 0;
-    for (int q = 0; q < st.n; ++q) {
-        const double ce = cx * st.ex[q] + cy * st.ey[q] + cz * st.ez[q];
-        const bool inPlane = st.ez[q] == 0.0;
-        const double w = (st.hexagonal && inPlane) ? (4.0 / 3.0) * ce * ce - (1.0 / 3.0) * cxy2 : ce * ce;
-        cHc += w * (double(p[i + st.off[q]]) - p0);
-    }
-    cHc *= st.invH2;
+    const double cHc = directionalSecondDerivative(p, i, st, cx, cy, cz);
     const double r = k.dt / k.tau;
     const double pm = pe[i];
     const double m = k.alpha / M_PI * std::atan(k.gamma * (Te - double(te[i])));
     const double g = pm - 0.5 + m + k.noise * chi;
     const double nm = pm * (1.0 - pm) * g;
-    double dn = (1.0 - 2.0 * pm) * g + pm * (1.0 - pm); // dn/dp at the midpoint
-    // The growing part of the reaction (dn > 0, at most ~0.3) stays implicit unless it would
-    // cost the system its diagonal dominance (r dn > 1, i.e. dt far beyond the paper's).
-    if (dn > 0 && r * dn > 1.0) dn = 0;
+    // dn/dp at the midpoint; below the stability limit r dn <= 1, so diag stays >= 1/2.
+    const double dn = (1.0 - 2.0 * pm) * g + pm * (1.0 - pm);
     const double advection = cx * gx + cy * gy + cz * gz + 0.5 * k.dt / k.tau * cHc;
     SecondOrderRow row;
     row.scale = 0.5 * r * a0;

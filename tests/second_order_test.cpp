@@ -1,0 +1,178 @@
+// The second-order phase-field scheme (lw_cn): its implicit solvers, its Lax-Wendroff term on
+// both lattices, substeps and the stability refusal.
+#include "test_util.h"
+
+#include <frostvdb/core/Error.h>
+#include <frostvdb/ice/ImplicitSystem.h>
+#include <frostvdb/ice/Kobayashi.h>
+
+#include <catch2/catch.hpp>
+
+#include <cmath>
+
+using namespace frostvdb;
+using namespace frostvdb::test;
+
+namespace {
+
+/// A disc of active voxels on the z = 0 plane.
+openvdb::FloatGrid::Ptr discTopology(int radius)
+{
+    auto g = openvdb::FloatGrid::create(0.f);
+    for (int j = -radius; j <= radius; ++j)
+        for (int i = -radius; i <= radius; ++i)
+            if (i * i + j * j <= radius * radius) g->tree().setValueOn(openvdb::Coord(i, j, 0), 0.f);
+    return g;
+}
+
+double hashUnit(int a, int b) { return std::fmod(std::fabs(std::sin(a * 12.9898 + b * 78.233)) * 43758.5453, 1.0); }
+
+} // namespace
+
+TEST_CASE("Gauss-Seidel and BiCGSTAB solve the same implicit system to the tolerance", "[fast][lw_cn]")
+{
+    for (auto kind : {LatticeKind::Square, LatticeKind::Hexagonal}) {
+        const Stencil st = Lattice(kind, 3.0 / 64.0).stencil(false);
+        auto topo = discTopology(21);
+        openvdb::tree::LeafManager<openvdb::FloatTree> leaves(topo->tree());
+        const SlotLayout layout(leaves, st, true);
+        ImplicitSystem a(layout), b(layout);
+        // A Crank-Nicolson-like system with a varying, non-symmetric row scale.
+        for (size_t li = 0; li < layout.leafCount(); ++li)
+            for (auto it = leaves.leaf(li).cbeginValueOn(); it; ++it) {
+                const auto c = it.getCoord();
+                const size_t s = layout.slot(li, c);
+                const double scale = 0.2 + 0.5 * hashUnit(c.x(), c.y());
+                for (ImplicitSystem* sys : {&a, &b}) {
+                    sys->scale[s] = scale;
+                    sys->diag[s] = 1.0 + scale * -st.wLapCentre;
+                    sys->rhs[s] = hashUnit(c.y(), c.x());
+                    sys->x[s] = 0.0;
+                }
+            }
+        a.outside = b.outside = 0.25;
+        const double tol = 1e-10;
+        const SolveReport ra = a.solve(LinearSolverKind::GaussSeidel, tol, 5000);
+        const SolveReport rb = b.solve(LinearSolverKind::BiCGSTAB, tol, 5000);
+        INFO("lattice " << Lattice::kindName(kind) << ": GS " << ra.iterations << " it, BiCGSTAB " << rb.iterations);
+        REQUIRE(ra.converged);
+        REQUIRE(rb.converged);
+        CHECK(a.residualMaxNorm() <= 1e-9);
+        CHECK(b.residualMaxNorm() <= tol);
+        double diff = 0;
+        for (size_t s = 0; s < layout.slotCount(); ++s)
+            if (layout.active[s]) diff = std::max(diff, std::fabs(a.x[s] - b.x[s]));
+        CHECK(diff < 1e-8);
+        // The Dirichlet value is really used: the solution near the rim feels it.
+        CHECK(ra.iterations > 1);
+    }
+}
+
+TEST_CASE("Hexagonal colouring never gives neighbours the same colour", "[fast][lw_cn]")
+{
+    for (bool withZ : {false, true}) {
+        const Stencil st = Lattice(LatticeKind::Hexagonal, 1.0).stencil(withZ);
+        auto topo = openvdb::FloatGrid::create(0.f);
+        topo->tree().denseFill(openvdb::CoordBBox(openvdb::Coord(-9, -9, withZ ? -9 : 0), openvdb::Coord(9, 9, withZ ? 9 : 0)),
+                               0.f, true);
+        openvdb::tree::LeafManager<openvdb::FloatTree> leaves(topo->tree());
+        const SlotLayout layout(leaves, st, !withZ);
+        REQUIRE(layout.colours == 3);
+        openvdb::Int32Grid colours(-1);
+        for (size_t li = 0; li < layout.leafCount(); ++li)
+            for (auto it = leaves.leaf(li).cbeginValueOn(); it; ++it)
+                colours.tree().setValue(it.getCoord(), layout.colour[layout.slot(li, it.getCoord())]);
+        int clashes = 0;
+        for (auto it = colours.cbeginValueOn(); it; ++it)
+            for (const auto& t : st.taps) {
+                const auto n = it.getCoord() + t.offset;
+                if (colours.tree().isValueOn(n) && colours.tree().getValue(n) == *it) ++clashes;
+            }
+        CHECK(clashes == 0);
+    }
+}
+
+TEST_CASE("The Lax-Wendroff term c^T H c is exact on quadratics", "[fast][lw_cn]")
+{
+    // u = a x^2 + b xy + c y^2 in world units; H = [[2a, b], [b, 2c]].
+    const double A = 0.7, B = -1.3, C = 0.4;
+    for (auto kind : {LatticeKind::Square, LatticeKind::Hexagonal}) {
+        const double h = 0.1;
+        const Lattice lat(kind, h);
+        const int W = 5;
+        std::vector<float> u(W * W);
+        for (int j = 0; j < W; ++j)
+            for (int i = 0; i < W; ++i) {
+                const auto q = lat.planePosition(i - 2, j - 2) * h;
+                u[j * W + i] = float(A * q.x() * q.x() + B * q.x() * q.y() + C * q.y() * q.y());
+            }
+        const FlatStencil st(lat.stencil(false), W, 0);
+        for (double angle : {0.0, 0.4, 1.1, 2.0}) {
+            const double cx = std::cos(angle), cy = std::sin(angle);
+            const double exact = 2 * A * cx * cx + 2 * B * cx * cy + 2 * C * cy * cy;
+            const double diag = 2 * A * cx * cx + 2 * C * cy * cy; // the per-axis (square) form
+            const double got = directionalSecondDerivative(u.data(), 2 * W + 2, st, cx, cy, 0.0);
+            INFO(Lattice::kindName(kind) << " angle " << angle);
+            if (kind == LatticeKind::Hexagonal) CHECK(got == Approx(exact).epsilon(1e-4));
+            else CHECK(got == Approx(diag).epsilon(1e-4));
+        }
+    }
+}
+
+namespace {
+const char* kSecondOrderScene = R"(
+[scene]
+name = "second"
+frames = 1
+steps_per_frame = 40
+[domain]
+size = [48, 48]
+[phase_field]
+scheme = "lw_cn"
+anisotropy_mode = 4
+)";
+}
+
+TEST_CASE("A dt above the stability limit is refused, or split into substeps when asked", "[fast][lw_cn]")
+{
+    for (const char* scheme : {"euler", "lw_cn"}) {
+        Scene probe = Scene::fromString(kSecondOrderScene, "test.toml");
+        probe.applyOverride(std::string("phase_field.scheme=") + scheme);
+        KobayashiParams k;
+        k.scheme = std::string(scheme) == "euler" ? PhaseFieldScheme::Euler : PhaseFieldScheme::SecondOrder;
+        const Domain dom = Simulation(std::move(probe)).world().domain;
+        const double limit = k.stabilityLimit(dom.stencil(), false);
+        auto exact = [](double v) {
+            std::ostringstream os;
+            os.precision(17);
+            os << v;
+            return os.str();
+        };
+        const double dtAbove = 1.1 * limit;
+        const std::string dt = "phase_field.dt=" + exact(dtAbove);
+        try {
+            makeSim(kSecondOrderScene, {std::string("phase_field.scheme=") + scheme, dt});
+            FAIL("a dt 10% above the limit was accepted for " << scheme);
+        } catch (const SceneError& e) {
+            CHECK(std::string(e.what()).find("stability limit") != std::string::npos);
+        }
+        // substeps = auto: the same bits as two steps of dt/2.
+        auto a = makeSim(kSecondOrderScene,
+                         {std::string("phase_field.scheme=") + scheme, dt, "phase_field.substeps=auto",
+                          "scene.steps_per_frame=10"});
+        auto b = makeSim(kSecondOrderScene, {std::string("phase_field.scheme=") + scheme,
+                                             "phase_field.dt=" + exact(dtAbove / 2.0),
+                                             "scene.steps_per_frame=20"});
+        RunOptions ro;
+        ro.progress = false;
+        ro.writeFiles = false;
+        a.run(ro);
+        b.run(ro);
+        auto pa = a.world().fields.get<openvdb::FloatGrid>("p");
+        auto pb = b.world().fields.get<openvdb::FloatGrid>("p");
+        CHECK(pa->activeVoxelCount() == pb->activeVoxelCount());
+        float worst = 0;
+        for (auto it = pa->cbeginValueOn(); it; ++it) worst = std::max(worst, std::fabs(*it - pb->tree().getValue(it.getCoord())));
+        CHECK(worst == 0.f);
+    }
+}
