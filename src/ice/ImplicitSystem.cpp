@@ -13,9 +13,7 @@
 namespace frostvdb {
 
 namespace {
-using FloatLeaf = openvdb::FloatTree::LeafNodeType;
 inline int nbIndex(int dx, int dy, int dz) { return (dz + 1) * 9 + (dy + 1) * 3 + (dx + 1); }
-
 } // namespace
 
 SlotLayout::SlotLayout(openvdb::tree::LeafManager<openvdb::FloatTree>& topology, const Stencil& stencil,
@@ -23,92 +21,97 @@ SlotLayout::SlotLayout(openvdb::tree::LeafManager<openvdb::FloatTree>& topology,
     : plane(isPlane), slots(isPlane ? 64 : 512)
 {
     const size_t nLeaves = topology.leafCount();
-    origins.resize(nLeaves);
+    colours = stencil.hexagonal ? 3 : 2;
+    taps = int(stencil.taps.size());
+    for (const auto& t : stencil.taps) weights.push_back(t.wLap);
+
+    // Rows: leaf order, then voxel order (a prefix sum over the leaves' active counts).
+    std::vector<size_t> firstRow(nLeaves + 1, 0);
+    for (size_t i = 0; i < nLeaves; ++i) firstRow[i + 1] = firstRow[i] + topology.leaf(i).onVoxelCount();
+    const size_t n = firstRow[nLeaves];
+    rowCoord.resize(n);
+    colour.resize(n);
+    slotRow.assign(nLeaves * size_t(slots), -1);
+    neighbours.assign(n * size_t(taps), int32_t(n));
+
     // Leaf origin -> index through a dense table over the leaves' bounding box (in leaf units):
     // a few bytes per leaf of the domain, much faster than hashing 27 look-ups per leaf.
     openvdb::Coord lo(std::numeric_limits<int>::max()), hi(std::numeric_limits<int>::min());
     for (size_t i = 0; i < nLeaves; ++i) {
-        origins[i] = topology.leaf(i).origin();
-        lo.minComponent(origins[i] >> 3);
-        hi.maxComponent(origins[i] >> 3);
+        lo.minComponent(topology.leaf(i).origin() >> 3);
+        hi.maxComponent(topology.leaf(i).origin() >> 3);
     }
     const openvdb::Coord dim = nLeaves ? hi - lo + openvdb::Coord(1) : openvdb::Coord(0);
     std::vector<int32_t> table(size_t(dim.x()) * dim.y() * dim.z(), -1);
     auto cell = [&](const openvdb::Coord& l) {
         return (size_t(l.z() - lo.z()) * dim.y() + size_t(l.y() - lo.y())) * dim.x() + size_t(l.x() - lo.x());
     };
-    for (size_t i = 0; i < nLeaves; ++i) table[cell(origins[i] >> 3)] = int32_t(i);
+    auto leafAt = [&](const openvdb::Coord& l) -> int32_t {
+        if (l.x() < lo.x() || l.y() < lo.y() || l.z() < lo.z() || l.x() > hi.x() || l.y() > hi.y() || l.z() > hi.z())
+            return -1;
+        return table[cell(l)];
+    };
+    for (size_t i = 0; i < nLeaves; ++i) table[cell(topology.leaf(i).origin() >> 3)] = int32_t(i);
 
-    const size_t n = nLeaves * size_t(slots);
-    active.assign(n, 0);
-    colour.assign(n, 0);
-    neighbourLeaf.assign(nLeaves * 27, -1);
-    colours = stencil.hexagonal ? 3 : 2;
-    for (const auto& t : stencil.taps) taps.push_back({t.offset.x(), t.offset.y(), t.offset.z(), t.wLap});
-
+    auto slotOf = [&](size_t leaf, const openvdb::Coord& c) {
+        const openvdb::Index off = openvdb::FloatTree::LeafNodeType::coordToOffset(c);
+        return leaf * size_t(slots) + (plane ? (off >> 3) : off);
+    };
     tbb::parallel_for(tbb::blocked_range<size_t>(0, nLeaves, 16), [&](const tbb::blocked_range<size_t>& r) {
         for (size_t li = r.begin(); li != r.end(); ++li) {
-            const openvdb::Coord o = origins[li] >> 3;
-            for (int dz = -1; dz <= 1; ++dz)
-                for (int dy = -1; dy <= 1; ++dy)
-                    for (int dx = -1; dx <= 1; ++dx) {
-                        const openvdb::Coord l = o + openvdb::Coord(dx, dy, dz);
-                        if (l.x() < lo.x() || l.y() < lo.y() || l.z() < lo.z() || l.x() > hi.x() || l.y() > hi.y() ||
-                            l.z() > hi.z())
-                            continue;
-                        neighbourLeaf[li * 27 + nbIndex(dx, dy, dz)] = table[cell(l)];
-                    }
-            for (auto it = topology.leaf(li).cbeginValueOn(); it; ++it) {
+            size_t row = firstRow[li];
+            for (auto it = topology.leaf(li).cbeginValueOn(); it; ++it, ++row) {
                 const openvdb::Coord c = it.getCoord();
-                const size_t s = slot(li, c);
-                active[s] = 1;
-                if (colours == 2) colour[s] = uint8_t((c.x() + c.y() + c.z()) & 1);
-                else colour[s] = uint8_t(((c.x() + 2 * c.y() + c.z()) % 3 + 3) % 3);
+                slotRow[slotOf(li, c)] = int32_t(row);
+                rowCoord[row] = c;
+                colour[row] = colours == 2 ? uint8_t((c.x() + c.y() + c.z()) & 1)
+                                           : uint8_t(((c.x() + 2 * c.y() + c.z()) % 3 + 3) % 3);
             }
         }
     });
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, nLeaves, 16), [&](const tbb::blocked_range<size_t>& r) {
+        int32_t nbLeaf[27];
+        for (size_t li = r.begin(); li != r.end(); ++li) {
+            const openvdb::Coord o = topology.leaf(li).origin() >> 3;
+            for (int dz = -1; dz <= 1; ++dz)
+                for (int dy = -1; dy <= 1; ++dy)
+                    for (int dx = -1; dx <= 1; ++dx) nbLeaf[nbIndex(dx, dy, dz)] = leafAt(o + openvdb::Coord(dx, dy, dz));
+            const openvdb::Coord origin = topology.leaf(li).origin();
+            for (size_t row = firstRow[li]; row < firstRow[li + 1]; ++row) {
+                const openvdb::Coord c = rowCoord[row];
+                for (int q = 0; q < taps; ++q) {
+                    const openvdb::Coord nc = c + stencil.taps[q].offset;
+                    const openvdb::Coord l = nc - origin;
+                    const int ox = l.x() < 0 ? -1 : (l.x() > 7 ? 1 : 0), oy = l.y() < 0 ? -1 : (l.y() > 7 ? 1 : 0),
+                              oz = l.z() < 0 ? -1 : (l.z() > 7 ? 1 : 0);
+                    const int32_t nl = nbLeaf[nbIndex(ox, oy, oz)];
+                    if (nl < 0) continue;
+                    const int32_t nr = slotRow[slotOf(size_t(nl), nc)];
+                    if (nr >= 0) neighbours[row * taps + q] = nr;
+                }
+            }
+        }
+    });
+    rowsOfColour.assign(colours, {});
+    for (size_t row = 0; row < n; ++row) rowsOfColour[colour[row]].push_back(int32_t(row));
 }
 
 ImplicitSystem::ImplicitSystem(const SlotLayout& layout) : mL(layout)
 {
-    for (auto* v : {&x, &diag, &scale, &rhs}) v->assign(layout.slotCount(), 0.0);
-}
-
-double ImplicitSystem::neighbourSum(size_t leaf, int lx, int ly, int lz) const
-{
-    double sum = 0;
-    for (const SlotLayout::Tap& t : mL.taps) {
-        int nx = lx + t.dx, ny = ly + t.dy, nz = lz + t.dz;
-        const int ox = nx < 0 ? -1 : (nx > 7 ? 1 : 0);
-        const int oy = ny < 0 ? -1 : (ny > 7 ? 1 : 0);
-        const int oz = nz < 0 ? -1 : (nz > 7 ? 1 : 0);
-        double v = outside;
-        const int32_t nl = (ox | oy | oz) ? mL.neighbourLeaf[leaf * 27 + nbIndex(ox, oy, oz)] : int32_t(leaf);
-        if (nl >= 0) {
-            nx -= ox * 8;
-            ny -= oy * 8;
-            nz -= oz * 8;
-            const size_t s = size_t(nl) * mL.slots + (mL.plane ? size_t(nx * 8 + ny) : size_t((nx << 6) | (ny << 3) | nz));
-            if (mL.active[s]) v = x[s];
-        }
-        sum += t.w * v;
-    }
-    return sum;
+    const size_t n = layout.rowCount();
+    x.assign(n + 1, 0.0);
+    diag.assign(n, 1.0);
+    scale.assign(n, 0.0);
+    rhs.assign(n, 0.0);
 }
 
 double ImplicitSystem::residualMaxNorm() const
 {
     return tbb::parallel_reduce(
-        tbb::blocked_range<size_t>(0, mL.origins.size(), 16), 0.0,
+        tbb::blocked_range<size_t>(0, rows(), 1024), 0.0,
         [&](const tbb::blocked_range<size_t>& r, double m) {
-            for (size_t li = r.begin(); li != r.end(); ++li)
-                for (int k = 0; k < mL.slots; ++k) {
-                    const size_t s = li * mL.slots + k;
-                    if (!mL.active[s]) continue;
-                    const int lx = mL.plane ? k >> 3 : k >> 6, ly = mL.plane ? k & 7 : (k >> 3) & 7, lz = mL.plane ? 0 : k & 7;
-                    const double res = rhs[s] - diag[s] * x[s] + scale[s] * neighbourSum(li, lx, ly, lz);
-                    m = std::max(m, std::fabs(res));
-                }
+            for (size_t i = r.begin(); i != r.end(); ++i)
+                m = std::max(m, std::fabs(rhs[i] - diag[i] * x[i] + scale[i] * neighbourSum(i)));
             return m;
         },
         [](double a, double b) { return std::max(a, b); });
@@ -125,21 +128,18 @@ SolveReport ImplicitSystem::gaussSeidel(double tolerance, int maxIterations)
     SolveReport rep;
     for (int it = 0; it < maxIterations; ++it) {
         double worst = 0;
-        for (int colour = 0; colour < mL.colours; ++colour) {
+        for (const auto& list : mL.rowsOfColour) {
+            // Rows of one colour only read rows of the others: a parallel update in place.
             const double m = tbb::parallel_reduce(
-                tbb::blocked_range<size_t>(0, mL.origins.size(), 16), 0.0,
+                tbb::blocked_range<size_t>(0, list.size(), 1024), 0.0,
                 [&](const tbb::blocked_range<size_t>& r, double mx) {
-                    for (size_t li = r.begin(); li != r.end(); ++li)
-                        for (int k = 0; k < mL.slots; ++k) {
-                            const size_t s = li * mL.slots + k;
-                            if (!mL.active[s] || mL.colour[s] != colour) continue;
-                            const int lx = mL.plane ? k >> 3 : k >> 6, ly = mL.plane ? k & 7 : (k >> 3) & 7,
-                                      lz = mL.plane ? 0 : k & 7;
-                            const double v = (rhs[s] + scale[s] * neighbourSum(li, lx, ly, lz)) / diag[s];
-                            // The residual of this equation just before its update.
-                            mx = std::max(mx, std::fabs(v - x[s]) * diag[s]);
-                            x[s] = v;
-                        }
+                    for (size_t k = r.begin(); k != r.end(); ++k) {
+                        const size_t i = size_t(list[k]);
+                        const double v = (rhs[i] + scale[i] * neighbourSum(i)) / diag[i];
+                        // The residual of this equation just before its update.
+                        mx = std::max(mx, std::fabs(v - x[i]) * diag[i]);
+                        x[i] = v;
+                    }
                     return mx;
                 },
                 [](double a, double b) { return std::max(a, b); });
@@ -157,47 +157,26 @@ SolveReport ImplicitSystem::gaussSeidel(double tolerance, int maxIterations)
 
 SolveReport ImplicitSystem::bicgstab(double tolerance, int maxIterations)
 {
-    // Rows are the active slots in slot order.
-    std::vector<int64_t> row(x.size(), -1);
-    int64_t n = 0;
-    for (size_t s = 0; s < x.size(); ++s)
-        if (mL.active[s]) row[s] = n++;
+    const int64_t n = int64_t(rows());
     SolveReport rep;
     if (n == 0) {
         rep.converged = true;
         return rep;
     }
     std::vector<Eigen::Triplet<double>> trip;
-    trip.reserve(size_t(n) * (mL.taps.size() + 1));
+    trip.reserve(size_t(n) * (mL.taps + 1));
     Eigen::VectorXd b(n), x0(n);
-    for (size_t li = 0; li < mL.origins.size(); ++li)
-        for (int k = 0; k < mL.slots; ++k) {
-            const size_t s = li * mL.slots + k;
-            if (!mL.active[s]) continue;
-            const int64_t r = row[s];
-            const int lx = mL.plane ? k >> 3 : k >> 6, ly = mL.plane ? k & 7 : (k >> 3) & 7, lz = mL.plane ? 0 : k & 7;
-            double bi = rhs[s];
-            trip.emplace_back(r, r, diag[s]);
-            for (const SlotLayout::Tap& t : mL.taps) {
-                int nx = lx + t.dx, ny = ly + t.dy, nz = lz + t.dz;
-                const int ox = nx < 0 ? -1 : (nx > 7 ? 1 : 0), oy = ny < 0 ? -1 : (ny > 7 ? 1 : 0),
-                          oz = nz < 0 ? -1 : (nz > 7 ? 1 : 0);
-                const int32_t nl = (ox | oy | oz) ? mL.neighbourLeaf[li * 27 + nbIndex(ox, oy, oz)] : int32_t(li);
-                int64_t col = -1;
-                if (nl >= 0) {
-                    nx -= ox * 8;
-                    ny -= oy * 8;
-                    nz -= oz * 8;
-                    const size_t ns =
-                        size_t(nl) * mL.slots + (mL.plane ? size_t(nx * 8 + ny) : size_t((nx << 6) | (ny << 3) | nz));
-                    col = row[ns];
-                }
-                if (col >= 0) trip.emplace_back(r, col, -scale[s] * t.w);
-                else bi += scale[s] * t.w * outside; // Dirichlet neighbour moves to the right-hand side
-            }
-            b[r] = bi;
-            x0[r] = x[s];
+    for (int64_t r = 0; r < n; ++r) {
+        double bi = rhs[r];
+        trip.emplace_back(r, r, diag[r]);
+        for (int q = 0; q < mL.taps; ++q) {
+            const int32_t col = mL.neighbours[size_t(r) * mL.taps + q];
+            if (col < n) trip.emplace_back(r, col, -scale[r] * mL.weights[q]);
+            else bi += scale[r] * mL.weights[q] * outside(); // Dirichlet neighbour: right-hand side
         }
+        b[r] = bi;
+        x0[r] = x[r];
+    }
     Eigen::SparseMatrix<double, Eigen::RowMajor> A(n, n);
     A.setFromTriplets(trip.begin(), trip.end());
     Eigen::BiCGSTAB<Eigen::SparseMatrix<double, Eigen::RowMajor>> solver;
@@ -206,9 +185,8 @@ SolveReport ImplicitSystem::bicgstab(double tolerance, int maxIterations)
     const double bn = b.norm();
     solver.setTolerance(bn > 0 ? tolerance / bn : tolerance);
     solver.setMaxIterations(maxIterations);
-    Eigen::VectorXd sol = solver.solveWithGuess(b, x0);
-    for (size_t s = 0; s < x.size(); ++s)
-        if (row[s] >= 0) x[s] = sol[row[s]];
+    const Eigen::VectorXd sol = solver.solveWithGuess(b, x0);
+    for (int64_t r = 0; r < n; ++r) x[r] = sol[r];
     rep.iterations = int(solver.iterations());
     rep.residual = (b - A * sol).lpNorm<Eigen::Infinity>();
     rep.converged = rep.residual <= tolerance;

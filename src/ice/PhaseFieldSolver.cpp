@@ -7,6 +7,7 @@
 #include <openvdb/tree/LeafManager.h>
 
 #include <tbb/blocked_range.h>
+#include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
 
 #include <chrono>
@@ -138,8 +139,9 @@ struct LeafKernel {
         const Block proto(plane);
         const FlatStencil st(domain.stencil(), proto.bx, std::ptrdiff_t(proto.bx) * proto.by);
         const Anisotropy an(k);
+        tbb::enumerable_thread_specific<Block> blocks([plane] { return Block(plane); });
         tbb::parallel_for(tbb::blocked_range<size_t>(0, pLeaves.leafCount(), 8), [&](const tbb::blocked_range<size_t>& r) {
-            Block b(plane);
+            Block& b = blocks.local();
             auto pAcc = p.getConstAccessor();
             auto tAcc = T.getConstAccessor();
             std::unique_ptr<openvdb::FloatGrid::ConstAccessor> mAcc;
@@ -260,9 +262,9 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
     const Stencil stencil = mDomain.stencil();
     const SlotLayout layout(pLeaves, stencil, plane);
     ImplicitSystem ps(layout), ts(layout);
-    ps.outside = p.background();
-    ts.outside = T.background();
-    std::vector<double> p0(ps.x.size(), 0.0), T0(ps.x.size(), 0.0);
+    ps.setOutside(p.background());
+    ts.setOutside(T.background());
+    std::vector<double> p0(ps.rows(), 0.0), T0(ps.rows(), 0.0);
     const double halfDt = 0.5 * k.dt;
     const double tScale = halfDt, tDiag = 1.0 + halfDt * -stencil.wLapCentre;
     const openvdb::FloatGrid* dP = mLastDp.get();
@@ -273,9 +275,11 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
         const Block proto(plane);
         const FlatStencil st(stencil, proto.bx, std::ptrdiff_t(proto.bx) * proto.by);
         const Anisotropy an(k);
+        tbb::enumerable_thread_specific<Block> blocks([plane] { return Block(plane); });
         tbb::parallel_for(tbb::blocked_range<size_t>(0, pLeaves.leafCount(), 8), [&](const tbb::blocked_range<size_t>& r) {
-            Block b(plane);
-            std::vector<float> incP(b.p.size(), 0.f), incT(b.p.size(), 0.f);
+            Block& b = blocks.local();
+            std::vector<float>& incP = b.cx;
+            std::vector<float>& incT = b.cy;
             auto pAcc = p.getConstAccessor();
             auto tAcc = T.getConstAccessor();
             std::unique_ptr<openvdb::FloatGrid::ConstAccessor> mAcc, dpAcc, dtAcc;
@@ -288,9 +292,12 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
                 gather(pAcc, b, origin, b.p);
                 gather(tAcc, b, origin, b.T);
                 if (mAcc) gather(*mAcc, b, origin, b.melt);
-                // Midpoint estimates: p^n plus half of the last step's own increment.
+                // Midpoint estimates: p^n plus half of the last step's own increment (none at the
+                // first step). cx, cy are free in this scheme and hold the increments.
                 if (dpAcc) gather(*dpAcc, b, origin, incP);
+                else std::fill(incP.begin(), incP.end(), 0.f);
                 if (dtAcc) gather(*dtAcc, b, origin, incT);
+                else std::fill(incT.begin(), incT.end(), 0.f);
                 for (size_t i = 0; i < b.p.size(); ++i) {
                     b.pe[i] = std::min(1.f, std::max(0.f, b.p[i] + 0.5f * incP[i]));
                     b.te[i] = b.T[i] + 0.5f * incT[i];
@@ -306,7 +313,7 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
                     const SecondOrderRow row = kobayashiSecondOrderRow(
                         b.p.data(), b.T.data(), b.pe.data(), b.te.data(), b.a.data(), i, st, k,
                         meltTemperatureAt(k, b, i, mMelt != nullptr), chi);
-                    const size_t s = ps.slot(li, c);
+                    const size_t s = size_t(layout.row(li, c));
                     ps.diag[s] = row.diag;
                     ps.scale[s] = row.scale;
                     ps.rhs[s] = row.rhs;
@@ -325,13 +332,12 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
     auto t0 = Clock::now();
     const LinearSolverKind kind = k.useBiCGSTAB ? LinearSolverKind::BiCGSTAB : LinearSolverKind::GaussSeidel;
     const SolveReport rp = ps.solve(kind, k.solverTolerance, k.solverMaxIterations);
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, ts.x.size(), 4096), [&](const tbb::blocked_range<size_t>& r) {
-        for (size_t s = r.begin(); s != r.end(); ++s)
-            if (ts.active(s)) {
-                const double dp = ps.x[s] - p0[s];
-                ts.rhs[s] += k.latentHeat * dp;
-                ts.x[s] += k.latentHeat * dp;
-            }
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, ts.rows(), 4096), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t s = r.begin(); s != r.end(); ++s) {
+            const double dp = ps.x[s] - p0[s];
+            ts.rhs[s] += k.latentHeat * dp;
+            ts.x[s] += k.latentHeat * dp;
+        }
     });
     const SolveReport rt = ts.solve(kind, k.solverTolerance, k.solverMaxIterations);
     if (stats) {
@@ -359,7 +365,7 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
             for (auto it = pl.cbeginValueOn(); it; ++it) {
                 const openvdb::Index n = it.pos();
                 const openvdb::Coord c = it.getCoord();
-                const size_t s = ps.slot(li, c);
+                const size_t s = size_t(layout.row(li, c));
                 const float pn = float(ps.x[s]), tn = float(ts.x[s]);
                 if (!std::isfinite(pn) || pn < -0.05f || pn > 1.05f) failure.report(c, "p (ice)", pn);
                 if (!std::isfinite(tn)) failure.report(c, "T (temperature)", tn);

@@ -37,52 +37,58 @@ struct SolveReport {
     bool converged = false;
 };
 
-/// Where the unknowns live: per-leaf slots of a topology, their colours and the neighbour-leaf
-/// table. Built once per step and shared by the p and T systems.
+/// Where the unknowns live: the active voxels of a topology numbered as rows (leaf order, then
+/// voxel order), each row's neighbour rows (the extra row n stands for every neighbour outside
+/// the topology), and the rows of each colour. Built once per step, shared by the p and T
+/// systems, so that a sweep is a plain indexed loop.
 class SlotLayout {
 public:
     SlotLayout(openvdb::tree::LeafManager<openvdb::FloatTree>& topology, const Stencil& stencil, bool plane);
 
-    size_t leafCount() const { return origins.size(); }
-    size_t slotCount() const { return active.size(); }
-    /// Slot of voxel @a c in leaf @a leaf (c must lie in the leaf).
-    size_t slot(size_t leaf, const openvdb::Coord& c) const
+    size_t rowCount() const { return rowCoord.size(); }
+    /// Row of active voxel @a c of leaf @a leaf.
+    int32_t row(size_t leaf, const openvdb::Coord& c) const
     {
         const openvdb::Index off = openvdb::FloatTree::LeafNodeType::coordToOffset(c);
-        return leaf * size_t(slots) + (plane ? (off >> 3) : off);
+        return slotRow[leaf * size_t(slots) + (plane ? (off >> 3) : off)];
     }
 
     bool plane;
     int slots; ///< 64 per leaf on a plane, 512 in a box
     int colours = 2;
-    std::vector<openvdb::Coord> origins;
-    std::vector<uint8_t> active, colour;
-    std::vector<int32_t> neighbourLeaf; ///< 27 per leaf, -1 where no leaf
-    struct Tap {
-        int dx, dy, dz;
-        double w;
-    };
-    std::vector<Tap> taps;
+    int taps = 0;
+    std::vector<double> weights;          ///< Laplacian weight of each tap
+    std::vector<int32_t> slotRow;         ///< per leaf slot: its row, or -1
+    std::vector<openvdb::Coord> rowCoord; ///< per row
+    std::vector<int32_t> neighbours;      ///< taps per row: neighbour row, or rowCount() outside
+    std::vector<uint8_t> colour;          ///< per row
+    std::vector<std::vector<int32_t>> rowsOfColour;
 };
 
 class ImplicitSystem {
 public:
     explicit ImplicitSystem(const SlotLayout& layout);
 
-    size_t slot(size_t leaf, const openvdb::Coord& c) const { return mL.slot(leaf, c); }
-    bool active(size_t s) const { return mL.active[s] != 0; }
+    size_t rows() const { return mL.rowCount(); }
 
-    // Per-slot data, set by the caller for active slots.
+    /// Per-row data set by the caller; x has one extra entry, the outside value.
     std::vector<double> x, diag, scale, rhs;
-    double outside = 0; ///< value of every neighbour outside the topology
+    void setOutside(double v) { x[rows()] = v; }
+    double outside() const { return x[rows()]; }
 
     SolveReport solve(LinearSolverKind kind, double tolerance, int maxIterations);
 
-    /// max_i |rhs_i - (A x)_i| over the active slots.
+    /// max_i |rhs_i - (A x)_i| over the rows.
     double residualMaxNorm() const;
 
 private:
-    double neighbourSum(size_t leaf, int lx, int ly, int lz) const;
+    double neighbourSum(size_t r) const
+    {
+        const int32_t* nb = &mL.neighbours[r * mL.taps];
+        double sum = 0;
+        for (int q = 0; q < mL.taps; ++q) sum += mL.weights[q] * x[nb[q]];
+        return sum;
+    }
     SolveReport gaussSeidel(double tolerance, int maxIterations);
     SolveReport bicgstab(double tolerance, int maxIterations);
 
