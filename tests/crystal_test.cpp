@@ -288,6 +288,8 @@ TEST_CASE("Crystal VDB maps in world and index space", "[fast][crystal]")
     auto world = initSim(plane(16, 16) + "[crystal]\nmelt_map = \"" + path + "\"\nmelt_map_grid = \"m\"\n");
     auto index = initSim(plane(16, 16) + "[crystal]\nmelt_map = \"" + path + "\"\nmelt_map_grid = \"other\"\n"
                                          "melt_map_space = \"index\"\n");
+    auto shorthand = initSim(plane(16, 16) + "[crystal]\nmelt_map = \"" + path + ":m\"\n");
+    CHECK(maxAbsDiff(*field(world, ice::kMelt), *field(shorthand, ice::kMelt)) == 0.0);
     auto wa = field(world, ice::kMelt)->getConstAccessor();
     auto ia = field(index, ice::kMelt)->getConstAccessor();
     for (int j = 0; j < 16; ++j)

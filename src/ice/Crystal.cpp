@@ -406,13 +406,19 @@ std::unique_ptr<Effect> CrystalEffect::create(ParamDict& d, const World& world)
         fx->mMelt.push_back(readCrystalShape(t, dom, true));
 
     auto readMap = [&](const std::string& prefix, Map& m, const std::string& what) {
-        const std::string path = d.getString(prefix + "_map", "", {},
+        std::string path = d.getString(prefix + "_map", "", {},
             what + ": a greyscale PNG (8/16-bit, stretched over the domain, row 0 = +y; per column in a box) "
-                   "or a .vdb file; relative to the scene file");
-        const std::string grid = d.getString(prefix + "_map_grid", "", {},
+                   "or a .vdb file (\"file.vdb:grid\" names the grid); relative to the scene file");
+        std::string grid = d.getString(prefix + "_map_grid", "", {},
             "grid of a .vdb " + prefix + "_map (default: its only float grid)");
         const std::string space = d.getString(prefix + "_map_space", "world", {"world", "index"},
             "VDB " + prefix + " map: sample at world positions, or at our cell indices");
+        if (const auto colon = path.rfind(".vdb:"); colon != std::string::npos) { // "file.vdb:grid"
+            if (d.has(prefix + "_map_grid"))
+                d.fail(prefix + "_map_grid", "the grid is already named in " + prefix + "_map (\"" + path + "\")");
+            grid = path.substr(colon + 5);
+            path = path.substr(0, colon + 4);
+        }
         if (path.empty()) {
             if (d.has(prefix + "_map_grid")) d.fail(prefix + "_map_grid", "needs " + prefix + "_map");
             return;
