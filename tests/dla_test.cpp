@@ -135,7 +135,16 @@ TEST_CASE("More hits per cell give more regular arms", "[fast][dla]")
     const auto m8 = armModes(*noiseReduced->world().fields.get<openvdb::FloatGrid>("p"), noiseReduced->world().domain);
     INFO("n=1 frozen " << dla(plain).stats().frozen << modesText(m1));
     INFO("n=24 frozen " << dla(noiseReduced).stats().frozen << modesText(m8));
-    CHECK(m8[6] > 3.0 * m1[6]);
+    // dominance of the 6-fold mode over the strongest other mode
+    auto dominance = [](const std::vector<double>& m) {
+        double other = 0;
+        for (int k = 2; k <= 8; ++k)
+            if (k != 6 && k != 3) other = std::max(other, m[k]);
+        return m[6] / other;
+    };
+    INFO("dominance n=1 " << dominance(m1) << ", n=24 " << dominance(m8));
+    CHECK(m8[6] > 2.0 * m1[6]);
+    CHECK(dominance(m8) > 2.0 * dominance(m1));
     CHECK(dla(plain).stats().frozen > 500);
 }
 
@@ -398,52 +407,3 @@ TEST_CASE("The humidity schedule changes H from its step on", "[fast][dla]")
     CHECK_THROWS_AS(makeSim(dlaScene("square", 48, "humidity_schedule = [5, 50, 8]\n")), SceneError);
 }
 
-TEST_CASE("dla experiment", "[.dlaexp]")
-{
-    const char* sc = std::getenv("DLA_SCENE");
-    const int steps = std::atoi(std::getenv("DLA_STEPS"));
-    std::string text = std::string(sc);
-    for (size_t k; (k = text.find("\\n")) != std::string::npos;) text.replace(k, 2, "\n");
-    auto sim = runSteps(text, 0);
-    for (int s = 0; s < steps; ++s) {
-        sim->step();
-        if (s % 10 == 9) {
-            const auto a = areaPerimeter(*sim->world().fields.get<openvdb::FloatGrid>("p"), sim->world().domain);
-            std::printf("  step %d area %g perim %g ratio %g\n", s + 1, a.first, a.second, a.second / a.first);
-        }
-    }
-    auto p = sim->world().fields.get<openvdb::FloatGrid>("p");
-    const auto modes = armModes(*p, sim->world().domain);
-    const auto ap = areaPerimeter(*p, sim->world().domain);
-    const auto lr = leftRight(*p, sim->world().domain.centre().x());
-    WARN("modes" << modesText(modes) << " area " << ap.first << " perim " << ap.second << " ratio " << ap.second / ap.first
-                 << " LR " << lr.first << " " << lr.second);
-}
-
-TEST_CASE("dla jump experiment", "[.dlajump]")
-{
-    const int lat = std::atoi(std::getenv("DLA_LAT"));
-    const int jmin = std::atoi(std::getenv("DLA_JMIN"));
-    Domain dom(DomainKind::Plane, Lattice(lat ? LatticeKind::Hexagonal : LatticeKind::Square), openvdb::Coord(64, 64, 1), 1e-4);
-    auto p = openvdb::FloatGrid::create(0.f);
-    for (int j = 28; j <= 35; ++j)
-        for (int i = 28; i <= 35; ++i)
-            if ((i - 31.5) * (i - 31.5) + (j - 31.5) * (j - 31.5) < 12) p->tree().setValue(openvdb::Coord(i, j, 0), 1.f);
-    for (int i = 42; i <= 47; ++i) p->tree().setValue(openvdb::Coord(i, 40, 0), 1.f);
-    for (bool jumps : {false, true}) {
-        double stuck = 0, n = 0, steps = 0;
-        for (uint64_t seed = 1; seed <= uint64_t(std::atoi(std::getenv("DLA_SEEDS"))); ++seed) {
-            ice::DlaParams prm;
-            prm.jumps = jumps;
-            prm.jumpMinRadius = jmin;
-            ice::DlaEngine eng(dom, prm, seed + (jumps ? 100 : 0));
-            eng.sync(*p);
-            std::vector<ice::WalkEnd> ends;
-            ice::DlaEngine::Inputs in;
-            eng.walkBatch(0, 0, 100000, in, ends);
-            for (auto& e : ends) { stuck += e.kind == ice::WalkEnd::Stuck; n += 1; steps += e.latticeSteps; }
-        }
-        std::printf("jumps %d: stuck fraction %.5f +- %.5f, mean steps %.3f\n", int(jumps), stuck / n,
-                    std::sqrt(stuck / n * (1 - stuck / n) / n), steps / n);
-    }
-}

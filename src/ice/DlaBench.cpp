@@ -25,8 +25,10 @@ int benchDla(const BenchArgs& args)
         gc = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism, args.threads);
     std::string path = std::string(FROSTVDB_SOURCE_DIR) + "/scenes/dla_hex.toml";
     std::vector<std::string> overrides;
+    bool withPlain = true;
     for (const auto& a : args.args) {
-        if (a.find('=') != std::string::npos) overrides.push_back(a);
+        if (a == "jumps-only") withPlain = false;
+        else if (a.find('=') != std::string::npos) overrides.push_back(a);
         else path = a;
     }
     if (args.quick) overrides.push_back("domain.size=[128,128]");
@@ -34,6 +36,7 @@ int benchDla(const BenchArgs& args)
                 "frozen", "walk s", "cpu s");
     double base = 0;
     for (bool jumps : {false, true}) {
+        if (!jumps && !withPlain) continue;
         Scene scene = Scene::load(path);
         for (const auto& o : overrides) scene.applyOverride(o);
         scene.applyOverride(std::string("dla.jumps=") + (jumps ? "true" : "false"));
@@ -49,6 +52,9 @@ int benchDla(const BenchArgs& args)
             return 1;
         }
         const auto& st = fx->stats();
+        std::printf("stuck %llu, conflicts %llu, killed %llu; seconds: walkers %.2f, apply %.2f, distance %.2f, "
+                    "tables %.2f\n", (unsigned long long)st.stuck, (unsigned long long)st.conflicts,
+                    (unsigned long long)st.killed, st.walkSeconds, st.applySeconds, st.syncSeconds, st.tableSeconds);
         std::printf("%-6s %10llu %12llu %14.4g %12llu %10llu %10.2f %10.2f\n", jumps ? "on" : "off",
                     (unsigned long long)st.released, (unsigned long long)st.moves, st.latticeSteps,
                     (unsigned long long)st.jumps, (unsigned long long)st.frozen, st.walkSeconds, cpu);

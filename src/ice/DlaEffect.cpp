@@ -99,6 +99,14 @@ void DlaEffect::initialize(World& world)
     if (mParams.hits > 1) world.fields.require<openvdb::Int32Grid>(kDlaHits, 0);
     const auto t0 = Clock::now();
     mEngine = std::make_unique<DlaEngine>(world.domain, mParams, world.seed);
+    if (mParams.hits > 1) {
+        // dense counts while walking (a VDB probe per stick costs more than the walk near the
+        // ice); the field dla_hits is refreshed from them at the end of every step
+        mHitCount.assign(size_t(mEngine->cellCount()), 0);
+        if (auto g = world.fields.get<openvdb::Int32Grid>(kDlaHits))
+            for (auto it = g->cbeginValueOn(); it; ++it)
+                if (world.domain.contains(it.getCoord())) mHitCount[size_t(mEngine->index(it.getCoord()))] = *it;
+    }
     mStats.tableSeconds += since(t0);
     mEngine->sync(*world.fields.get<openvdb::FloatGrid>(kPhase));
     mTime = 0;
@@ -227,8 +235,8 @@ void DlaEffect::step(World& world, const StepInfo& info)
     auto fAcc = freeze->getAccessor();
     std::unique_ptr<openvdb::FloatGrid::Accessor> tAcc;
     if (T && sh.temperatureEvolves && mHeat != 0) tAcc = std::make_unique<openvdb::FloatGrid::Accessor>(T->getAccessor());
-    std::unique_ptr<openvdb::Int32Grid::Accessor> hAcc;
-    if (hitsGrid && mParams.hits > 1) hAcc = std::make_unique<openvdb::Int32Grid::Accessor>(hitsGrid->getAccessor());
+    const bool counting = hitsGrid && mParams.hits > 1;
+    std::vector<int64_t> touched;
     const double time = sh.timeAtStep(info.step);
 
     auto freezeCell = [&](int64_t cell) {
@@ -243,16 +251,14 @@ void DlaEffect::step(World& world, const StepInfo& info)
     };
     auto hit = [&](int64_t cell) {
         ++mStats.stuck;
-        if (!hAcc) {
+        if (!counting) {
             freezeCell(cell);
             return;
         }
-        const openvdb::Coord c = mEngine->coord(cell);
-        const int n = hAcc->getValue(c) + 1;
-        if (n < mParams.hits) {
-            hAcc->setValue(c, n);
-        } else {
-            hAcc->setValueOff(c, 0);
+        int32_t& n = mHitCount[size_t(cell)];
+        touched.push_back(cell);
+        if (++n >= mParams.hits) {
+            n = 0;
             freezeCell(cell);
         }
     };
@@ -297,6 +303,18 @@ void DlaEffect::step(World& world, const StepInfo& info)
                 if (e.kind != WalkEnd::Stuck) continue;
             }
             hit(e.cell);
+        }
+        mStats.applySeconds += since(t0);
+    }
+    if (counting) {
+        t0 = Clock::now();
+        std::sort(touched.begin(), touched.end());
+        touched.erase(std::unique(touched.begin(), touched.end()), touched.end());
+        auto hAcc = hitsGrid->getAccessor();
+        for (int64_t cell : touched) {
+            const int32_t n = mHitCount[size_t(cell)];
+            if (n > 0) hAcc.setValue(mEngine->coord(cell), n);
+            else hAcc.setValueOff(mEngine->coord(cell), 0);
         }
         mStats.applySeconds += since(t0);
     }

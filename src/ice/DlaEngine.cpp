@@ -51,7 +51,8 @@ DlaEngine::DlaEngine(const Domain& domain, const DlaParams& params, uint64_t see
     mNz = bb.dim().z();
     mDim = domain.dimension();
     for (const auto& o : mNbr) mNbrDelta.push_back(int64_t(o.x()) + mNx * (int64_t(o.y()) + mNy * int64_t(o.z())));
-    mFine.assign(size_t(cellCount()), uint8_t(kCap));
+    mCap = mDim == 3 ? 16 : 64;
+    mFine.assign(size_t(cellCount()), uint8_t(mCap));
     const int b = 1 << kBlockLog2;
     mBx = (mNx + b - 1) / b;
     mBy = (mNy + b - 1) / b;
@@ -90,10 +91,10 @@ int DlaEngine::outsideDistance(int x, int y, int z) const
 int DlaEngine::iceDistance(const openvdb::Coord& c) const
 {
     const int f = mFine[size_t(index(c))];
-    if (f < kCap) return f;
+    if (f < mCap) return f;
     const int64_t b = (c.x() >> kBlockLog2) + mBx * ((c.y() >> kBlockLog2) + mBy * (c.z() >> kBlockLog2));
     const int k = mCoarse[size_t(b)];
-    if (k == 0) return kCap;
+    if (k == 0) return mCap;
     const int mask = (1 << kBlockLog2) - 1;
     auto edge = [&](int v) { const int o = v & mask; return std::min(o, mask - o); };
     int m = std::min(edge(c.x()), edge(c.y()));
@@ -101,7 +102,7 @@ int DlaEngine::iceDistance(const openvdb::Coord& c) const
     // an ice cell lies >= k blocks away along some axis: >= (k-1) B + 1 + m cells (Chebyshev),
     // and a lattice step moves each index by at most 1
     const int64_t bound = int64_t(k - 1) * (1 << kBlockLog2) + 1 + m;
-    return int(std::max<int64_t>(kCap, std::min<int64_t>(bound, 1 << 30)));
+    return int(std::max<int64_t>(mCap, std::min<int64_t>(bound, 1 << 30)));
 }
 
 void DlaEngine::relaxFrom(int64_t cell)
@@ -111,7 +112,7 @@ void DlaEngine::relaxFrom(int64_t cell)
     for (size_t q = 0; q < mQueue.size(); ++q) {
         const int64_t u = mQueue[q];
         const int d = mFine[size_t(u)] + 1;
-        if (d >= kCap) continue;
+        if (d >= mCap) continue;
         const openvdb::Coord c = coord(u);
         for (size_t k = 0; k < mNbr.size(); ++k) {
             const openvdb::Coord n = c + mNbr[k];
@@ -163,7 +164,7 @@ void DlaEngine::freeze(int64_t cell)
 
 void DlaEngine::rebuild(const openvdb::FloatGrid& p)
 {
-    std::fill(mFine.begin(), mFine.end(), uint8_t(kCap));
+    std::fill(mFine.begin(), mFine.end(), uint8_t(mCap));
     std::fill(mBlockIce.begin(), mBlockIce.end(), 0u);
     std::fill(mCoarse.begin(), mCoarse.end(), kFar);
     mIceCount = 0;
@@ -186,7 +187,7 @@ void DlaEngine::rebuild(const openvdb::FloatGrid& p)
     for (size_t q = 0; q < mQueue.size(); ++q) {
         const int64_t u = mQueue[q];
         const int d = mFine[size_t(u)] + 1;
-        if (d >= kCap) continue;
+        if (d >= mCap) continue;
         const openvdb::Coord c = coord(u);
         for (size_t k = 0; k < mNbr.size(); ++k) {
             const openvdb::Coord n = c + mNbr[k];
@@ -256,7 +257,7 @@ double DlaEngine::stickingProbability(const Inputs& in, int64_t cell) const
     return double(in.melt->tree().getValue(coord(cell)));
 }
 
-int64_t DlaEngine::release(int64_t step, uint64_t walker, CounterRng& rng, const Inputs& in) const
+int64_t DlaEngine::release(int64_t step, uint64_t walker, WalkerRng& rng, const Inputs& in) const
 {
     const uint64_t n = uint64_t(cellCount());
     auto below = [&](uint64_t m) { return uint64_t((static_cast<unsigned __int128>(rng.next()) * m) >> 64); };
@@ -319,12 +320,12 @@ struct Probes {
 static WalkEnd walkImpl(const DlaEngine& e, const DlaParams& P, const std::vector<uint8_t>& fine,
                         const std::vector<int64_t>& delta, int dim, int digits,
                         const std::vector<std::shared_ptr<const ShellTable>>& tables,
-                        const std::vector<int16_t>& tableFor, CounterRng& rng, int64_t idx,
+                        const std::vector<int16_t>& tableFor, WalkerRng& rng, int64_t idx,
                         const DlaEngine::Inputs& in, Probes& pr);
 
 WalkEnd DlaEngine::walk(int64_t step, uint64_t walker, uint64_t salt, int64_t start, const Inputs& in) const
 {
-    CounterRng rng(mSeed ^ salt, walker, uint64_t(step));
+    WalkerRng rng(mSeed, walker, uint64_t(step), salt);
     const int64_t idx = start >= 0 ? start : release(step, walker, rng, in);
     if (idx < 0) return WalkEnd{};
     Probes pr(in);
@@ -338,7 +339,7 @@ void DlaEngine::walkBatch(int64_t step, uint64_t first, uint64_t count, const In
     tbb::parallel_for(tbb::blocked_range<uint64_t>(0, count, 16), [&](const tbb::blocked_range<uint64_t>& r) {
         Probes pr(in);
         for (uint64_t w = r.begin(); w != r.end(); ++w) {
-            CounterRng rng(mSeed, first + w, uint64_t(step));
+            WalkerRng rng(mSeed, first + w, uint64_t(step));
             const int64_t idx = release(step, first + w, rng, in);
             if (idx < 0) continue;
             out[size_t(w)] = walkImpl(*this, mParams, mFine, mNbrDelta, mDim, mDigits, mTables, mTableForRadius,
@@ -350,7 +351,7 @@ void DlaEngine::walkBatch(int64_t step, uint64_t first, uint64_t count, const In
 static WalkEnd walkImpl(const DlaEngine& e, const DlaParams& P, const std::vector<uint8_t>& fine,
                         const std::vector<int64_t>& delta, int dim, int digits,
                         const std::vector<std::shared_ptr<const ShellTable>>& tables,
-                        const std::vector<int16_t>& tableFor, CounterRng& rng, int64_t idx,
+                        const std::vector<int16_t>& tableFor, WalkerRng& rng, int64_t idx,
                         const DlaEngine::Inputs& in, Probes& pr)
 {
     WalkEnd end;
@@ -423,9 +424,9 @@ static WalkEnd walkImpl(const DlaEngine& e, const DlaParams& P, const std::vecto
             const int ti = r >= P.jumpMinRadius ? tableFor[size_t(r)] : -1;
             if (ti >= 0) {
                 const ShellTable& t = *tables[size_t(ti)];
-                uint32_t k = t.sample(rng.next(), rng.next());
+                uint32_t k = t.sample(rng.next());
                 if (P.testJumpBias > 0 && rng.uniform() < P.testJumpBias) {
-                    const uint32_t k2 = t.sample(rng.next(), rng.next());
+                    const uint32_t k2 = t.sample(rng.next());
                     if (t.exits[k2].x() > t.exits[k].x()) k = k2;
                 }
                 const openvdb::Coord& o = t.exits[k];

@@ -123,7 +123,7 @@ std::shared_ptr<ShellTable> computeShell(const std::vector<openvdb::Coord>& nbr,
     for (double& q : t->prob) q /= total; // total is 1 to the solver's accuracy
     // Vose's alias method (deterministic: fixed processing order)
     const size_t m = shell.size();
-    t->aliasProb.assign(m, 1.0);
+    std::vector<double> aliasProb(m, 1.0);
     t->alias.resize(m);
     std::vector<double> scaled(m);
     std::vector<uint32_t> small, large;
@@ -135,7 +135,7 @@ std::shared_ptr<ShellTable> computeShell(const std::vector<openvdb::Coord>& nbr,
     while (!small.empty() && !large.empty()) {
         const uint32_t s = small.back(), l = large.back();
         small.pop_back();
-        t->aliasProb[s] = scaled[s];
+        aliasProb[s] = scaled[s];
         t->alias[s] = l;
         scaled[l] = (scaled[l] + scaled[s]) - 1.0;
         if (scaled[l] < 1.0) {
@@ -143,18 +143,15 @@ std::shared_ptr<ShellTable> computeShell(const std::vector<openvdb::Coord>& nbr,
             small.push_back(l);
         }
     }
-    for (uint32_t i : large) t->aliasProb[i] = 1.0;
-    for (uint32_t i : small) t->aliasProb[i] = 1.0;
+    for (uint32_t i : large) aliasProb[i] = 1.0;
+    for (uint32_t i : small) aliasProb[i] = 1.0;
+    t->aliasThreshold.resize(m);
+    for (size_t i = 0; i < m; ++i)
+        t->aliasThreshold[i] = aliasProb[i] >= 1.0 ? 0xFFFFFFFFu : uint32_t(std::ldexp(aliasProb[i], 32));
     return t;
 }
 
 } // namespace
-
-uint32_t ShellTable::sample(uint64_t a, uint64_t b) const
-{
-    const uint32_t i = uint32_t(((a >> 32) * uint64_t(exits.size())) >> 32);
-    return toUnit(b) < aliasProb[i] ? i : alias[i];
-}
 
 std::shared_ptr<const ShellTable> shellTable(const std::vector<openvdb::Coord>& neighbours, int radius)
 {

@@ -39,6 +39,24 @@ inline const char* const kDlaHits = "dla_hits";
 
 enum class DlaRelease { Uniform, Perimeter };
 
+/// A walker's random stream: SplitMix64 started at hashCounters(seed, walker, step, salt), so it
+/// is a pure function of those counters (one finaliser per draw instead of CounterRng's two).
+class WalkerRng {
+public:
+    WalkerRng(uint64_t seed, uint64_t walker, uint64_t step, uint64_t salt = 0)
+        : mState(hashCounters(seed, walker, step, salt)) {}
+    uint64_t next()
+    {
+        const uint64_t r = mix64(mState);
+        mState += 0x9E3779B97F4A7C15ull;
+        return r;
+    }
+    double uniform() { return toUnit(next()); }
+
+private:
+    uint64_t mState;
+};
+
 struct DlaParams {
     int64_t humidity = 300;                               ///< H: walkers released per step
     std::vector<std::pair<int64_t, int64_t>> schedule;    ///< (from step, H), sorted by step
@@ -70,13 +88,17 @@ struct ShellTable {
     int radius = 0;
     std::vector<openvdb::Coord> exits; ///< shell offsets (graph distance exactly r)
     std::vector<double> prob;          ///< exit probability of each
-    std::vector<double> aliasProb;     ///< Vose alias table
+    std::vector<uint32_t> aliasThreshold; ///< Vose alias table: keep i when low word < threshold
     std::vector<uint32_t> alias;
     double meanSteps = 0;              ///< expected number of lattice steps to reach the shell
     double solverResidual = 0;         ///< CG relative residual reached
 
-    /// Draws an exit index from two uniform 64-bit words.
-    uint32_t sample(uint64_t a, uint64_t b) const;
+    /// Draws an exit index from one uniform 64-bit word (high half: slot, low half: alias test).
+    uint32_t sample(uint64_t a) const
+    {
+        const uint32_t i = uint32_t(((a >> 32) * uint64_t(exits.size())) >> 32);
+        return uint32_t(a) < aliasThreshold[i] ? i : alias[i];
+    }
 };
 
 /// The table for a neighbour set and radius, computed once per process and cached.
@@ -119,6 +141,7 @@ public:
     bool isIce(int64_t cell) const { return mFine[size_t(cell)] == 0; }
     /// Lattice distance to the nearest ice, exact below the fine cap, a lower bound above.
     int iceDistance(const openvdb::Coord& c) const;
+    int distanceCap() const { return mCap; }
     uint64_t iceCount() const { return mIceCount; }
 
     int64_t index(const openvdb::Coord& c) const
@@ -162,7 +185,7 @@ private:
     void relaxFrom(int64_t cell);
     void markBlock(int64_t cell);
     void rebuildCoarse();
-    int64_t release(int64_t step, uint64_t walker, CounterRng& rng, const Inputs& in) const;
+    int64_t release(int64_t step, uint64_t walker, WalkerRng& rng, const Inputs& in) const;
     int outsideDistance(int x, int y, int z) const;
 
     Domain mDomain;
@@ -172,7 +195,8 @@ private:
     int mDim;
     std::vector<openvdb::Coord> mNbr;
     std::vector<int64_t> mNbrDelta;
-    std::vector<uint8_t> mFine; ///< 0 ice, 1..kCap-1 exact distance, kCap: >= kCap
+    int mCap = 64;              ///< exact distances below this (64 on a plane, 16 in a box)
+    std::vector<uint8_t> mFine; ///< 0 ice, 1..mCap-1 exact distance, mCap: >= mCap
     int64_t mBx, mBy, mBz;      ///< coarse block counts
     std::vector<uint32_t> mBlockIce;
     std::vector<uint16_t> mCoarse; ///< Chebyshev block distance to a block with ice
@@ -183,7 +207,6 @@ private:
     int mDigits = 1;
 
 public:
-    static constexpr int kCap = 12;
     static constexpr int kBlockLog2 = 3;
 };
 
@@ -214,6 +237,7 @@ private:
     std::unique_ptr<DlaEngine> mEngine;
     DlaStats mStats;
     openvdb::GridBase::ConstPtr mSteamSource; ///< the density grid the steam map was built from
+    std::vector<int32_t> mHitCount; ///< dense dla_hits while stepping (hits > 1)
     std::vector<double> mSteamCdf;
     std::vector<int64_t> mSteamCells;
     double mSteamSum = 0;
