@@ -96,7 +96,7 @@ TEST_CASE("lw_cn at WP with the paper's anisotropy: about 2 at the paper's dt, b
     CHECK(o[1] >= 1.1);
 }
 
-TEST_CASE("lw_cn with the paper's anisotropy stays second order at fine dt (known defect: missing LW cross terms)",
+TEST_CASE("lw_cn with anisotropy stays second order at fine dt - known defect, LW cross terms missing",
           "[fast][accuracy][!mayfail]")
 {
     const auto o = observedOrders("lw_cn", 0.0004, 4);
