@@ -364,3 +364,30 @@ TEST_CASE("Frost with steam writes ice and density into one frame on one transfo
     // the steam's density is the world field other effects read
     REQUIRE(sim.world().fields.get<openvdb::FloatGrid>("density"));
 }
+
+TEST_CASE("Steam density is published on a hexagonal domain, on the domain's transform", "[fast][gas]")
+{
+    openvdb::initialize();
+    Scene scene = Scene::load(std::string(FROSTVDB_SOURCE_DIR) + "/scenes/dla_frost_with_steam.toml");
+    scene.applyOverride("scene.frames=1");
+    scene.applyOverride("scene.steps_per_frame=2");
+    scene.applyOverride("domain.lattice=\"hexagonal\"");
+    scene.applyOverride("domain.size=[64, 64]");
+    scene.applyOverride("domain.voxel_size=0.001");
+    scene.applyOverride("steam.center=[0.03, 0.02, 0.01]");
+    scene.applyOverride("steam.radius=0.008");
+    scene.applyOverride("steam.height=0.02");
+    Simulation sim(std::move(scene));
+    const std::string dir = test::tempDir("gas_hex_steam");
+    RunOptions o;
+    o.outDir = dir;
+    o.progress = false;
+    sim.run(o);
+    auto field = sim.world().fields.get<openvdb::FloatGrid>("density");
+    REQUIRE(field);
+    CHECK(field->transform() == *sim.world().fields.transform());
+    CHECK(field->activeVoxelCount() > 0);
+    float mx = 0.f;
+    for (auto it = field->cbeginValueOn(); it; ++it) mx = std::max(mx, *it);
+    CHECK(mx > 0.f);
+}

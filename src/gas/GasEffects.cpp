@@ -16,6 +16,8 @@
 #include <frostvdb/core/Error.h>
 
 #include <openvdb/tools/Composite.h>
+#include <openvdb/tools/GridTransformer.h>
+#include <openvdb/tools/Interpolation.h>
 
 #include <chrono>
 #include <map>
@@ -232,12 +234,24 @@ private:
         if (mPublish) publish(world, mGrids.density);
         mBuildSeconds += std::chrono::duration<double>(Clock::now() - t0).count();
     }
-    /// The field shares the grid's tree; only when the transforms agree (a sheared hexagonal
-    /// lattice transform cannot hold the gas, which is then not published).
+    /// The field shares the grid's tree when the transforms agree. Otherwise (a sheared hexagonal
+    /// lattice, whose transform cannot hold the gas itself) the density is resampled trilinearly
+    /// onto the domain's transform: the fields keep one transform (FieldSet::replace imposes it)
+    /// and consumers sampling in world space (the DLA steam humidity) see the same gas.
     void publish(World& world, const openvdb::GridBase::Ptr& g)
     {
-        if (!(*g->transformPtr() == *world.fields.transform())) return;
-        world.fields.replace("density", g->copyGrid());
+        const auto xf = world.fields.transform();
+        if (*g->transformPtr() == *xf) {
+            world.fields.replace("density", g->copyGrid());
+            return;
+        }
+        auto src = openvdb::gridPtrCast<openvdb::FloatGrid>(g);
+        if (!src) return;
+        auto dst = openvdb::FloatGrid::create(0.f);
+        dst->setTransform(xf->copy());
+        dst->setGridClass(openvdb::GRID_FOG_VOLUME);
+        openvdb::tools::resampleToMatch<openvdb::tools::BoxSampler>(*src, *dst);
+        world.fields.replace("density", dst);
     }
     /// Adds @a g to the frame, or merges it into a grid of the same name another gas added
     /// (density sums, others keep the maximum). Merging builds a new grid: cached grids of the
