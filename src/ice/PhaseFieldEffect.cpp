@@ -113,10 +113,12 @@ std::vector<std::pair<std::string, double>> PhaseFieldEffect::timings() const
         {"region", mStats.regionSeconds}, {"kernel", mStats.kernelSeconds}, {"truncate", mStats.truncateSeconds}};
     if (mParams.scheme == PhaseFieldScheme::SecondOrder) {
         t.push_back({"solve", mStats.solveSeconds});
+        t.push_back({"heat", mStats.heatSeconds});
         const double n = std::max<int64_t>(1, mStats.solves);
         t.push_back({"mean_iterations_p", mStats.solverIterationsP / n});
         t.push_back({"mean_iterations_T", mStats.solverIterationsT / n});
         t.push_back({"unconverged_solves", double(mStats.unconverged)});
+        t.push_back({"clipped_voxels", double(mStats.clippedVoxels)});
     }
     t.push_back({"substeps", double(mSubsteps)});
     t.push_back({"stability_limit_dt", mStabilityLimit});

@@ -264,19 +264,38 @@ inline double directionalSecondDerivative(const float* u, std::size_t i, const F
 /// square lattice (the paper's per-axis form), and on the hexagonal one the exact
 /// sum_k (4/3 (c.e_k)^2 - 1/3 |c|^2) D_k over its three directions. The reaction is
 /// n(pe) + n'(pe) ((p^n + p')/2 - pe): linearised about the midpoint, trapezoidal in p.
-/// Also returns lap T^n for the temperature system.
+/// The full Lax-Wendroff correction also advects the other terms: + dt/(2 tau) c . grad f with
+/// f = eps^2 lap p + n (kobayashiNonAdvective, precomputed on the block). Also returns lap T^n
+/// for the temperature system.
 struct SecondOrderRow {
     double diag, scale, rhs, predictor, lapT;
 };
 
+/// The rest of the phase equation's right-hand side at cell i, f = eps^2 lap p + n(p, T), for
+/// the Lax-Wendroff cross term c . grad f (see kobayashiSecondOrderRow).
+inline double kobayashiNonAdvective(const float* p, const float* T, const float* a, std::size_t i,
+                                    const FlatStencil& st, const KobayashiParams& k, double Te)
+{
+    const double p0 = p[i];
+    double lapP = 0;
+    for (int q = 0; q < st.n; ++q) lapP += st.wLap[q] * (double(p[i + st.off[q]]) - p0);
+    const double m = k.alpha / M_PI * std::atan(k.gamma * (Te - double(T[i])));
+    return double(a[i]) * lapP + p0 * (1.0 - p0) * (p0 - 0.5 + m);
+}
+
 inline SecondOrderRow kobayashiSecondOrderRow(const float* p, const float* T, const float* pe, const float* te,
-                                              const float* a, std::size_t i, const FlatStencil& st,
+                                              const float* a, const float* f, std::size_t i, const FlatStencil& st,
                                               const KobayashiParams& k, double Te, double chi)
 {
     const double p0 = p[i], t0 = T[i], a0 = a[i];
-    double lapP = 0, lapT = 0, cx = 0, cy = 0, cz = 0, gx = 0, gy = 0, gz = 0;
+    double lapP = 0, lapT = 0, cx = 0, cy = 0, cz = 0, gx = 0, gy = 0, gz = 0, fx = 0, fy = 0, fz = 0;
+    const double f0 = f[i];
     for (int q = 0; q < st.n; ++q) {
         const std::size_t j = i + st.off[q];
+        const double dfq = st.wGrad[q] * (double(f[j]) - f0);
+        fx += dfq * st.ex[q];
+        fy += dfq * st.ey[q];
+        fz += dfq * st.ez[q];
         const double dpq = double(p[j]) - p0;
         lapP += st.wLap[q] * dpq;
         lapT += st.wLap[q] * (double(T[j]) - t0);
@@ -296,7 +315,11 @@ inline SecondOrderRow kobayashiSecondOrderRow(const float* p, const float* T, co
     const double nm = pm * (1.0 - pm) * g;
     // dn/dp at the midpoint; below the stability limit r dn <= 1, so diag stays >= 1/2.
     const double dn = (1.0 - 2.0 * pm) * g + pm * (1.0 - pm);
-    const double advection = cx * gx + cy * gy + cz * gz + 0.5 * k.dt / k.tau * cHc;
+    // Lax-Wendroff on tau p_t = c . grad p + f: p_tt ~ (c/tau) . grad(p_t) = (c . grad(c . grad p)
+    // + c . grad f) / tau^2 with c frozen at the midpoint. The paper keeps only the first part;
+    // the second (the advection of diffusion and reaction) is what makes the step second order
+    // when the anisotropy moves the front (docs/accuracy.md).
+    const double advection = cx * gx + cy * gy + cz * gz + 0.5 * k.dt / k.tau * (cHc + cx * fx + cy * fy + cz * fz);
     SecondOrderRow row;
     row.scale = 0.5 * r * a0;
     row.diag = 1.0 + row.scale * st.wLapSum - 0.5 * r * dn;

@@ -25,8 +25,10 @@ struct PhaseFieldStepStats {
     double regionSeconds = 0, kernelSeconds = 0, truncateSeconds = 0;
     // Second-order scheme: implicit solves (time is part of kernelSeconds).
     double solveSeconds = 0;
+    double heatSeconds = 0; ///< the T system alone (latent heat + Crank-Nicolson solve)
     int64_t solves = 0, solverIterationsP = 0, solverIterationsT = 0, unconverged = 0;
     double lastResidual = 0;
+    int64_t clippedVoxels = 0; ///< lw_cn: p values clipped back into [0, 1] (Lax-Wendroff overshoot)
 };
 
 class PhaseFieldSolver {
