@@ -182,7 +182,13 @@ TEST_CASE("Explicit stability limit is reported and a larger dt is refused", "[f
     KobayashiParams k;
     const Lattice lat(LatticeKind::Square, 3.0 / 64.0);
     const double limit = k.explicitStabilityLimit(lat.stencil(false));
-    CHECK(limit == Approx((3.0 / 64.0) * (3.0 / 64.0) / 4.0)); // heat equation bound dominates
+    // Monotone update: dt (eps_max^2 |w0| + max|n'|) <= tau; here it is below the heat bound h^2/4.
+    double growth, decay;
+    k.reactionSlopeBounds(growth, decay);
+    const double h = 3.0 / 64.0, epsMax = k.epsBar * (1 + k.delta);
+    CHECK(decay == Approx(0.5 + 0.45).epsilon(1e-3)); // |n'| at p = 0 with m = -alpha/2
+    CHECK(limit == Approx(k.tau / (epsMax * epsMax * 4.0 / (h * h) + decay)));
+    CHECK(limit < h * h / 4.0);
     CHECK_NOTHROW(makeSim(kSmallScene, {"phase_field.dt=" + std::to_string(limit * 0.99)}));
     try {
         makeSim(kSmallScene, {"phase_field.dt=" + std::to_string(limit * 1.1)});
@@ -197,7 +203,7 @@ TEST_CASE("Explicit stability limit is reported and a larger dt is refused", "[f
 TEST_CASE("A solver that leaves its bounds stops naming field, voxel, step and time, and writes no file",
           "[fast][phase_field][guard]")
 {
-    auto sim = makeSim(kSmallScene, {"phase_field.delta=0.5", "phase_field.latent_heat=5", "phase_field.dt=0.00054",
+    auto sim = makeSim(kSmallScene, {"phase_field.delta=0.5", "phase_field.latent_heat=5", "phase_field.dt=0.00022",
                                      "scene.frames=3"});
     RunOptions ro;
     ro.progress = false;
