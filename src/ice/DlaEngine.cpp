@@ -109,6 +109,11 @@ void DlaEngine::relaxFrom(int64_t cell)
 {
     mQueue.clear();
     mQueue.push_back(cell);
+    relaxQueue();
+}
+
+void DlaEngine::relaxQueue()
+{
     for (size_t q = 0; q < mQueue.size(); ++q) {
         const int64_t u = mQueue[q];
         const int d = mFine[size_t(u)] + 1;
@@ -184,21 +189,7 @@ void DlaEngine::rebuild(const openvdb::FloatGrid& p)
     // multi-source BFS
     mQueue.clear();
     for (int64_t i : ice) mQueue.push_back(i);
-    for (size_t q = 0; q < mQueue.size(); ++q) {
-        const int64_t u = mQueue[q];
-        const int d = mFine[size_t(u)] + 1;
-        if (d >= mCap) continue;
-        const openvdb::Coord c = coord(u);
-        for (size_t k = 0; k < mNbr.size(); ++k) {
-            const openvdb::Coord n = c + mNbr[k];
-            if (n.x() < 0 || n.y() < 0 || n.z() < 0 || n.x() >= mNx || n.y() >= mNy || n.z() >= mNz) continue;
-            const int64_t v = u + mNbrDelta[k];
-            if (mFine[size_t(v)] > d) {
-                mFine[size_t(v)] = uint8_t(d);
-                mQueue.push_back(v);
-            }
-        }
-    }
+    relaxQueue();
 }
 
 void DlaEngine::sync(const openvdb::FloatGrid& p)

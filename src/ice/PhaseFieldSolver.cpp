@@ -94,6 +94,14 @@ void auxPass(Block& b, const std::vector<float>& phase, const FlatStencil& st, c
                              b.gx.data(), b.gy.data(), b.gz.data());
 }
 
+/// Kobayashi's noise chi in [-1/2, 1/2] for a voxel and step (0 when the noise is off): a pure
+/// function of (seed, step, voxel), so both schemes draw the same values whatever the threads.
+inline double noiseDraw(const KobayashiParams& k, uint64_t seed, int64_t stepIndex, const openvdb::Coord& c)
+{
+    if (k.noise == 0) return 0.0;
+    return toUnit(hashCounters(seed, uint64_t(stepIndex), coordKey(c.x(), c.y(), c.z()))) - 0.5;
+}
+
 /// Local T_e from the melt map (1 where there is none).
 inline double meltTemperatureAt(const KobayashiParams& k, const Block& b, size_t i, bool haveMelt)
 {
@@ -163,9 +171,7 @@ struct LeafKernel {
                     const openvdb::Coord c = it.getCoord();
                     const openvdb::Coord l = c - origin;
                     const size_t i = b.index(l.x() + kHalo, l.y() + kHalo, plane ? 0 : l.z() + kHalo);
-                    double chi = 0;
-                    if (k.noise != 0)
-                        chi = toUnit(hashCounters(seed, uint64_t(stepIndex), coordKey(c.x(), c.y(), c.z()))) - 0.5;
+                    const double chi = noiseDraw(k, seed, stepIndex, c);
                     float pn, tn;
                     const double dp = kobayashiEuler(b.p.data(), b.T.data(), b.a.data(), b.cx.data(), b.cy.data(),
                                                      b.gx.data(), b.gy.data(), b.gz.data(), i, st, k,
@@ -322,9 +328,7 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
                     const openvdb::Coord c = it.getCoord();
                     const openvdb::Coord l = c - origin;
                     const size_t i = b.index(l.x() + kHalo, l.y() + kHalo, plane ? 0 : l.z() + kHalo);
-                    double chi = 0;
-                    if (k.noise != 0)
-                        chi = toUnit(hashCounters(seed, uint64_t(stepIndex), coordKey(c.x(), c.y(), c.z()))) - 0.5;
+                    const double chi = noiseDraw(k, seed, stepIndex, c);
                     const SecondOrderRow row = kobayashiSecondOrderRow(
                         b.p.data(), b.T.data(), b.pe.data(), b.te.data(), b.a.data(), b.gz.data(), i, st, k,
                         meltTemperatureAt(k, b, i, mMelt != nullptr), chi);

@@ -183,6 +183,8 @@ public:
 private:
     void rebuild(const openvdb::FloatGrid& p);
     void relaxFrom(int64_t cell);
+    /// Breadth-first relaxation of the exact distance map from the cells queued in mQueue.
+    void relaxQueue();
     void markBlock(int64_t cell);
     void rebuildCoarse();
     int64_t release(int64_t step, uint64_t walker, WalkerRng& rng, const Inputs& in) const;
