@@ -9,7 +9,8 @@ cd "$here"
 packages=(build-essential cmake ccache pkg-config
           libopenvdb-dev libboost-iostreams-dev libboost-program-options-dev
           libtbb-dev libeigen3-dev catch2 libtomlplusplus-dev libpng-dev
-          python3-openvdb libopenvdb-tools libopenvdb-ax-tools)
+          python3-openvdb libopenvdb-tools libopenvdb-ax-tools
+          libassimp-dev)
 missing=()
 for p in "${packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

@@ -1,6 +1,7 @@
 // [fluid]: the stable-fluid projection, obstacles, boundary conditions, symmetry, the advection
 // of T without diffusion, the upstream/downstream asymmetry of a dendrite in a flow (the ice
 // paper's Figure 4), thread-count determinism.
+#include <frostvdb/BuildPaths.h>
 #include "test_util.h"
 
 #include <frostvdb/core/Error.h>

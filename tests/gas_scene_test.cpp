@@ -1,6 +1,7 @@
 // Gas effects through the driver: sparse output above the threshold, zero outside the cup, frame
 // N alone equals frame N of a full run bit for bit, thread independence, smooth animation, vel,
 // the published density field, fire grids and flows from their own sections.
+#include <frostvdb/BuildPaths.h>
 #include "test_util.h"
 
 #include <frostvdb/core/Simulation.h>

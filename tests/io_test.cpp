@@ -1,5 +1,6 @@
 // Output files: every grid and its metadata survive a write/read round trip; the command line
 // refuses bad input without writing anything.
+#include <frostvdb/BuildPaths.h>
 #include "test_util.h"
 
 #include <frostvdb/io/Png.h>

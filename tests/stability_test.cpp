@@ -16,6 +16,7 @@
 //    dense mode): j = 4 square, p equals its 90-degree rotation and its mirror images; j = 6
 //    hexagonal, p equals its 60-degree rotation (i, j) -> (-j, i + j) and the mirror
 //    (i, j) -> (-i - j, j) in axial coordinates, compared where both cells lie inside the domain.
+#include <frostvdb/BuildPaths.h>
 #include "test_util.h"
 
 #include <frostvdb/core/Error.h>

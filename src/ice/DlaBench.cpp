@@ -2,6 +2,7 @@
 /// @brief `frostvdb bench dla [SCENE] [key=value ...]`: runs a [dla] scene with empty-space jumps
 /// on and off and prints walkers, steps, jumps, steps saved and the walker time of each.
 /// Without a scene it runs scenes/dla_hex.toml (or a quick 128^2 version with --quick).
+#include <frostvdb/BuildPaths.h>
 #include <frostvdb/core/Bench.h>
 #include <frostvdb/core/Simulation.h>
 #include <frostvdb/ice/Dla.h>

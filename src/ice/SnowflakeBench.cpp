@@ -3,6 +3,7 @@
 /// 1024^2 hexagonal, H = 60000 walkers per step, 200 steps, DLA + phase field) run end to end
 /// with its frames written, timed per phase. The paper needed 2 hours on a 2.66 GHz Xeon; the
 /// target here is under 60 s on the 2-core machine.
+#include <frostvdb/BuildPaths.h>
 #include <frostvdb/core/Bench.h>
 #include <frostvdb/core/Error.h>
 #include <frostvdb/core/Simulation.h>
