@@ -1,5 +1,6 @@
 // Scene-level tests of the automata effects: every rule runs from a scene and writes cells, ice
 // and freeze_time; batch mode makes distinct flakes; the shipped scenes parse.
+#include <frostvdb/BuildPaths.h>
 #include <catch2/catch.hpp>
 
 #include <frostvdb/automata/AutomatonEffect.h>

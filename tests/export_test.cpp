@@ -1,5 +1,6 @@
 // Export: hexagonal frames resampled to square voxels (or kept with --keep-lattice) and the
 // displacement map written as a 16-bit PNG.
+#include <frostvdb/BuildPaths.h>
 #include "test_util.h"
 
 #include <frostvdb/io/Export.h>

@@ -1,4 +1,5 @@
 // Scene validation: each kind of bad input gives a message naming file, line and key.
+#include <frostvdb/BuildPaths.h>
 #include "test_util.h"
 
 #include <frostvdb/core/Error.h>
