@@ -1,0 +1,54 @@
+#pragma once
+/// @file Dla3dEffect.h
+/// @brief The [dla3d] scene section: Bourke's constrained off-lattice DLA (dla3d/Aggregate.h)
+/// grown over the frames of a run, written as `points` (PointDataGrid with radius, parent,
+/// generation, attach_time, id), `ice_sdf` (sphere-swept tapering branches) and `ice` (fog
+/// volume), plus an optional OBJ/PLY mesh beside the preview.
+#include <frostvdb/core/Effect.h>
+#include <frostvdb/dla3d/Aggregate.h>
+#include <frostvdb/dla3d/Branches.h>
+
+#include <memory>
+
+namespace frostvdb::dla3d {
+
+class Dla3dEffect : public Effect {
+public:
+    static std::unique_ptr<Effect> create(ParamDict& d, const World& world);
+
+    std::string name() const override { return "dla3d"; }
+    std::vector<std::string> fieldsWritten() const override { return {"points", "ice_sdf", "ice"}; }
+    void initialize(World& world) override;
+    void step(World& world, const StepInfo& info) override;
+    void addToFrame(World& world, Frame& frame) override;
+    bool writePreview(World& world, const Frame& frame, const std::string& pngPath) override;
+    std::vector<std::pair<std::string, double>> timings() const override;
+
+    const Aggregate& aggregate() const { return *mAggregate; }
+
+    struct Options {
+        std::string constraintFile, launchFile;
+        MeshPlacement constraintPlacement, launchPlacement;
+        std::string side = "front";
+        int64_t seedsOnMesh = 0;
+        double constraintVoxel = 0;
+        int64_t particles = 20000;
+        double voxelSize = 0;
+        BranchStyle style;
+        double halfWidth = 3;
+        bool points = true, sdf = true, fog = true;
+        std::string mesh = "none";
+        std::string sceneLabel;
+    };
+
+private:
+    DlaSettings mSettings;
+    Options mOptions;
+    std::unique_ptr<Aggregate> mAggregate;
+    std::vector<float> mAttach; ///< attach time per particle (0..1 of the run's particles)
+    int64_t mTotalSteps = 1;
+    double mGrowSeconds = 0, mOutputSeconds = 0;
+    openvdb::FloatGrid::Ptr mSdf; ///< of the last frame (for the mesh)
+};
+
+} // namespace frostvdb::dla3d

@@ -1,0 +1,54 @@
+#pragma once
+/// @file Mesh.h
+/// @brief Triangle meshes read through Assimp (OBJ, STL, PLY, and whatever else Assimp reads),
+/// placed in the world by scale, rotation and translation. Shared by every effect that takes a
+/// mesh (the [dla3d] constraints and launch surfaces; later the shell domain).
+///
+/// Placement order: scale, then rotate about x, y, z (degrees, in that order), then translate.
+/// All meshes of a file are merged into one triangle list; polygons are triangulated; duplicate
+/// vertices are joined so neighbouring triangles share indices.
+#include <openvdb/openvdb.h>
+
+#include <string>
+#include <vector>
+
+namespace frostvdb {
+
+struct MeshPlacement {
+    openvdb::Vec3d scale{1.0, 1.0, 1.0};
+    openvdb::Vec3d rotateDegrees{0.0, 0.0, 0.0}; ///< about x, then y, then z
+    openvdb::Vec3d translate{0.0, 0.0, 0.0};
+    /// The placement as a matrix acting on row vectors (OpenVDB's convention: p' = p * M).
+    openvdb::Mat4d matrix() const;
+};
+
+struct TriangleMesh {
+    std::vector<openvdb::Vec3s> points;
+    std::vector<openvdb::Vec3I> triangles;
+    std::vector<openvdb::Vec3s> colours; ///< per vertex, empty when the file has none
+    std::vector<openvdb::Vec2s> uvs;     ///< per vertex, empty when the file has none
+    std::string source;                  ///< file it was read from
+
+    bool empty() const { return triangles.empty(); }
+    /// World bounding box of the points.
+    openvdb::BBoxd bbox() const;
+    /// Area of triangle @a t and its unit normal (right-handed winding).
+    double area(size_t t) const;
+    openvdb::Vec3d normal(size_t t) const;
+    double totalArea() const;
+    /// Applies a placement to the points.
+    void transform(const MeshPlacement& placement);
+};
+
+/// Reads a triangle mesh and applies @a placement. Throws std::runtime_error with one line
+/// naming the file when it is missing, unreadable or has no triangles.
+TriangleMesh loadMesh(const std::string& path, const MeshPlacement& placement = {});
+
+/// Writes a triangle (and optional quad) mesh as Wavefront OBJ (used for optional geometry output).
+void writeObj(const std::string& path, const std::vector<openvdb::Vec3s>& points,
+              const std::vector<openvdb::Vec3I>& triangles, const std::vector<openvdb::Vec4I>& quads = {});
+/// Same as binary little-endian PLY.
+void writePly(const std::string& path, const std::vector<openvdb::Vec3s>& points,
+              const std::vector<openvdb::Vec3I>& triangles, const std::vector<openvdb::Vec4I>& quads = {});
+
+} // namespace frostvdb

@@ -1,0 +1,131 @@
+/// @file Branches.cpp
+#include <frostvdb/dla3d/Branches.h>
+
+#include <openvdb/points/PointConversion.h>
+#include <openvdb/tools/LevelSetUtil.h>
+#include <openvdb/tools/PointIndexGrid.h>
+#include <openvdb/tools/Prune.h>
+#include <openvdb/tools/SignedFloodFill.h>
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_reduce.h>
+
+#include <algorithm>
+#include <cmath>
+
+namespace frostvdb::dla3d {
+
+using openvdb::Vec3d;
+
+std::vector<float> branchRadii(const std::vector<int32_t>& parents, const BranchStyle& style)
+{
+    std::vector<double> carried(parents.size(), 1.0);
+    for (size_t i = parents.size(); i-- > 0;)
+        if (parents[i] >= 0) carried[size_t(parents[i])] += carried[i];
+    std::vector<float> r(parents.size());
+    for (size_t i = 0; i < parents.size(); ++i)
+        r[i] = float(style.tipRadius * std::min(style.maxScale, std::pow(carried[i], style.taper)));
+    return r;
+}
+
+openvdb::points::PointDataGrid::Ptr makePointGrid(const std::vector<Vec3d>& positions, const std::vector<float>& radii,
+                                                  const std::vector<int32_t>& parents,
+                                                  const std::vector<int32_t>& generations,
+                                                  const std::vector<float>& attachTimes, double voxelSize)
+{
+    using namespace openvdb::points;
+    auto xform = openvdb::math::Transform::createLinearTransform(voxelSize);
+    std::vector<openvdb::Vec3R> pos(positions.begin(), positions.end());
+    PointAttributeVector<openvdb::Vec3R> wrapper(pos);
+    auto index = openvdb::tools::createPointIndexGrid<openvdb::tools::PointIndexGrid>(wrapper, *xform);
+    auto grid = createPointDataGrid<NullCodec, PointDataGrid>(*index, wrapper, *xform);
+    auto& tree = grid->tree();
+    appendAttribute<float>(tree, "radius");
+    populateAttribute(tree, index->tree(), "radius", PointAttributeVector<float>(radii));
+    appendAttribute<int32_t>(tree, "parent");
+    populateAttribute(tree, index->tree(), "parent", PointAttributeVector<int32_t>(parents));
+    appendAttribute<int32_t>(tree, "generation");
+    populateAttribute(tree, index->tree(), "generation", PointAttributeVector<int32_t>(generations));
+    appendAttribute<float>(tree, "attach_time");
+    populateAttribute(tree, index->tree(), "attach_time", PointAttributeVector<float>(attachTimes));
+    // the particle's own index, so tools can rebuild the parent links after any reordering
+    std::vector<int32_t> ids(positions.size());
+    for (size_t i = 0; i < ids.size(); ++i) ids[i] = int32_t(i);
+    appendAttribute<int32_t>(tree, "id");
+    populateAttribute(tree, index->tree(), "id", PointAttributeVector<int32_t>(ids));
+    grid->setName("points");
+    return grid;
+}
+
+namespace {
+
+/// Rasterises a range of capsules into its own tree; joined by a voxel-wise minimum.
+struct CapsuleRaster {
+    const std::vector<Vec3d>& pos;
+    const std::vector<int32_t>& parents;
+    const std::vector<float>& radii;
+    const openvdb::math::Transform& xform;
+    float background;
+    openvdb::FloatTree tree;
+
+    CapsuleRaster(const std::vector<Vec3d>& p, const std::vector<int32_t>& par, const std::vector<float>& r,
+                  const openvdb::math::Transform& x, float bg)
+        : pos(p), parents(par), radii(r), xform(x), background(bg), tree(bg) {}
+    CapsuleRaster(CapsuleRaster& o, tbb::split)
+        : pos(o.pos), parents(o.parents), radii(o.radii), xform(o.xform), background(o.background), tree(o.background) {}
+
+    void operator()(const tbb::blocked_range<size_t>& range)
+    {
+        openvdb::tree::ValueAccessor<openvdb::FloatTree> acc(tree);
+        const double dx = xform.voxelSize()[0];
+        for (size_t i = range.begin(); i != range.end(); ++i) {
+            const Vec3d b = pos[i];
+            const double rb = std::max<double>(radii[i], 0.5 * dx);
+            const Vec3d a = parents[i] >= 0 ? pos[size_t(parents[i])] : b;
+            const double ra = parents[i] >= 0 ? std::max<double>(radii[size_t(parents[i])], 0.5 * dx) : rb;
+            const double reach = std::max(ra, rb) + background;
+            const Vec3d lo = xform.worldToIndex(openvdb::math::minComponent(a, b) - Vec3d(reach));
+            const Vec3d hi = xform.worldToIndex(openvdb::math::maxComponent(a, b) + Vec3d(reach));
+            const Vec3d ab = b - a;
+            const double len2 = ab.lengthSqr();
+            openvdb::Coord c;
+            for (c.x() = int(std::floor(lo.x())); c.x() <= int(std::ceil(hi.x())); ++c.x())
+                for (c.y() = int(std::floor(lo.y())); c.y() <= int(std::ceil(hi.y())); ++c.y())
+                    for (c.z() = int(std::floor(lo.z())); c.z() <= int(std::ceil(hi.z())); ++c.z()) {
+                        const Vec3d x = xform.indexToWorld(c);
+                        const double t = len2 > 0 ? std::clamp((x - a).dot(ab) / len2, 0.0, 1.0) : 0.0;
+                        const double d = (x - (a + ab * t)).length() - (ra + (rb - ra) * t);
+                        if (d >= background) continue;
+                        const float v = float(std::max(d, -double(background)));
+                        if (v < acc.getValue(c)) acc.setValueOn(c, v);
+                    }
+        }
+    }
+    void join(CapsuleRaster& o)
+    {
+        openvdb::tree::ValueAccessor<openvdb::FloatTree> acc(tree);
+        for (auto it = o.tree.cbeginValueOn(); it; ++it)
+            if (*it < acc.getValue(it.getCoord())) acc.setValueOn(it.getCoord(), *it);
+    }
+};
+
+} // namespace
+
+openvdb::FloatGrid::Ptr rasterizeBranches(const std::vector<Vec3d>& positions, const std::vector<int32_t>& parents,
+                                          const std::vector<float>& radii, double voxelSize, double halfWidth)
+{
+    auto xform = openvdb::math::Transform::createLinearTransform(voxelSize);
+    const float bg = float(halfWidth * voxelSize);
+    CapsuleRaster body(positions, parents, radii, *xform, bg);
+    tbb::parallel_reduce(tbb::blocked_range<size_t>(0, positions.size(), 64), body);
+    auto grid = openvdb::FloatGrid::create(bg);
+    grid->setTransform(xform);
+    grid->setTree(std::make_shared<openvdb::FloatTree>(body.tree));
+    grid->setGridClass(openvdb::GRID_LEVEL_SET);
+    openvdb::tools::signedFloodFill(grid->tree());
+    openvdb::tools::pruneLevelSet(grid->tree());
+    grid->setName("ice_sdf");
+    return grid;
+}
+
+} // namespace frostvdb::dla3d

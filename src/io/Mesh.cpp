@@ -1,0 +1,174 @@
+/// @file Mesh.cpp
+/// @brief Assimp-backed mesh loading and small OBJ/PLY writers.
+#include <frostvdb/io/Mesh.h>
+
+#include <assimp/Importer.hpp>
+#include <assimp/postprocess.h>
+#include <assimp/scene.h>
+
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <stdexcept>
+
+namespace frostvdb {
+
+openvdb::Mat4d MeshPlacement::matrix() const
+{
+    // row vectors: p' = p * S * Rx * Ry * Rz * T
+    openvdb::Mat4d m = openvdb::Mat4d::identity();
+    m.setToScale(scale);
+    const double k = M_PI / 180.0;
+    m.postRotate(openvdb::math::X_AXIS, rotateDegrees.x() * k);
+    m.postRotate(openvdb::math::Y_AXIS, rotateDegrees.y() * k);
+    m.postRotate(openvdb::math::Z_AXIS, rotateDegrees.z() * k);
+    m.postTranslate(translate);
+    return m;
+}
+
+openvdb::BBoxd TriangleMesh::bbox() const
+{
+    openvdb::BBoxd b;
+    for (const auto& p : points) b.expand(openvdb::Vec3d(p));
+    return b;
+}
+
+double TriangleMesh::area(size_t t) const
+{
+    const auto& f = triangles[t];
+    const openvdb::Vec3d a(points[f[0]]), b(points[f[1]]), c(points[f[2]]);
+    return 0.5 * (b - a).cross(c - a).length();
+}
+
+openvdb::Vec3d TriangleMesh::normal(size_t t) const
+{
+    const auto& f = triangles[t];
+    const openvdb::Vec3d a(points[f[0]]), b(points[f[1]]), c(points[f[2]]);
+    openvdb::Vec3d n = (b - a).cross(c - a);
+    const double l = n.length();
+    return l > 0 ? n / l : openvdb::Vec3d(0, 0, 1);
+}
+
+double TriangleMesh::totalArea() const
+{
+    double s = 0;
+    for (size_t t = 0; t < triangles.size(); ++t) s += area(t);
+    return s;
+}
+
+void TriangleMesh::transform(const MeshPlacement& placement)
+{
+    const openvdb::Mat4d m = placement.matrix();
+    for (auto& p : points) p = openvdb::Vec3s(m.transform(openvdb::Vec3d(p)));
+    // a mirroring scale flips the winding: keep normals pointing the way the file meant
+    const auto& s = placement.scale;
+    if (s.x() * s.y() * s.z() < 0)
+        for (auto& f : triangles) std::swap(f[1], f[2]);
+}
+
+TriangleMesh loadMesh(const std::string& path, const MeshPlacement& placement)
+{
+    if (!std::filesystem::exists(path)) throw std::runtime_error(path + ": mesh file not found");
+    Assimp::Importer importer;
+    const aiScene* scene = importer.ReadFile(
+        path, aiProcess_Triangulate | aiProcess_JoinIdenticalVertices | aiProcess_SortByPType |
+                  aiProcess_PreTransformVertices);
+    if (!scene || !scene->mRootNode)
+        throw std::runtime_error(path + ": cannot read mesh (" + importer.GetErrorString() + ")");
+    TriangleMesh mesh;
+    mesh.source = path;
+    bool anyColour = false, anyUv = false;
+    for (unsigned m = 0; m < scene->mNumMeshes; ++m) {
+        const aiMesh* am = scene->mMeshes[m];
+        anyColour |= am->HasVertexColors(0);
+        anyUv |= am->HasTextureCoords(0);
+    }
+    for (unsigned m = 0; m < scene->mNumMeshes; ++m) {
+        const aiMesh* am = scene->mMeshes[m];
+        if (!(am->mPrimitiveTypes & aiPrimitiveType_TRIANGLE)) continue;
+        const uint32_t base = uint32_t(mesh.points.size());
+        for (unsigned v = 0; v < am->mNumVertices; ++v) {
+            const aiVector3D& p = am->mVertices[v];
+            mesh.points.emplace_back(p.x, p.y, p.z);
+            if (anyColour) {
+                if (am->HasVertexColors(0)) {
+                    const aiColor4D& c = am->mColors[0][v];
+                    mesh.colours.emplace_back(c.r, c.g, c.b);
+                } else mesh.colours.emplace_back(1.f, 1.f, 1.f);
+            }
+            if (anyUv) {
+                if (am->HasTextureCoords(0)) mesh.uvs.emplace_back(am->mTextureCoords[0][v].x, am->mTextureCoords[0][v].y);
+                else mesh.uvs.emplace_back(0.f, 0.f);
+            }
+        }
+        for (unsigned f = 0; f < am->mNumFaces; ++f) {
+            const aiFace& face = am->mFaces[f];
+            if (face.mNumIndices != 3) continue;
+            mesh.triangles.emplace_back(base + face.mIndices[0], base + face.mIndices[1], base + face.mIndices[2]);
+        }
+    }
+    if (mesh.triangles.empty()) throw std::runtime_error(path + ": mesh has no triangles");
+    for (const auto& p : mesh.points)
+        if (!std::isfinite(p.x()) || !std::isfinite(p.y()) || !std::isfinite(p.z()))
+            throw std::runtime_error(path + ": mesh has non-finite vertex coordinates");
+    mesh.transform(placement);
+    return mesh;
+}
+
+namespace {
+/// Writes through a temporary name and renames, so a crash never leaves half a file.
+template <typename Fn>
+void writeAtomically(const std::string& path, bool binary, Fn fn)
+{
+    const std::string tmp = path + ".tmp";
+    {
+        std::ofstream out(tmp, binary ? std::ios::binary : std::ios::out);
+        if (!out) throw std::runtime_error(path + ": cannot open for writing");
+        fn(out);
+        if (!out) throw std::runtime_error(path + ": write failed");
+    }
+    std::filesystem::rename(tmp, path);
+}
+} // namespace
+
+void writeObj(const std::string& path, const std::vector<openvdb::Vec3s>& points,
+              const std::vector<openvdb::Vec3I>& triangles, const std::vector<openvdb::Vec4I>& quads)
+{
+    writeAtomically(path, false, [&](std::ofstream& out) {
+        out << "# frostvdb\n";
+        char buf[96];
+        for (const auto& p : points) {
+            std::snprintf(buf, sizeof buf, "v %.7g %.7g %.7g\n", p.x(), p.y(), p.z());
+            out << buf;
+        }
+        for (const auto& t : triangles) out << "f " << t[0] + 1 << ' ' << t[1] + 1 << ' ' << t[2] + 1 << '\n';
+        for (const auto& q : quads)
+            out << "f " << q[0] + 1 << ' ' << q[1] + 1 << ' ' << q[2] + 1 << ' ' << q[3] + 1 << '\n';
+    });
+}
+
+void writePly(const std::string& path, const std::vector<openvdb::Vec3s>& points,
+              const std::vector<openvdb::Vec3I>& triangles, const std::vector<openvdb::Vec4I>& quads)
+{
+    writeAtomically(path, true, [&](std::ofstream& out) {
+        out << "ply\nformat binary_little_endian 1.0\ncomment frostvdb\nelement vertex " << points.size()
+            << "\nproperty float x\nproperty float y\nproperty float z\nelement face "
+            << triangles.size() + quads.size() << "\nproperty list uchar int vertex_indices\nend_header\n";
+        for (const auto& p : points) out.write(reinterpret_cast<const char*>(p.asPointer()), 12);
+        for (const auto& t : triangles) {
+            const unsigned char n = 3;
+            const int32_t v[3] = {int32_t(t[0]), int32_t(t[1]), int32_t(t[2])};
+            out.write(reinterpret_cast<const char*>(&n), 1);
+            out.write(reinterpret_cast<const char*>(v), 12);
+        }
+        for (const auto& q : quads) {
+            const unsigned char n = 4;
+            const int32_t v[4] = {int32_t(q[0]), int32_t(q[1]), int32_t(q[2]), int32_t(q[3])};
+            out.write(reinterpret_cast<const char*>(&n), 1);
+            out.write(reinterpret_cast<const char*>(v), 16);
+        }
+    });
+}
+
+} // namespace frostvdb
