@@ -13,6 +13,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <ctime>
 #include <cstdio>
 #include <fstream>
 #include <memory>
@@ -60,19 +61,22 @@ int benchDla3d(const BenchArgs& args)
     std::sort(sizes.begin(), sizes.end());
     std::printf("dla3d: %dD, radius %.3g, stick distance %.3g (touch at %.3g), threads %d\n", base.dimension,
                 base.radius, base.stickDistance, base.contact() + base.stickDistance, args.threads);
-    std::printf("%10s %9s %9s %12s %9s %9s %10s %8s %8s %10s %9s\n", "particles", "wall s", "peak MB", "particles/s",
+    std::printf("%10s %9s %9s %9s %12s %9s %9s %10s %8s %8s %10s %9s\n", "particles", "wall s", "cpu s", "peak MB",
+                "particles/s",
                 "steps/p", "walk/p", "conflicts", "D(Rg)", "D(N(r))", "dlaf s", "speedup");
     for (size_t n : sizes) {
         const auto t0 = std::chrono::steady_clock::now();
+        const std::clock_t c0 = std::clock(); // CPU of all threads: comparable on a loaded machine
         Aggregate agg(base);
         agg.growTo(n);
         const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+        const double cpu = double(std::clock() - c0) / CLOCKS_PER_SEC;
         const auto& st = agg.stats();
         const auto g = gyrationDimension(agg.positions(), std::max<size_t>(100, n / 1000));
         const auto m = massRadiusDimension(agg.positions(), agg.centre(), 10 * agg.settings().contact(),
                                            0.3 * agg.radius());
         const double dl = base.dimension == 3 && base.stickDistance == 2.0 && base.radius == 0.5 ? dlafSeconds(n) : 0;
-        std::printf("%10zu %9.2f %9.1f %12.0f %9.1f %9.2f %10llu %8.3f %8.3f %10s %9s\n", n, wall, peakRssMb(),
+        std::printf("%10zu %9.2f %9.2f %9.1f %12.0f %9.1f %9.2f %10llu %8.3f %8.3f %10s %9s\n", n, wall, cpu, peakRssMb(),
                     double(n) / wall, double(st.steps) / double(n), double(st.walkers) / double(n),
                     (unsigned long long)st.conflicts, g.dimension, m.dimension,
                     dl > 0 ? std::to_string(dl).substr(0, 6).c_str() : "-",
