@@ -12,6 +12,8 @@
 #include <tbb/global_control.h>
 
 #include <cstring>
+#include <filesystem>
+#include <fstream>
 #include <iostream>
 #include <map>
 #include <set>
@@ -312,4 +314,43 @@ TEST_CASE("gg3d: presets grow their morphology class on small runs", "[gg3d][fas
         for (const Axial& c : ring(R - 1)) filled += a.attached(c.q, c.r, z);
         CHECK(filled < int(0.9 * 6 * (R - 1)));
     }
+}
+
+TEST_CASE("[output] world_scale multiplies the world size of written grids and meshes", "[gg3d][fast]")
+{
+    namespace fs = std::filesystem;
+    const fs::path dir = fs::temp_directory_path() / "frostvdb_gg3d_world_scale";
+    fs::remove_all(dir);
+    fs::create_directories(dir);
+    const std::string mesh = (dir / "flake.obj").string();
+    Simulation sim(Scene::fromString("[scene]\nname = \"ws\"\nsteps_per_frame = 30\n[domain]\nsize = [41, 41]\n"
+                                     "voxel_size = 0.0001\n[gravner_griffeath_3d]\npreset = \"fig30_hollow_column\"\n"
+                                     "layers = 21\nmesh = \"obj\"\nmesh_file = \"" + mesh + "\"\n"
+                                     "[output]\nworld_scale = 100\n", "<t>"));
+    sim.initialize();
+    for (int s = 0; s < 30; ++s) sim.step();
+    Frame f = sim.currentFrame(1);
+    double iceVoxel = 0;
+    for (auto& g : f.grids)
+        if (g->getName() == "ice") iceVoxel = g->voxelSize()[0];
+    REQUIRE(iceVoxel == Approx(0.0001 / 3));
+    const std::string path = sim.writeFrame(f, dir.string());
+    openvdb::io::File file(path);
+    file.open();
+    auto written = file.readGrid("ice");
+    file.close();
+    CHECK(written->voxelSize()[0] == Approx(100 * iceVoxel));
+    CHECK(iceVoxel == Approx(0.0001 / 3)); // the frame's own grid is untouched
+    // The mesh is written at the scaled size too: its vertices span metres, not centimetres.
+    std::ifstream obj((dir / "flake.1.obj").string());
+    REQUIRE(obj.good());
+    std::string tag;
+    double x, y, z, maxAbs = 0;
+    while (obj >> tag) {
+        if (tag == "v" && obj >> x >> y >> z) maxAbs = std::max({maxAbs, std::abs(x), std::abs(y), std::abs(z)});
+        else std::getline(obj, tag);
+    }
+    CHECK(maxAbs > 100 * 0.0001); // at least one scaled cell from the origin
+    CHECK(maxAbs < 100 * 0.0001 * 40);
+    fs::remove_all(dir);
 }
