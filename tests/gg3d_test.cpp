@@ -211,6 +211,10 @@ TEST_CASE("gg3d: over-budget scenes are refused before allocation; an empty sect
         CHECK(w.find("GB") != std::string::npos);
         CHECK(w.find("memory_budget") != std::string::npos);
     }
+    // Ice voxels below OpenVDB's limit: a scene error naming the key, not an ArithmeticError.
+    CHECK_THROWS_WITH(Simulation(Scene::fromString("[domain]\nsize = [41, 41]\nvoxel_size = 0.00004\n"
+                                                   "[gravner_griffeath_3d]\nvoxels_per_cell = 8\n", "<t>")),
+                      Catch::Contains("voxels_per_cell") && Catch::Contains("OpenVDB"));
     // An empty section (and no [domain]) is a valid, small scene.
     Simulation sim(Scene::fromString("[scene]\nsteps_per_frame = 5\n[gravner_griffeath_3d]\n", "<t>"));
     sim.initialize();

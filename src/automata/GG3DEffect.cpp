@@ -240,6 +240,21 @@ std::unique_ptr<Effect> GG3DEffect::create(ParamDict& d, const World& world)
     out.voxelsPerCell = int(d.getInt("voxels_per_cell", 3, 1, 16, "voxels",
         "`ice` / `ice_sdf` voxels (cubes) per cell spacing: the prisms resampled to a cubic grid"));
     out.prismHeight = d.getFloat("prism_height", 1.0, 0.05, 100.0, "cells", "prism height in cell spacings");
+    {   // OpenVDB refuses near-singular maps ("ArithmeticError: Non-zero scale values required"):
+        // check the `ice` voxel and the prism layer here and say which key to change.
+        const double h = world.domain.voxelSize();
+        try {
+            openvdb::math::Transform::createLinearTransform(h / out.voxelsPerCell);
+            openvdb::math::Transform::createLinearTransform(h * out.prismHeight);
+        } catch (const std::exception&) {
+            char msg[200];
+            std::snprintf(msg, sizeof msg,
+                          "`ice` voxels of [domain] voxel_size / voxels_per_cell = %.3g m (prism height %.3g m) are "
+                          "below OpenVDB's limit (about 3e-5 m): lower voxels_per_cell or raise voxel_size",
+                          h / out.voxelsPerCell, h * out.prismHeight);
+            d.fail(d.has("prism_height") && h * out.prismHeight < h / out.voxelsPerCell ? "prism_height" : "voxels_per_cell", msg);
+        }
+    }
     out.sdf = d.getBool("sdf", true, "write `ice_sdf`, a narrow-band level set of the crystal");
     out.sdfSmoothing = int(d.getInt("sdf_smoothing", 1, 0, 10, "passes",
         "smoothing passes of `ice_sdf` (rounds the voxel staircase; facets stay flat)"));
