@@ -348,13 +348,28 @@ TEST_CASE("[output] world_scale multiplies the world size of written grids and m
     // The mesh is written at the scaled size too: its vertices span metres, not centimetres.
     std::ifstream obj((dir / "flake.1.obj").string());
     REQUIRE(obj.good());
-    std::string tag;
-    double x, y, z, maxAbs = 0;
-    while (obj >> tag) {
-        if (tag == "v" && obj >> x >> y >> z) maxAbs = std::max({maxAbs, std::abs(x), std::abs(y), std::abs(z)});
-        else std::getline(obj, tag);
+    std::string line;
+    std::vector<openvdb::Vec3d> v;
+    double maxAbs = 0, volume = 0;
+    while (std::getline(obj, line)) {
+        std::istringstream in(line);
+        std::string tag;
+        in >> tag;
+        if (tag == "v") {
+            openvdb::Vec3d p;
+            in >> p[0] >> p[1] >> p[2];
+            v.push_back(p);
+            maxAbs = std::max({maxAbs, std::abs(p[0]), std::abs(p[1]), std::abs(p[2])});
+        } else if (tag == "f") {
+            std::vector<int> f;
+            int i;
+            while (in >> i) f.push_back(i - 1);
+            for (size_t k = 1; k + 1 < f.size(); ++k) // signed volume: positive for outward faces
+                volume += v[size_t(f[0])].dot(v[size_t(f[k])].cross(v[size_t(f[k + 1])])) / 6.0;
+        }
     }
     CHECK(maxAbs > 100 * 0.0001); // at least one scaled cell from the origin
     CHECK(maxAbs < 100 * 0.0001 * 40);
+    CHECK(volume > 0.0);
     fs::remove_all(dir);
 }
