@@ -4,6 +4,7 @@
 // class of the presets on small runs.
 #include <catch2/catch.hpp>
 
+#include <frostvdb/BuildPaths.h>
 #include <frostvdb/automata/GG3DEffect.h>
 #include <frostvdb/core/Error.h>
 #include <frostvdb/core/Scene.h>
@@ -372,4 +373,14 @@ TEST_CASE("[output] world_scale multiplies the world size of written grids and m
     CHECK(maxAbs < 100 * 0.0001 * 40);
     CHECK(volume > 0.0);
     fs::remove_all(dir);
+}
+
+TEST_CASE("gg3d: the shipped scenes load (one per family)", "[gg3d][fast]")
+{
+    for (const char* s : {"gg3d_plate_ridges", "gg3d_sectored_plate", "gg3d_fern", "gg3d_classic_dendrite",
+                          "gg3d_sandwich_plate", "gg3d_needle", "gg3d_hollow_column", "gg3d_capped_column",
+                          "gg3d_star_needles"}) {
+        INFO(s);
+        CHECK_NOTHROW(Simulation(Scene::load(std::string(FROSTVDB_SOURCE_DIR) + "/scenes/" + s + ".toml")));
+    }
 }
