@@ -537,7 +537,6 @@ using CoxeReiterEffect = RuleEffect<Rule::CoxeReiter>;
 using ProbabilisticEffect = RuleEffect<Rule::Probabilistic>;
 using ReiterEffect = RuleEffect<Rule::Reiter>;
 using GravnerGriffeathEffect = RuleEffect<Rule::GravnerGriffeath>;
-using GravnerGriffeath3DEffect = RuleEffect<Rule::GravnerGriffeath3D>;
 
 } // namespace
 
@@ -550,8 +549,8 @@ FROSTVDB_REGISTER_EFFECT(ProbabilisticEffect, "probabilistic_ca",
 FROSTVDB_REGISTER_EFFECT(ReiterEffect, "reiter", "Reiter (2005) local model of snow crystal growth");
 FROSTVDB_REGISTER_EFFECT(GravnerGriffeathEffect, "gravner_griffeath",
     "Gravner-Griffeath 2D mesoscopic snowflake (diffusion, freezing, attachment, melting)");
-FROSTVDB_REGISTER_EFFECT(GravnerGriffeath3DEffect, "gravner_griffeath_3d",
-    "Gravner-Griffeath 3D snowflake on hexagonal prisms: a true volumetric crystal");
+// [gravner_griffeath_3d] is the model as published: GG3DEffect.cpp (HexAutomaton's prism rule
+// stays for the rule-level tests and the bench).
 
 } // namespace automata
 } // namespace frostvdb

@@ -72,7 +72,10 @@ void readRegionSection(ParamDict& d, RegionSettings& r)
         "extra dilation of the active region for the distance the front moves in one step"));
 }
 
-void readOutputSection(ParamDict& d, OutputSettings& o)
+/// [output] world_scale lives in World::shared (key below) so effects writing their own files see it.
+const char* const kWorldScaleKey = "output.world_scale";
+
+void readOutputSection(ParamDict& d, OutputSettings& o, double* worldScale = nullptr)
 {
     o.vdb = d.getBool("vdb", true, "write <name>.<frame>.vdb files");
     const std::string p = d.getString("preview", "last", {"none", "last", "every"},
@@ -87,6 +90,10 @@ void readOutputSection(ParamDict& d, OutputSettings& o)
     o.displacementPng = d.getBool("displacement_png", true,
         "flat domains with ice: also write the displacement map (grid `growth`) as a 16-bit greyscale "
         "<name>.<frame>.displacement.png on the square export raster");
+    const double scale = d.getFloat("world_scale", 1.0, 1e-6, 1e9, "",
+        "multiplies the world size of everything written (grid transforms, meshes); e.g. 100 for a 1 cm flake "
+        "in a renderer that loses sub-millimetre voxels (docs/snowflakes3d.md)");
+    if (worldScale) *worldScale = scale;
 }
 
 } // namespace
@@ -100,7 +107,7 @@ Simulation::Simulation(Scene scene) : mScene(std::move(scene))
     readSceneSection(mScene.section("scene"), mWorld, fallback);
     mWorld.domain = Domain::fromParams(mScene.section("domain"));
     readRegionSection(mScene.section("region"), mWorld.region);
-    readOutputSection(mScene.section("output"), mOutput);
+    readOutputSection(mScene.section("output"), mOutput, &mWorld.shared<double>(kWorldScaleKey));
     mWorld.sceneLabel = mScene.label();
     mWorld.sceneText = mScene.text();
     mWorld.fields = FieldSet(mWorld.domain.transform());
@@ -185,6 +192,16 @@ std::string Simulation::writeFrame(const Frame& frame, const std::string& dir)
     meta.insertMeta("time", openvdb::DoubleMetadata(frame.time));
     meta.insertMeta("voxel_size_m", openvdb::DoubleMetadata(mWorld.domain.voxelSize()));
     openvdb::GridPtrVec grids = exportGrids(frame.grids, mWorld.domain, mOutput.keepLattice);
+    const double worldScale = mWorld.shared<double>(kWorldScaleKey);
+    if (worldScale != 1.0) { // shallow copies: the frame's own grids keep their transforms
+        meta.insertMeta("world_scale", openvdb::DoubleMetadata(worldScale));
+        for (auto& g : grids) {
+            auto x = g->transform().copy();
+            x->postScale(worldScale);
+            g = g->copyGrid();
+            g->setTransform(x);
+        }
+    }
     for (auto& g : grids) {
         g->insertMeta("frostvdb_step", openvdb::Int64Metadata(frame.step));
         g->insertMeta("frostvdb_time", openvdb::DoubleMetadata(frame.time));

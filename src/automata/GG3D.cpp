@@ -1,0 +1,550 @@
+/// @file GG3D.cpp
+/// @brief The Gravner-Griffeath 3D model as published: sparse active box, 1/24 fundamental
+/// domain, TBB rows. See GG3D.h for the step and the symmetry argument.
+#include <frostvdb/automata/GG3D.h>
+#include <frostvdb/core/Random.h>
+
+#include <tbb/blocked_range.h>
+#include <tbb/enumerable_thread_specific.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+
+namespace frostvdb {
+namespace automata {
+
+namespace {
+constexpr uint8_t kAttached = 1, kWall = 2;
+constexpr double kVertical = 3.0 / 14.0; // per vertical neighbour; the centre keeps 8/14
+
+/// Layers [lo, hi] of a prism of @a height layers symmetric under z -> m - z.
+void prismLayers(int height, int m, int& lo, int& hi)
+{
+    if ((height + m) % 2 == 0) ++height; // the parity the mirror needs
+    hi = (height - 1 + m) / 2;
+    lo = m - hi;
+}
+
+inline int cfgOf(uint8_t cnt)
+{
+    const int nh = cnt & 15, nv = cnt >> 4;
+    return ggConfigIndex(std::min(3, nh), std::min(1, nv));
+}
+} // namespace
+
+const char* ggConfigName(int k)
+{
+    static const char* names[kGGConfigs] = {"01", "10", "20", "30", "11", "21", "31"};
+    return k >= 0 && k < kGGConfigs ? names[k] : "00";
+}
+
+uint64_t gg3dMemoryEstimate(const GG3DConfig& cfg)
+{
+    const uint64_t R = uint64_t(std::max(1, cfg.domainRadius)), L = uint64_t(std::max(1, cfg.layers)) + 1;
+    const bool halfZ = cfg.wedge && cfg.p.phi == 0.0;
+    const uint64_t plane = cfg.wedge ? (R + 3) * (R / 2 + 3) : (2 * R + 3) * (2 * R + 3);
+    const uint64_t layers = (halfZ ? L / 2 : L) + 3;
+    const uint64_t perCell = 3 * sizeof(double) + 2 + sizeof(int32_t) + (cfg.p.noise > 0 ? sizeof(double) : 0);
+    // The box grows by reallocation: old and new arrays coexist for a moment.
+    return plane * layers * perCell * 2;
+}
+
+GG3D::GG3D(const GG3DConfig& cfg) : mCfg(cfg), mP(cfg.p)
+{
+    if (mCfg.domainRadius < 4) throw std::invalid_argument("gg3d: domain radius must be at least 4");
+    std::sort(mCfg.switches.begin(), mCfg.switches.end(),
+              [](const GG3DSwitch& a, const GG3DSwitch& b) { return a.step < b.step; });
+    mM = (mCfg.seedHeight % 2 == 0) ? 1 : 0;
+    int layers = std::max(3, mCfg.layers);
+    prismLayers(layers, mM, mZDomLo, mZDomHi);
+    // Drift (now or after a switch) breaks the up/down mirror; the seeds are always D6-symmetric.
+    bool drift = mP.phi != 0.0;
+    for (const auto& s : mCfg.switches) drift = drift || s.phi > 0.0;
+    mWedgeH = mCfg.wedge;
+    mZSym = !drift;
+    mHalfZ = mCfg.wedge && !drift;
+    int slo, shi;
+    prismLayers(mCfg.seedHeight, mM, slo, shi);
+    int s2 = std::max(mCfg.seedRadius, mCfg.seedRadius2);
+    if (mCfg.seedRadius2 >= 0) {
+        int lo2, hi2;
+        prismLayers(mCfg.seedHeight2, mM, lo2, hi2);
+        slo = std::min(slo, lo2);
+        shi = std::max(shi, hi2);
+    }
+    if (s2 + 3 > mCfg.domainRadius || shi + 2 > mZDomHi)
+        throw std::invalid_argument("gg3d: the seed does not fit the domain");
+    const int stop = mCfg.stopRadius > 0 ? mCfg.stopRadius : int(0.8 * mCfg.domainRadius);
+    mCfg.stopRadius = std::min(stop, mCfg.domainRadius - 2);
+    resize(std::min(mCfg.domainRadius, s2 + 3), std::max(mZDomLo, slo - 3), std::min(mZDomHi, shi + 3));
+    initSeed();
+}
+
+void GG3D::initSeed()
+{
+    auto put = [&](int rad, int height) {
+        int lo, hi;
+        prismLayers(height, mM, lo, hi);
+        for (int z = lo; z <= hi; ++z)
+            for (int r = -rad; r <= rad; ++r)
+                for (int q = -rad; q <= rad; ++q) {
+                    if (hexDistance(q, r) > rad) continue;
+                    int qq = q, rr = r, zz = z;
+                    if (!storedOf(qq, rr, zz)) continue;
+                    bool in;
+                    const size_t i = storedIndex(qq, rr, zz, in);
+                    if (!in || (mFlags[i] & kAttached)) continue;
+                    mFlags[i] = kAttached;
+                    mB[i] = 1.0;
+                    mD[i] = mT[i] = 0.0;
+                    mAttach[i] = 0;
+                    mCrystalR = std::max(mCrystalR, hexDistance(q, r));
+                    if (mCrystalZHi < mCrystalZLo) mCrystalZLo = mCrystalZHi = z;
+                    mCrystalZLo = std::min(mCrystalZLo, z);
+                    mCrystalZHi = std::max(mCrystalZHi, z);
+                }
+    };
+    put(mCfg.seedRadius, mCfg.seedHeight);
+    if (mCfg.seedRadius2 >= 0) put(mCfg.seedRadius2, mCfg.seedHeight2);
+    syncGhosts(mFlags);
+    for (const RowSpan& row : mRows)
+        for (int q = row.qa; q <= row.qb; ++q) recount(q, row.r, row.z);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Storage.
+
+bool GG3D::storedOf(int& q, int& r, int& z) const
+{
+    if (mWedgeH) {
+        const Axial c = canonical(q, r);
+        q = c.q;
+        r = c.r;
+    }
+    if (mHalfZ && z < mM) z = mM - z;
+    return true;
+}
+
+size_t GG3D::storedIndex(int q, int r, int z, bool& inBox) const
+{
+    // Computed region only: hexdist <= Ra and z in the active layers.
+    const int zlo = mHalfZ ? mM : mZlo;
+    inBox = hexDistance(q, r) <= mRa && z >= zlo && z <= mZa && mBox.contains(q, r, z);
+    return inBox ? mBox.index(q, r, z) : 0;
+}
+
+uint8_t GG3D::flagAt(int q, int r, int z) const
+{
+    if (!inDomain(q, r, z)) return mCfg.walls == GG3DWalls::Reflecting ? kWall : 0;
+    storedOf(q, r, z);
+    bool in;
+    const size_t i = storedIndex(q, r, z, in);
+    return in ? mFlags[i] : 0;
+}
+
+void GG3D::resize(int ra, int zlo, int zhi)
+{
+    Box nb;
+    if (mWedgeH) {
+        nb.q0 = -1; nb.q1 = ra + 1; nb.r0 = -1; nb.r1 = ra / 2 + 1;
+    } else {
+        nb.q0 = nb.r0 = -(ra + 1);
+        nb.q1 = nb.r1 = ra + 1;
+    }
+    if (mHalfZ) zlo = mM;
+    nb.z0 = zlo - 1;
+    nb.z1 = zhi + 1;
+    nb.W = nb.q1 - nb.q0 + 1;
+    nb.H = nb.r1 - nb.r0 + 1;
+    nb.plane = size_t(nb.W) * size_t(nb.H);
+    nb.size = nb.plane * size_t(nb.z1 - nb.z0 + 1);
+
+    std::vector<double> d(nb.size), b(nb.size, 0.0), t;
+    std::vector<uint8_t> f(nb.size, 0), c(nb.size, 0);
+    std::vector<int32_t> at(nb.size, -1);
+    const bool had = !mD.empty();
+    const int oldZlo = mHalfZ ? mM : mZlo;
+    tbb::parallel_for(nb.z0, nb.z1 + 1, [&](int z) {
+        for (int r = nb.r0; r <= nb.r1; ++r)
+            for (int q = nb.q0; q <= nb.q1; ++q) {
+                const size_t i = nb.index(q, r, z);
+                const bool oldComputed = had && hexDistance(q, r) <= mRa && z >= oldZlo && z <= mZa &&
+                                         mBox.contains(q, r, z);
+                if (oldComputed) {
+                    const size_t o = mBox.index(q, r, z);
+                    d[i] = mD[o]; b[i] = mB[o]; f[i] = mFlags[o]; c[i] = mCnt[o]; at[i] = mAttach[o];
+                } else if (!inDomain(q, r, z)) {
+                    d[i] = mP.rho;
+                    f[i] = mCfg.walls == GG3DWalls::Reflecting ? kWall : 0;
+                } else {
+                    d[i] = mP.rho;
+                }
+            }
+    });
+    t = d;
+    mD.swap(d); mB.swap(b); mT.swap(t); mFlags.swap(f); mCnt.swap(c); mAttach.swap(at);
+    if (mP.noise > 0.0) mHold.assign(nb.size, 0.0);
+    mBox = nb;
+    mRa = ra;
+    mZlo = zlo;
+    mZa = zhi;
+    for (int k = 0; k < 6; ++k) mN[size_t(k)] = int64_t(kNeighbours[size_t(k)].r) * nb.W + kNeighbours[size_t(k)].q;
+    buildRows();
+    syncGhosts(mD);
+    syncGhosts(mFlags);
+    mPeakBytes = std::max(mPeakBytes, bytes() + (had ? 0 : 0));
+}
+
+uint64_t GG3D::bytes() const
+{
+    return mD.size() * 8 * 3 + mFlags.size() * 2 + mAttach.size() * 4 + mHold.size() * 8 +
+           mGhosts.size() * 16 + mRows.size() * sizeof(RowSpan);
+}
+
+void GG3D::buildRows()
+{
+    mRows.clear();
+    const int zlo = mHalfZ ? mM : mZlo;
+    for (int z = zlo; z <= mZa; ++z) {
+        if (mWedgeH) {
+            for (int r = 0; 2 * r <= mRa; ++r) mRows.push_back({z, r, r, mRa - r});
+        } else {
+            for (int r = -mRa; r <= mRa; ++r)
+                mRows.push_back({z, r, std::max(-mRa, -mRa - r), std::min(mRa, mRa - r)});
+        }
+    }
+    // Horizontal ghosts (one plane; applied to every computed layer): neighbours of wedge cells
+    // that lie outside the wedge read their canonical image.
+    mGhosts.clear();
+    if (!mWedgeH) return;
+    std::vector<uint8_t> seen(mBox.plane, 0);
+    for (int r = 0; 2 * r <= mRa; ++r)
+        for (int q = r; q <= mRa - r; ++q)
+            for (const Axial& n : kNeighbours) {
+                const int qq = q + n.q, rr = r + n.r;
+                if (rr >= 0 && qq >= rr) continue;
+                const size_t g = mBox.index(qq, rr, mBox.z0);
+                if (seen[g]) continue;
+                seen[g] = 1;
+                const Axial c = canonical(qq, rr);
+                mGhosts.emplace_back(g, mBox.index(c.q, c.r, mBox.z0));
+            }
+}
+
+void GG3D::syncGhosts(std::vector<double>& v)
+{
+    const int zlo = mHalfZ ? mM : mZlo;
+    if (mWedgeH)
+        tbb::parallel_for(zlo, mZa + 1, [&](int z) {
+            const size_t off = size_t(z - mBox.z0) * mBox.plane;
+            for (const auto& g : mGhosts) v[g.first + off] = v[g.second + off];
+        });
+    if (mHalfZ) // the mirrored layer below the stored half is layer 1's image
+        std::copy_n(v.begin() + std::ptrdiff_t(mBox.index(mBox.q0, mBox.r0, 1)), mBox.plane,
+                    v.begin() + std::ptrdiff_t(mBox.index(mBox.q0, mBox.r0, mBox.z0)));
+}
+
+void GG3D::syncGhosts(std::vector<uint8_t>& v)
+{
+    const int zlo = mHalfZ ? mM : mZlo;
+    if (mWedgeH)
+        for (int z = zlo; z <= mZa; ++z) {
+            const size_t off = size_t(z - mBox.z0) * mBox.plane;
+            for (const auto& g : mGhosts) v[g.first + off] = v[g.second + off];
+        }
+    if (mHalfZ)
+        std::copy_n(v.begin() + std::ptrdiff_t(mBox.index(mBox.q0, mBox.r0, 1)), mBox.plane,
+                    v.begin() + std::ptrdiff_t(mBox.index(mBox.q0, mBox.r0, mBox.z0)));
+}
+
+void GG3D::recount(int q, int r, int z)
+{
+    bool in;
+    const size_t i = storedIndex(q, r, z, in);
+    if (!in) return;
+    int nh = 0;
+    for (int k = 0; k < 6; ++k) nh += mFlags[size_t(int64_t(i) + mN[size_t(k)])] & kAttached;
+    const int nv = (mFlags[i + mBox.plane] & kAttached) + (mFlags[i - mBox.plane] & kAttached);
+    mCnt[i] = uint8_t(nh | (nv << 4));
+}
+
+// ---------------------------------------------------------------------------------------------
+// The step.
+
+void GG3D::applySwitches()
+{
+    while (mSwitchNext < mCfg.switches.size() && mCfg.switches[mSwitchNext].step <= mStep) {
+        const GG3DSwitch& s = mCfg.switches[mSwitchNext++];
+        if (s.hasBeta) mP.beta = s.beta;
+        if (s.hasKappa) mP.kappa = s.kappa;
+        if (s.hasMu) mP.mu = s.mu;
+        if (s.phi >= 0.0) mP.phi = s.phi;
+    }
+}
+
+void GG3D::step()
+{
+    if (mStopped) return;
+    applySwitches();
+    const size_t P = mBox.plane;
+    const auto& N = mN;
+    double* D = mD.data();
+    double* T = mT.data();
+    double* B = mB.data();
+    const uint8_t* F = mFlags.data();
+    const uint8_t* C = mCnt.data();
+    const GG3DParams p = mP;
+    const bool noise = p.noise > 0.0;
+    auto forRows = [&](auto&& fn) {
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, mRows.size(), 4), [&](const tbb::blocked_range<size_t>& rg) {
+            for (size_t k = rg.begin(); k < rg.end(); ++k) {
+                const RowSpan& row = mRows[k];
+                fn(row, mBox.index(row.qa, row.r, row.z));
+            }
+        });
+    };
+
+    // Noise: a fraction xi of each cell's vapour sits out the diffusion (keyed by the canonical
+    // cell, so every image of a cell draws the same xi).
+    if (noise) {
+        double* Hd = mHold.data();
+        const uint64_t key = hashCounters(mCfg.seed, 0x47473344ull, uint64_t(mStep));
+        forRows([&](const RowSpan& row, size_t i0) {
+            for (int q = row.qa; q <= row.qb; ++q) {
+                const size_t i = i0 + size_t(q - row.qa);
+                Hd[i] = 0.0;
+                if (F[i] & kAttached) continue;
+                const Axial c = canonical(q, row.r);
+                const int zc = mZSym && row.z < mM ? mM - row.z : row.z;
+                const uint64_t h = hashCounters(key, uint64_t(uint32_t(c.q)), uint64_t(uint32_t(c.r)),
+                                                uint64_t(uint32_t(zc)));
+                if (h & 1) {
+                    Hd[i] = p.noise * D[i];
+                    D[i] -= Hd[i];
+                }
+            }
+        });
+    }
+    syncGhosts(mD);
+
+    // 1. Horizontal diffusion d -> T: d + (1/7) sum(d_n - d), attached or wall neighbours
+    //    reflect (difference 0).
+    forRows([&](const RowSpan& row, size_t i0) {
+        for (size_t i = i0, e = i0 + size_t(row.qb - row.qa); i <= e; ++i) {
+            if (F[i] & kAttached) { T[i] = 0.0; continue; }
+            const double c = D[i];
+            double v[6];
+            for (int k = 0; k < 6; ++k) {
+                const size_t n = size_t(int64_t(i) + N[size_t(k)]);
+                v[k] = F[n] ? 0.0 : D[n] - c;
+            }
+            T[i] = c + symSum6(v[0], v[1], v[2], v[3], v[4], v[5]) / 7.0;
+        }
+    });
+    if (mHalfZ)
+        std::copy_n(mT.begin() + std::ptrdiff_t(mBox.index(mBox.q0, mBox.r0, 1)), P,
+                    mT.begin() + std::ptrdiff_t(mBox.index(mBox.q0, mBox.r0, mBox.z0)));
+
+    // 2-3. Vertical diffusion (+ drift), freezing and the attachment decision.
+    const int32_t stepNo = int32_t(mStep + 1);
+    tbb::enumerable_thread_specific<std::vector<size_t>> newly;
+    const double* Hd = noise ? mHold.data() : nullptr;
+    auto settle = [&](size_t i, double v, std::vector<size_t>& out) {
+        if (Hd) v += Hd[i];
+        const uint8_t cn = C[i];
+        if (cn == 0) { D[i] = v; return; }
+        const int k = cfgOf(cn);
+        const double dn = p.kappa[size_t(k)] * v;
+        const double bn = B[i] + (v - dn);
+        const int nh = cn & 15, nv = cn >> 4;
+        if (bn >= p.beta[size_t(k)] || (p.holeFill && nh >= 4 && (!p.holeFillNeedsVertical || nv >= 1))) {
+            B[i] = bn + dn;
+            D[i] = 0.0;
+            out.push_back(i);
+        } else {
+            B[i] = bn;
+            D[i] = dn;
+        }
+    };
+    auto vertical = [&](size_t i) {
+        const double c = T[i];
+        const double up = F[i + P] ? 0.0 : T[i + P] - c;
+        const double dn = F[i - P] ? 0.0 : T[i - P] - c;
+        return c + (up + dn) * kVertical;
+    };
+    if (p.phi == 0.0) {
+        forRows([&](const RowSpan& row, size_t i0) {
+            auto& out = newly.local();
+            for (size_t i = i0, e = i0 + size_t(row.qb - row.qa); i <= e; ++i)
+                if (!(F[i] & kAttached)) settle(i, vertical(i), out);
+        });
+    } else {
+        // Drift along -z: a fraction phi of d'' moves one layer down unless that cell is ice
+        // (or wall). Difference form keeps background cells exactly at rho.
+        forRows([&](const RowSpan& row, size_t i0) {
+            for (size_t i = i0, e = i0 + size_t(row.qb - row.qa); i <= e; ++i)
+                if (!(F[i] & kAttached)) D[i] = vertical(i);
+        });
+        const double phi = p.phi;
+        forRows([&](const RowSpan& row, size_t i0) {
+            for (size_t i = i0, e = i0 + size_t(row.qb - row.qa); i <= e; ++i) {
+                if (F[i] & kAttached) continue;
+                const double out = F[i - P] ? 0.0 : phi * D[i];
+                const double in = F[i + P] ? 0.0 : phi * D[i + P];
+                T[i] = D[i] + (in - out);
+            }
+        });
+        forRows([&](const RowSpan& row, size_t i0) {
+            auto& out = newly.local();
+            for (size_t i = i0, e = i0 + size_t(row.qb - row.qa); i <= e; ++i)
+                if (!(F[i] & kAttached)) settle(i, T[i], out);
+        });
+    }
+
+    // Commit the attachments (order-independent), then refresh the neighbour counts around them.
+    std::vector<size_t> all;
+    for (auto& v : newly) all.insert(all.end(), v.begin(), v.end());
+    std::sort(all.begin(), all.end());
+    auto decode = [&](size_t i, int& q, int& r, int& z) {
+        z = int(i / P) + mBox.z0;
+        const size_t rem = i % P;
+        r = int(rem / size_t(mBox.W)) + mBox.r0;
+        q = int(rem % size_t(mBox.W)) + mBox.q0;
+    };
+    for (size_t i : all) {
+        mFlags[i] |= kAttached;
+        mAttach[i] = stepNo;
+        int q, r, z;
+        decode(i, q, r, z);
+        mCrystalR = std::max(mCrystalR, hexDistance(q, r));
+        mCrystalZHi = std::max(mCrystalZHi, z);
+        mCrystalZLo = std::min(mCrystalZLo, mHalfZ ? mM - z : z);
+    }
+    if (!all.empty()) {
+        syncGhosts(mFlags);
+        for (size_t i : all) {
+            int q, r, z;
+            decode(i, q, r, z);
+            for (int k = 0; k < 8; ++k) {
+                int qq = q, rr = r, zz = z;
+                if (k < 6) { qq += kNeighbours[size_t(k)].q; rr += kNeighbours[size_t(k)].r; }
+                else zz += k == 6 ? 1 : -1;
+                storedOf(qq, rr, zz);
+                recount(qq, rr, zz);
+            }
+        }
+    }
+
+    // 4. Melting on boundary sites (configuration after attachment).
+    forRows([&](const RowSpan& row, size_t i0) {
+        for (size_t i = i0, e = i0 + size_t(row.qb - row.qa); i <= e; ++i) {
+            const uint8_t cn = C[i];
+            if (cn == 0 || (F[i] & kAttached)) continue;
+            const double m = p.mu[size_t(cfgOf(cn))] * B[i];
+            D[i] += m;
+            B[i] -= m;
+        }
+    });
+
+    ++mStep;
+    const int extent = std::max(mCrystalZHi - mM, mM - mCrystalZLo);
+    const int halfH = mZDomHi - mM;
+    if (mCrystalR >= mCfg.stopRadius || extent >= std::max(1, int(0.8 * halfH))) mStopped = true;
+
+    // Grow the active box when the disturbance reaches its last two rings / layers.
+    if (edgeDisturbed()) {
+        const int ra = std::min(mCfg.domainRadius, mRa + std::max(4, mRa / 4));
+        const int span = std::max(2, (mZa - mZlo) / 4);
+        const int zhi = std::min(mZDomHi, mZa + span);
+        const int zlo = mHalfZ ? mM : std::max(mZDomLo, mZlo - span);
+        if (ra != mRa || zhi != mZa || zlo != mZlo) resize(ra, zlo, zhi);
+    }
+}
+
+bool GG3D::edgeDisturbed() const
+{
+    const bool growR = mRa < mCfg.domainRadius;
+    const bool growUp = mZa < mZDomHi;
+    const bool growDown = !mHalfZ && mZlo > mZDomLo;
+    const double tol = mCfg.sparseTolerance;
+    auto disturbed = [&](size_t i) {
+        return mFlags[i] == kAttached || mB[i] != 0.0 || std::abs(mD[i] - mP.rho) > tol;
+    };
+    for (const RowSpan& row : mRows) {
+        const bool layerEdge = (growUp && row.z >= mZa - 1) || (growDown && row.z <= mZlo + 1);
+        const size_t i0 = mBox.index(row.qa, row.r, row.z);
+        for (int q = row.qa; q <= row.qb; ++q) {
+            const bool ringEdge = growR && hexDistance(q, row.r) >= mRa - 1;
+            if ((layerEdge || ringEdge) && disturbed(i0 + size_t(q - row.qa))) return true;
+            // Interior cells of a row that is not at a layer edge: jump to the row's far end.
+            if (!layerEdge && q > row.qa + 1 && q < row.qb - 1 && std::abs(row.r) < mRa - 1) q = row.qb - 2;
+        }
+    }
+    return false;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Queries.
+
+bool GG3D::attached(int q, int r, int z) const { return (flagAt(q, r, z) & kAttached) != 0; }
+
+double GG3D::diffusive(int q, int r, int z) const
+{
+    if (!inDomain(q, r, z)) return 0.0;
+    storedOf(q, r, z);
+    bool in;
+    const size_t i = storedIndex(q, r, z, in);
+    return in ? mD[i] : mP.rho;
+}
+
+double GG3D::boundaryMass(int q, int r, int z) const
+{
+    if (!inDomain(q, r, z)) return 0.0;
+    storedOf(q, r, z);
+    bool in;
+    const size_t i = storedIndex(q, r, z, in);
+    return in ? mB[i] : 0.0;
+}
+
+int32_t GG3D::attachStep(int q, int r, int z) const
+{
+    if (!inDomain(q, r, z)) return -1;
+    storedOf(q, r, z);
+    bool in;
+    const size_t i = storedIndex(q, r, z, in);
+    return in ? mAttach[i] : -1;
+}
+
+uint64_t GG3D::attachedCount() const
+{
+    uint64_t n = 0;
+    const int R = mCrystalR + 1;
+    for (int z = mCrystalZLo - 1; z <= mCrystalZHi + 1; ++z)
+        for (int r = -R; r <= R; ++r)
+            for (int q = -R; q <= R; ++q)
+                if (hexDistance(q, r) <= R && attached(q, r, z)) ++n;
+    return n;
+}
+
+double GG3D::totalMass() const
+{
+    double m = 0.0;
+    const int R = mCfg.domainRadius;
+    for (int z = mZDomLo; z <= mZDomHi; ++z)
+        for (int r = -R; r <= R; ++r)
+            for (int q = -R; q <= R; ++q)
+                if (hexDistance(q, r) <= R) m += diffusive(q, r, z) + boundaryMass(q, r, z);
+    return m;
+}
+
+uint64_t GG3D::cellsPerStep() const
+{
+    uint64_t n = 0;
+    for (const RowSpan& r : mRows) n += uint64_t(r.qb - r.qa + 1);
+    return n;
+}
+
+} // namespace automata
+} // namespace frostvdb

@@ -1,0 +1,386 @@
+// The Gravner-Griffeath 3D model as published (automata/GG3D.h, [gravner_griffeath_3d]):
+// exact D6 x mirror symmetry, the 1/24 wedge bit-identical to the whole domain, sparse box
+// bit-identical to the dense domain, mass conservation, guard rails, memory refusal, morphology
+// class of the presets on small runs.
+#include <catch2/catch.hpp>
+
+#include <frostvdb/BuildPaths.h>
+#include <frostvdb/automata/GG3DEffect.h>
+#include <frostvdb/core/Error.h>
+#include <frostvdb/core/Scene.h>
+#include <frostvdb/core/Simulation.h>
+
+#include <tbb/global_control.h>
+
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <iostream>
+#include <map>
+#include <set>
+#include <sstream>
+
+using namespace frostvdb;
+using namespace frostvdb::automata;
+
+namespace {
+
+GG3DConfig presetConfig(const std::string& preset, int radius, int layers)
+{
+    const GG3DPreset* p = findGG3DPreset(preset);
+    REQUIRE(p);
+    GG3DConfig c;
+    c.p = p->p;
+    c.switches = p->switches;
+    c.seedHeight = p->seedHeight;
+    c.domainRadius = radius;
+    c.layers = layers;
+    return c;
+}
+
+template <typename Fn>
+void forDomain(const GG3D& a, Fn&& fn)
+{
+    const int R = a.config().domainRadius;
+    for (int z = a.domainZLo(); z <= a.domainZHi(); ++z)
+        for (int r = -R; r <= R; ++r)
+            for (int q = -R; q <= R; ++q)
+                if (hexDistance(q, r) <= R) fn(q, r, z);
+}
+
+bool sameBits(double a, double b) { return std::memcmp(&a, &b, sizeof a) == 0; }
+
+/// Compares two runs cell by cell, bit for bit; returns the number of differing cells.
+int64_t differences(const GG3D& a, const GG3D& b)
+{
+    int64_t n = 0;
+    forDomain(a, [&](int q, int r, int z) {
+        if (a.attached(q, r, z) != b.attached(q, r, z) || a.attachStep(q, r, z) != b.attachStep(q, r, z) ||
+            !sameBits(a.diffusive(q, r, z), b.diffusive(q, r, z)) ||
+            !sameBits(a.boundaryMass(q, r, z), b.boundaryMass(q, r, z)))
+            ++n;
+    });
+    return n;
+}
+
+/// The 12 D6 images of (q, r): rotations (q, r) -> (-r, q + r) and the mirror (q, r) -> (q + r, -r).
+std::vector<Axial> images(int q, int r)
+{
+    std::vector<Axial> out;
+    Axial a{q, r}, m{q + r, -r};
+    for (int k = 0; k < 6; ++k) {
+        out.push_back(a);
+        out.push_back(m);
+        a = {-a.r, a.q + a.r};
+        m = {-m.r, m.q + m.r};
+    }
+    return out;
+}
+
+} // namespace
+
+TEST_CASE("gg3d: the whole-domain run is exactly D6 x mirror symmetric", "[gg3d][fast]")
+{
+    for (const char* preset : {"fig14_classic_dendrite", "fig30_hollow_column", "fig06_double_plate"}) {
+        INFO(preset);
+        GG3DConfig c = presetConfig(preset, 20, 15);
+        c.wedge = false;
+        GG3D a(c);
+        for (int s = 0; s < 120; ++s) a.step();
+        REQUIRE(a.attachedCount() > 19);
+        const int m = a.mirror();
+        int64_t bad = 0;
+        forDomain(a, [&](int q, int r, int z) {
+            const double d = a.diffusive(q, r, z), b = a.boundaryMass(q, r, z);
+            const bool at = a.attached(q, r, z);
+            for (const Axial& i : images(q, r))
+                for (int zz : {z, m - z}) {
+                    if (!a.inDomain(i.q, i.r, zz)) continue;
+                    if (a.attached(i.q, i.r, zz) != at || !sameBits(a.diffusive(i.q, i.r, zz), d) ||
+                        !sameBits(a.boundaryMass(i.q, i.r, zz), b))
+                        ++bad;
+                }
+        });
+        CHECK(bad == 0);
+    }
+}
+
+TEST_CASE("gg3d: the 1/24 wedge equals the whole domain bit for bit, at any thread count", "[gg3d][fast]")
+{
+    // fig24 has drift phi: the wedge is then 1/12 (no up/down mirror).
+    for (const char* preset : {"fig14_classic_dendrite", "fig06_double_plate", "fig24_fern", "fig30_hollow_column"}) {
+        INFO(preset);
+        GG3DConfig c = presetConfig(preset, 22, 17);
+        c.wedge = false;
+        GG3D full(c);
+        c.wedge = true;
+        GG3D wedge(c);
+        std::unique_ptr<GG3D> oneThread;
+        {
+            tbb::global_control gc(tbb::global_control::max_allowed_parallelism, 1);
+            oneThread = std::make_unique<GG3D>(c);
+            for (int s = 0; s < 100; ++s) oneThread->step();
+        }
+        CHECK(wedge.halfZ() == (std::string(preset) != "fig24_fern"));
+        for (int s = 0; s < 100; ++s) {
+            full.step();
+            wedge.step();
+        }
+        CHECK(wedge.cellsPerStep() * 10 < full.cellsPerStep());
+        CHECK(full.attachedCount() > 19);
+        CHECK(differences(full, wedge) == 0);
+        CHECK(differences(wedge, *oneThread) == 0);
+    }
+}
+
+TEST_CASE("gg3d: the sparse box is bit-identical to the dense domain and stays small early", "[gg3d][fast]")
+{
+    GG3DConfig c = presetConfig("fig14_classic_dendrite", 60, 31);
+    GG3D sparse(c);
+    for (int s = 0; s < 10; ++s) sparse.step();
+    CHECK(sparse.activeRadius() < 30); // the disturbance travels one cell per step
+    c.sparseTolerance = 0.0;
+    for (int s = 10; s < 60; ++s) sparse.step();
+    // Noise-free, tolerance 0: cells outside the box are exactly rho.
+    GG3D again(c);
+    for (int s = 0; s < 60; ++s) again.step();
+    CHECK(differences(sparse, again) == 0);
+    int64_t offBackground = 0;
+    forDomain(sparse, [&](int q, int r, int z) {
+        if (hexDistance(q, r) > sparse.activeRadius() && !sameBits(sparse.diffusive(q, r, z), c.p.rho)) ++offBackground;
+    });
+    CHECK(offBackground == 0);
+}
+
+TEST_CASE("gg3d: mass is conserved with reflecting walls and melting off", "[gg3d][fast]")
+{
+    for (double phi : {0.0, 0.01}) {
+        GG3DConfig c = presetConfig("fig14_classic_dendrite", 16, 13);
+        c.p.mu.fill(0.0);
+        c.p.phi = phi;
+        c.walls = GG3DWalls::Reflecting;
+        GG3D a(c);
+        const double m0 = a.totalMass();
+        for (int s = 0; s < 300; ++s) a.step(); // long enough for the box to reach the walls
+        CHECK(a.activeRadius() == c.domainRadius);
+        CHECK(a.attachedCount() > 19);
+        CHECK(a.totalMass() == Approx(m0).epsilon(1e-12));
+    }
+    // Melting moves mass between b and d only: conserved too.
+    GG3DConfig c = presetConfig("fig40_star_with_needles", 16, 13);
+    GG3D a(c);
+    const double m0 = a.totalMass();
+    for (int s = 0; s < 200; ++s) a.step();
+    CHECK(a.totalMass() == Approx(m0).epsilon(1e-12));
+}
+
+TEST_CASE("gg3d: every preset loads; guard rails warn with the preset and the inequality", "[gg3d][fast]")
+{
+    for (const auto& p : gg3dPresets()) {
+        INFO(p.name);
+        CHECK(gg3dGuardRails(p.p).empty()); // the published cases respect their own guard rails
+    }
+    GG3DParams bad = findGG3DPreset("fig04_plate_ridges")->p;
+    bad.rho = 3.0; // (1 - 0.1) 3 = 2.7 >= beta_01 = 2.5 and >= beta_10 = 2
+    const auto msgs = gg3dGuardRails(bad);
+    REQUIRE(msgs.size() == 2);
+    CHECK(msgs[0].find("(1 - kappa_01) rho") != std::string::npos);
+    CHECK(msgs[0].find("beta_01") != std::string::npos);
+
+    std::ostringstream captured;
+    auto* old = std::cerr.rdbuf(captured.rdbuf());
+    try {
+        Simulation sim(Scene::fromString("[domain]\nsize = [41, 41]\n[gravner_griffeath_3d]\npreset = \"fig04_plate_ridges\"\n"
+                                         "rho = 3.0\n", "<test>"));
+    } catch (...) {
+        std::cerr.rdbuf(old);
+        throw;
+    }
+    std::cerr.rdbuf(old);
+    CHECK(captured.str().find("preset fig04_plate_ridges") != std::string::npos);
+    CHECK(captured.str().find("runaway") != std::string::npos);
+}
+
+TEST_CASE("gg3d: over-budget scenes are refused before allocation; an empty section runs", "[gg3d][fast]")
+{
+    try {
+        Simulation sim(Scene::fromString("[domain]\nsize = [401, 401]\n[gravner_griffeath_3d]\nbatch = 909\n", "<t>"));
+        FAIL("batch = 909 accepted");
+    } catch (const SceneError& e) {
+        const std::string w = e.what();
+        CHECK(w.find("batch") != std::string::npos);
+        CHECK(w.find("GB") != std::string::npos);
+        CHECK(w.find("memory_budget") != std::string::npos);
+    }
+    // Ice voxels below OpenVDB's limit: a scene error naming the key, not an ArithmeticError.
+    CHECK_THROWS_WITH(Simulation(Scene::fromString("[domain]\nsize = [41, 41]\nvoxel_size = 0.00004\n"
+                                                   "[gravner_griffeath_3d]\nvoxels_per_cell = 8\n", "<t>")),
+                      Catch::Contains("voxels_per_cell") && Catch::Contains("OpenVDB"));
+    // An empty section (and no [domain]) is a valid, small scene.
+    Simulation sim(Scene::fromString("[scene]\nsteps_per_frame = 5\n[gravner_griffeath_3d]\n", "<t>"));
+    sim.initialize();
+    for (int s = 0; s < 5; ++s) sim.step();
+    Frame f = sim.currentFrame(1);
+    std::set<std::string> names;
+    for (auto& g : f.grids) names.insert(g->getName());
+    for (const char* n : {"cells", "ice", "ice_sdf", "freeze_time"}) CHECK(names.count(n));
+}
+
+namespace {
+
+/// Hex ring of radius d in cyclic order (6d cells).
+std::vector<Axial> ring(int d)
+{
+    std::vector<Axial> out;
+    Axial c{d, 0}; // corner in direction 0, walk the six sides
+    const Axial dirs[6] = {{-1, 1}, {-1, 0}, {0, -1}, {1, -1}, {1, 0}, {0, 1}};
+    for (int side = 0; side < 6; ++side)
+        for (int k = 0; k < d; ++k) {
+            out.push_back(c);
+            c = {c.q + dirs[side].q, c.r + dirs[side].r};
+        }
+    return out;
+}
+
+/// Runs of attached cells along the ring of radius d in layer z (cyclic).
+int runsOnRing(const GG3D& a, int d, int z)
+{
+    const auto cells = ring(d);
+    int runs = 0;
+    for (size_t i = 0; i < cells.size(); ++i) {
+        const Axial& c = cells[i];
+        const Axial& prev = cells[(i + cells.size() - 1) % cells.size()];
+        if (a.attached(c.q, c.r, z) && !a.attached(prev.q, prev.r, z)) ++runs;
+    }
+    return runs;
+}
+
+GG3D grow(const std::string& preset, int radius, int layers, int steps, int switchStep = -1)
+{
+    GG3DConfig c = presetConfig(preset, radius, layers);
+    if (switchStep >= 0)
+        for (auto& s : c.switches) s.step = switchStep;
+    GG3D a(c);
+    for (int s = 0; s < steps && !a.stopped(); ++s) a.step();
+    return a;
+}
+
+double aspect(const GG3D& a) // horizontal radius over vertical half-extent (in cells)
+{
+    const double halfZ = 0.5 * (a.crystalZMax() - a.crystalZMin() + 1);
+    return (a.crystalRadius() + 0.5) / halfZ;
+}
+
+} // namespace
+
+TEST_CASE("gg3d: presets grow their morphology class on small runs", "[gg3d][fast]")
+{
+    SECTION("plates are wide and thin")
+    {
+        for (const char* p : {"fig04_plate_ridges", "fig07_plate", "fig08_sectored_plate", "fig20_sandwich_plate"}) {
+            INFO(p);
+            const GG3D a = grow(p, 28, 21, 1500);
+            CHECK(a.crystalRadius() >= 10);
+            CHECK(aspect(a) > 2.5);
+        }
+    }
+    SECTION("needles and columns are tall and narrow")
+    {
+        for (const char* p : {"fig29_needle", "fig30_hollow_column"}) {
+            INFO(p);
+            const GG3D a = grow(p, 24, 31, 2000);
+            CHECK(a.crystalZMax() >= 8);
+            CHECK(aspect(a) < 0.7);
+        }
+    }
+    SECTION("the hollow column has a hollow core near its ends")
+    {
+        const GG3D a = grow("fig30_hollow_column", 24, 31, 2000);
+        int hollow = 0;
+        for (int z = 1; z <= a.crystalZMax(); ++z) {
+            bool rim = false;
+            for (int q = 1; q <= a.crystalRadius(); ++q) rim |= a.attached(q, 0, z);
+            if (rim && !a.attached(0, 0, z)) ++hollow;
+        }
+        CHECK(hollow >= 3);
+        CHECK(a.attached(0, 0, 0)); // the seed stays
+    }
+    SECTION("the classic dendrite leads with six corners (arms), the facets between them lag")
+    {
+        const GG3D a = grow("fig14_classic_dendrite", 40, 21, 2200);
+        const int R = a.crystalRadius();
+        CHECK(R >= 15);
+        const int z = a.mirror();
+        // Near the tips the ring meets the crystal in exactly six arcs: six arms.
+        CHECK(runsOnRing(a, R, z) == 6);
+        CHECK(runsOnRing(a, R - 1, z) == 6);
+        // ... separated by empty stretches: the arms lead, the facets between them lag.
+        int filled = 0;
+        for (const Axial& c : ring(R - 1)) filled += a.attached(c.q, c.r, z);
+        CHECK(filled < int(0.9 * 6 * (R - 1)));
+    }
+}
+
+TEST_CASE("[output] world_scale multiplies the world size of written grids and meshes", "[gg3d][fast]")
+{
+    namespace fs = std::filesystem;
+    const fs::path dir = fs::temp_directory_path() / "frostvdb_gg3d_world_scale";
+    fs::remove_all(dir);
+    fs::create_directories(dir);
+    const std::string mesh = (dir / "flake.obj").string();
+    Simulation sim(Scene::fromString("[scene]\nname = \"ws\"\nsteps_per_frame = 30\n[domain]\nsize = [41, 41]\n"
+                                     "voxel_size = 0.0001\n[gravner_griffeath_3d]\npreset = \"fig30_hollow_column\"\n"
+                                     "layers = 21\nmesh = \"obj\"\nmesh_file = \"" + mesh + "\"\n"
+                                     "[output]\nworld_scale = 100\n", "<t>"));
+    sim.initialize();
+    for (int s = 0; s < 30; ++s) sim.step();
+    Frame f = sim.currentFrame(1);
+    double iceVoxel = 0;
+    for (auto& g : f.grids)
+        if (g->getName() == "ice") iceVoxel = g->voxelSize()[0];
+    REQUIRE(iceVoxel == Approx(0.0001 / 3));
+    const std::string path = sim.writeFrame(f, dir.string());
+    openvdb::io::File file(path);
+    file.open();
+    auto written = file.readGrid("ice");
+    file.close();
+    CHECK(written->voxelSize()[0] == Approx(100 * iceVoxel));
+    CHECK(iceVoxel == Approx(0.0001 / 3)); // the frame's own grid is untouched
+    // The mesh is written at the scaled size too: its vertices span metres, not centimetres.
+    std::ifstream obj((dir / "flake.1.obj").string());
+    REQUIRE(obj.good());
+    std::string line;
+    std::vector<openvdb::Vec3d> v;
+    double maxAbs = 0, volume = 0;
+    while (std::getline(obj, line)) {
+        std::istringstream in(line);
+        std::string tag;
+        in >> tag;
+        if (tag == "v") {
+            openvdb::Vec3d p;
+            in >> p[0] >> p[1] >> p[2];
+            v.push_back(p);
+            maxAbs = std::max({maxAbs, std::abs(p[0]), std::abs(p[1]), std::abs(p[2])});
+        } else if (tag == "f") {
+            std::vector<int> f;
+            int i;
+            while (in >> i) f.push_back(i - 1);
+            for (size_t k = 1; k + 1 < f.size(); ++k) // signed volume: positive for outward faces
+                volume += v[size_t(f[0])].dot(v[size_t(f[k])].cross(v[size_t(f[k + 1])])) / 6.0;
+        }
+    }
+    CHECK(maxAbs > 100 * 0.0001); // at least one scaled cell from the origin
+    CHECK(maxAbs < 100 * 0.0001 * 40);
+    CHECK(volume > 0.0);
+    fs::remove_all(dir);
+}
+
+TEST_CASE("gg3d: the shipped scenes load (one per family)", "[gg3d][fast]")
+{
+    for (const char* s : {"gg3d_plate_ridges", "gg3d_sectored_plate", "gg3d_fern", "gg3d_classic_dendrite",
+                          "gg3d_sandwich_plate", "gg3d_needle", "gg3d_hollow_column", "gg3d_capped_column",
+                          "gg3d_star_needles"}) {
+        INFO(s);
+        CHECK_NOTHROW(Simulation(Scene::load(std::string(FROSTVDB_SOURCE_DIR) + "/scenes/" + s + ".toml")));
+    }
+}
