@@ -11,11 +11,13 @@
 /// In dense mode the region is the whole domain: the same code is the dense reference.
 #include <frostvdb/core/ActiveRegion.h>
 #include <frostvdb/core/Domain.h>
+#include <frostvdb/ice/ImplicitSystem.h>
 #include <frostvdb/ice/Kobayashi.h>
 
 #include <openvdb/openvdb.h>
 #include <openvdb/tree/LeafManager.h>
 
+#include <memory>
 #include <vector>
 
 namespace frostvdb {
@@ -29,11 +31,15 @@ struct PhaseFieldStepStats {
     int64_t solves = 0, solverIterationsP = 0, solverIterationsT = 0, unconverged = 0;
     double lastResidual = 0;
     int64_t clippedVoxels = 0; ///< lw_cn: p values clipped back into [0, 1] (Lax-Wendroff overshoot)
+    int64_t rebuilds = 0;      ///< region rebuilds (every k steps, or when another effect wrote p or T)
 };
+
+struct LeafGroups;
 
 class PhaseFieldSolver {
 public:
     PhaseFieldSolver(const KobayashiParams& params, const Domain& domain, const RegionSettings& region);
+    ~PhaseFieldSolver();
 
     const KobayashiParams& params() const { return mParams; }
     KobayashiParams& params() { return mParams; }
@@ -56,22 +62,44 @@ public:
     void setMeltMap(const openvdb::FloatGrid* melt) { mMelt = melt; }
 
     struct Failure;
+    struct Accumulators;
 
 private:
     using FloatLeaf = openvdb::FloatTree::LeafNodeType;
     void stepSecondOrder(const openvdb::FloatGrid& p, const openvdb::FloatGrid& T,
                          openvdb::tree::LeafManager<openvdb::FloatTree>& pLeaves,
                          openvdb::tree::LeafManager<openvdb::FloatTree>& tLeaves,
-                         const std::vector<FloatLeaf*>& gLeaves, const std::vector<FloatLeaf*>& fLeaves,
-                         int64_t stepIndex, double tNext, uint64_t seed, Failure& failure,
+                         Accumulators& acc, int64_t stepIndex, double tNext, uint64_t seed, Failure& failure,
                          PhaseFieldStepStats* stats);
+    /// True when @a p and @a T are, unchanged, the grids this solver returned last step.
+    bool inputsAreOurs(const openvdb::FloatGrid& p, const openvdb::FloatGrid& T) const;
+    /// An output grid with the region's topology, reusing @a spare when nobody else holds it.
+    openvdb::FloatGrid::Ptr outputGrid(openvdb::FloatGrid::Ptr& spare, uint64_t spareGeneration,
+                                       openvdb::FloatGrid& like);
 
     KobayashiParams mParams;
     Domain mDomain;
     RegionSettings mRegion;
     const openvdb::FloatGrid* mMelt = nullptr;
-    /// The second-order scheme's last increments of p and T, for its midpoint coefficients.
-    openvdb::FloatGrid::Ptr mLastDp, mLastDt;
+    /// The second-order scheme's last increments of p and T, for its midpoint coefficients, and
+    /// the buffers of the ones before (reused).
+    openvdb::FloatGrid::Ptr mLastDp, mLastDt, mSpareDp, mSpareDt;
+    uint64_t mLastIncGeneration = 0, mSpareIncGeneration = 0;
+
+    // Region cadence (see ActiveRegion.h). A generation numbers each distinct region topology;
+    // a grid tagged with the current generation has exactly the region's topology (0: unknown).
+    RegionCadence mCadence;
+    openvdb::MaskGrid::Ptr mRegionMask;
+    uint64_t mGeneration = 0, mRegionVoxels = 0;
+    const openvdb::FloatGrid *mOutP = nullptr, *mOutT = nullptr; ///< what the last step returned
+    uint64_t mPrintP = 0, mPrintT = 0, mOutGeneration = 0;      ///< their fingerprints, topology
+    bool mInputsTruncated = true; ///< the last outputs were truncated (or are the initial state)
+    openvdb::FloatGrid::Ptr mSpareP, mSpareT; ///< last step's inputs: this step's output buffers
+    uint64_t mSpareGeneration = 0;
+    std::unique_ptr<LeafGroups> mGroups;      ///< the region's leaves in kernel blocks
+    uint64_t mGroupsGeneration = 0;
+    std::unique_ptr<SlotLayout> mLayout;      ///< the implicit systems' rows (second order)
+    uint64_t mLayoutGeneration = 0;
 };
 
 /// The plain dense-array loop of the same stencil and arithmetic, on a 2D nx x ny plane with a
