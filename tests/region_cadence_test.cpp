@@ -98,3 +98,19 @@ TEST_CASE("Region cadence rebuilds every k steps, and when another writer change
     CHECK(maxAbsDiff(*a.T, *b.T) == 0.0);
     CHECK(a.p->tree().getValue(openvdb::Coord(4, 40, 0)) > 0.f); // the write spread
 }
+
+TEST_CASE("Region cadence on the hexagonal lattice at tolerance 0 equals dense bit for bit", "[fast][phase_field][region]")
+{
+    const std::vector<std::string> hex{"domain.lattice=\"hexagonal\"", "phase_field.anisotropy_mode=6"};
+    auto with = [&](std::vector<std::string> extra) {
+        extra.insert(extra.end(), hex.begin(), hex.end());
+        return extra;
+    };
+    const auto dense = runScene(with({"region.dense=true"}), 40);
+    for (const char* every : {"1", "5", "0"}) {
+        const auto sparse = runScene(with({"region.tolerance=0", std::string("region.rebuild_every=") + every}), 40);
+        INFO("rebuild_every = " << every);
+        CHECK(maxAbsDiff(*sparse.first, *dense.first) == 0.0);
+        CHECK(maxAbsDiff(*sparse.second, *dense.second) == 0.0);
+    }
+}

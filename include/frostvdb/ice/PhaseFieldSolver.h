@@ -2,12 +2,14 @@
 /// @file PhaseFieldSolver.h
 /// @brief Steps the Kobayashi phase field (p, T) on sparse OpenVDB grids.
 ///
-/// Each step: build the active region (|p| or |T - T_inf| above the tolerance, dilated by the
-/// stencil reach 2 plus the front travel), give the new p and T grids that topology, then update
-/// every region leaf in parallel (tree::LeafManager + TBB): the leaf's values and a halo of 2
-/// are gathered into a padded dense block, pass 1 computes the anisotropy coefficients on the
-/// block, pass 2 the Euler update of the leaf's voxels. Values back within the tolerance of the
-/// far field are then switched off and pruned, so memory and cost follow the ice front.
+/// Each step: when due (every k steps, see RegionCadence in ActiveRegion.h) or when another
+/// effect changed p or T, rebuild the active region (|p| or |T - T_inf| above the tolerance,
+/// dilated by k (stencil reach 2 + front travel), whole leaves); give the output grids (the last
+/// step's inputs, reused) that topology; then update the region's leaves in parallel in blocks of
+/// up to 4x4 leaves (plane): the values and a halo of 2 are gathered into a padded dense block,
+/// pass 1 computes the anisotropy coefficients where the block's leaves need them, pass 2 the
+/// Euler update of the active voxels. When the region is retired, values back within the
+/// tolerance of the far field are switched off and pruned, so memory and cost follow the ice.
 /// In dense mode the region is the whole domain: the same code is the dense reference.
 #include <frostvdb/core/ActiveRegion.h>
 #include <frostvdb/core/Domain.h>
