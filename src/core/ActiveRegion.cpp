@@ -7,7 +7,11 @@
 
 #include <tbb/parallel_for.h>
 
+#include <algorithm>
+#include <array>
+#include <atomic>
 #include <cmath>
+#include <cstring>
 
 namespace frostvdb {
 
@@ -15,63 +19,6 @@ namespace {
 
 using MaskLeaf = openvdb::MaskTree::LeafNodeType;
 constexpr int kLeafDim = int(MaskLeaf::DIM);
-
-/// ORs @a src shifted by -1 and +1 along x (axis 0) or y (axis 1) into @a dst, which holds @a src
-/// already. Leaf value masks are 8 words of 64 bits: word = x, bit = (y << 3) | z, so an x shift
-/// moves whole words and a y shift moves bits by 8. No z dilation: the plane domain stays flat
-/// (tools::dilateActiveValues would dilate into z and need a clip; measured 3x slower here).
-void dilateAxis(const openvdb::MaskTree& src, openvdb::MaskTree& dst, int axis)
-{
-    const openvdb::Coord step = axis == 0 ? openvdb::Coord(kLeafDim, 0, 0) : openvdb::Coord(0, kLeafDim, 0);
-    for (auto it = src.cbeginLeaf(); it; ++it) {
-        const auto& m = it->getValueMask();
-        bool lo = false, hi = false;
-        for (openvdb::Index w = 0; w < 8; ++w) {
-            const uint64_t word = m.template getWord<uint64_t>(w);
-            if (axis == 0) { lo = lo || (w == 0 && word); hi = hi || (w == 7 && word); }
-            else { lo = lo || (word & 0xFFull); hi = hi || (word >> 56); }
-        }
-        if (lo) dst.touchLeaf(it->origin() - step);
-        if (hi) dst.touchLeaf(it->origin() + step);
-    }
-    openvdb::tree::LeafManager<openvdb::MaskTree> leaves(dst);
-    leaves.foreach([&](MaskLeaf& leaf, size_t) {
-        openvdb::tree::ValueAccessor<const openvdb::MaskTree> acc(src);
-        const MaskLeaf* c = acc.probeConstLeaf(leaf.origin());
-        const MaskLeaf* l = acc.probeConstLeaf(leaf.origin() - step);
-        const MaskLeaf* h = acc.probeConstLeaf(leaf.origin() + step);
-        auto word = [](const MaskLeaf* f, int w) -> uint64_t {
-            return f ? f->getValueMask().template getWord<uint64_t>(openvdb::Index(w)) : 0ull;
-        };
-        auto& out = leaf.getValueMask();
-        for (int w = 0; w < 8; ++w) {
-            uint64_t add;
-            if (axis == 0) {
-                add = (w > 0 ? word(c, w - 1) : word(l, 7)) | (w < 7 ? word(c, w + 1) : word(h, 0));
-            } else {
-                const uint64_t cw = word(c, w);
-                add = (cw << 8) | (cw >> 8) | (word(h, w) << 56) | (word(l, w) >> 56);
-            }
-            out.template getWord<uint64_t>(openvdb::Index(w)) |= add;
-        }
-    });
-}
-
-/// One dilation iteration in the plane: the 4-neighbourhood (diamond) or, for lattices that also
-/// reach (1,-1) and (-1,1), the 8-neighbourhood (x then y: separable).
-void dilatePlane(openvdb::MaskTree& tree, bool eightNeighbours)
-{
-    if (eightNeighbours) {
-        const openvdb::MaskTree src(tree);
-        dilateAxis(src, tree, 0);
-        const openvdb::MaskTree srcY(tree);
-        dilateAxis(srcY, tree, 1);
-    } else {
-        const openvdb::MaskTree src(tree);
-        dilateAxis(src, tree, 0);
-        dilateAxis(src, tree, 1);
-    }
-}
 
 /// Clips a mask to a box: leaves inside are kept, leaves outside dropped, straddling leaves
 /// masked voxel by voxel (cheaper than Tree::clip for a handful of boundary leaves).
@@ -90,10 +37,124 @@ void clipToBox(openvdb::MaskTree& tree, const openvdb::CoordBBox& box)
     });
 }
 
+/// A plane region's leaf masks as flat arrays with a dense leaf table over the part of the domain
+/// the dilation can reach: the dilation then reads neighbour masks by index instead of copying
+/// the tree each iteration (the tree copies, with their 32^3-entry internal nodes, were 4/5 of
+/// the region rebuild in the profile).
+struct PlaneLeafMasks {
+    int lx0 = 0, ly0 = 0, nx = 0, ny = 0, z = 0;
+    std::vector<int32_t> table;
+    std::vector<openvdb::Coord> origin;
+    std::vector<std::array<uint64_t, 8>> m;
+
+    int32_t find(int lx, int ly) const
+    {
+        if (lx < lx0 || ly < ly0 || lx >= lx0 + nx || ly >= ly0 + ny) return -1;
+        return table[size_t(ly - ly0) * size_t(nx) + size_t(lx - lx0)];
+    }
+    void touch(int lx, int ly)
+    {
+        if (lx < lx0 || ly < ly0 || lx >= lx0 + nx || ly >= ly0 + ny) return; // outside the domain
+        int32_t& t = table[size_t(ly - ly0) * size_t(nx) + size_t(lx - lx0)];
+        if (t >= 0) return;
+        t = int32_t(origin.size());
+        origin.emplace_back(lx * kLeafDim, ly * kLeafDim, z);
+        m.push_back({});
+    }
+
+    /// One pass: along x (axis 0), y (axis 1) or both from the same source (axis 2: diamond).
+    void dilate(int axis)
+    {
+        const size_t n0 = origin.size();
+        for (size_t i = 0; i < n0; ++i) {
+            const std::array<uint64_t, 8> c = m[i]; // a copy: touch() may grow m
+            const int lx = origin[i].x() / kLeafDim, ly = origin[i].y() / kLeafDim;
+            uint64_t any = 0, lowY = 0, highY = 0;
+            for (int w = 0; w < 8; ++w) { any |= c[w]; lowY |= c[w] & 0xFFull; highY |= c[w] >> 56; }
+            if (!any) continue;
+            if (axis != 1) { if (c[0]) touch(lx - 1, ly); if (c[7]) touch(lx + 1, ly); }
+            if (axis != 0) { if (lowY) touch(lx, ly - 1); if (highY) touch(lx, ly + 1); }
+        }
+        const std::vector<std::array<uint64_t, 8>> src(m); // flat copy: 64 bytes a leaf
+        static const std::array<uint64_t, 8> kZero{};
+        auto at = [&](int lx, int ly) -> const std::array<uint64_t, 8>& {
+            const int32_t j = find(lx, ly);
+            return j >= 0 && size_t(j) < src.size() ? src[size_t(j)] : kZero;
+        };
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, origin.size(), 256), [&](const tbb::blocked_range<size_t>& r) {
+            for (size_t i = r.begin(); i != r.end(); ++i) {
+                const int lx = origin[i].x() / kLeafDim, ly = origin[i].y() / kLeafDim;
+                const auto& c = src[i];
+                auto& out = m[i];
+                if (axis != 1) {
+                    const auto& l = at(lx - 1, ly);
+                    const auto& h = at(lx + 1, ly);
+                    for (int w = 0; w < 8; ++w) out[w] |= (w > 0 ? c[w - 1] : l[7]) | (w < 7 ? c[w + 1] : h[0]);
+                }
+                if (axis != 0) {
+                    const auto& l = at(lx, ly - 1);
+                    const auto& h = at(lx, ly + 1);
+                    for (int w = 0; w < 8; ++w) out[w] |= (c[w] << 8) | (c[w] >> 8) | (h[w] << 56) | (l[w] >> 56);
+                }
+            }
+        });
+    }
+};
+
+/// Dilates a plane region @a iterations times (4-neighbourhood, or with the hexagonal lattice's
+/// diagonal the 3x3 neighbourhood) within the domain's leaves.
+void dilatePlaneRegion(openvdb::MaskTree& tree, int iterations, bool eightNeighbours, const Domain& domain)
+{
+    PlaneLeafMasks s;
+    const openvdb::CoordBBox& box = domain.bbox();
+    auto floorDiv = [](int v) { return v >= 0 ? v / kLeafDim : -((-v + kLeafDim - 1) / kLeafDim); };
+    openvdb::CoordBBox leaves; // leaf units
+    for (auto it = tree.cbeginLeaf(); it; ++it) leaves.expand(openvdb::Coord(floorDiv(it->origin().x()), floorDiv(it->origin().y()), 0));
+    if (leaves.empty()) return;
+    const int margin = iterations / kLeafDim + 1;
+    s.lx0 = std::max(leaves.min().x() - margin, floorDiv(box.min().x()));
+    s.ly0 = std::max(leaves.min().y() - margin, floorDiv(box.min().y()));
+    s.nx = std::min(leaves.max().x() + margin, floorDiv(box.max().x())) - s.lx0 + 1;
+    s.ny = std::min(leaves.max().y() + margin, floorDiv(box.max().y())) - s.ly0 + 1;
+    s.z = box.min().z() & ~(kLeafDim - 1);
+    s.table.assign(size_t(s.nx) * size_t(s.ny), -1);
+    for (auto it = tree.cbeginLeaf(); it; ++it) {
+        const int lx = floorDiv(it->origin().x()), ly = floorDiv(it->origin().y());
+        s.touch(lx, ly);
+        const int32_t j = s.find(lx, ly);
+        if (j < 0) continue;
+        for (int w = 0; w < 8; ++w) s.m[size_t(j)][w] |= it->getValueMask().template getWord<uint64_t>(openvdb::Index(w));
+    }
+    for (int i = 0; i < iterations; ++i) {
+        if (eightNeighbours) { s.dilate(0); s.dilate(1); }
+        else s.dilate(2);
+    }
+    tree.clear();
+    for (size_t i = 0; i < s.origin.size(); ++i) {
+        MaskLeaf* leaf = tree.touchLeaf(s.origin[i]);
+        for (int w = 0; w < 8; ++w) leaf->getValueMask().template getWord<uint64_t>(openvdb::Index(w)) = s.m[i][w];
+    }
+}
+
+/// Switches on every voxel of each leaf that lies in the domain's slab (a plane's one z, a box's all).
+void fillLeaves(openvdb::MaskTree& tree, const Domain& domain)
+{
+    openvdb::tree::LeafManager<openvdb::MaskTree> leaves(tree);
+    const bool plane = domain.isPlane();
+    const int z0 = domain.bbox().min().z();
+    const uint64_t planeBits = 0x0101010101010101ull << (z0 & (kLeafDim - 1));
+    leaves.foreach([&](MaskLeaf& leaf, size_t) {
+        auto& mask = leaf.getValueMask();
+        if (!plane) { mask.setOn(); return; }
+        if ((leaf.origin().z() & ~(kLeafDim - 1)) != (z0 & ~(kLeafDim - 1))) return;
+        for (openvdb::Index w = 0; w < 8; ++w) mask.template getWord<uint64_t>(w) |= planeBits;
+    });
+}
+
 } // namespace
 
 openvdb::MaskGrid::Ptr buildActiveRegion(const std::vector<const openvdb::FloatGrid*>& fields,
-                                         const RegionSettings& settings, int reach, const Domain& domain)
+                                         const RegionSettings& settings, int reach, const Domain& domain, int steps)
 {
     auto region = openvdb::MaskGrid::create(false);
     region->setTransform(domain.transform()->copy());
@@ -103,38 +164,167 @@ openvdb::MaskGrid::Ptr buildActiveRegion(const std::vector<const openvdb::FloatG
         return region;
     }
     // Union of the fields' topology: values already within tolerance of the far field were
-    // removed by truncateToTolerance at the end of the previous step.
+    // removed by truncateToTolerance when the last region was retired.
     for (const auto* f : fields) region->tree().topologyUnion(f->tree());
     region->tree().voxelizeActiveTiles();
-    const int iterations = reach + settings.frontTravel;
+    clipToBox(region->tree(), domain.bbox());
+    // A support that fills the domain needs no dilation (it would be clipped away again).
+    if (regionFillsDomain(*region, domain)) return region;
+    const int iterations = std::max(1, steps) * (reach + settings.frontTravel);
     // Hexagonal lattices reach (1,-1) and (-1,1): edge neighbours in index space.
     const bool hex = domain.lattice().kind() == LatticeKind::Hexagonal;
     if (iterations > 0 && !region->tree().empty()) {
         if (domain.isPlane()) {
-            for (int i = 0; i < iterations; ++i) dilatePlane(region->tree(), hex);
+            dilatePlaneRegion(region->tree(), iterations, hex, domain);
         } else {
             openvdb::tools::dilateActiveValues(region->tree(), iterations, openvdb::tools::NN_FACE,
                                                openvdb::tools::IGNORE_TILES);
         }
     }
+    // Whole leaves: the kernels pay per leaf anyway, and a region that only changes when the
+    // front enters a new leaf keeps its topology for many rebuilds, so the output buffers, leaf
+    // groups and implicit-system layouts of the last region are reused as they are.
+    fillLeaves(region->tree(), domain);
     clipToBox(region->tree(), domain.bbox());
     return region;
 }
 
-void truncateToTolerance(openvdb::FloatGrid& grid, double tolerance)
+bool regionFillsDomain(const openvdb::MaskGrid& region, const Domain& domain)
 {
+    return region.tree().activeVoxelCount() == domain.voxelCount();
+}
+
+void matchTopology(openvdb::FloatGrid& grid, const openvdb::MaskGrid& region)
+{
+    using FloatLeaf = openvdb::FloatTree::LeafNodeType;
+    auto& tree = grid.tree();
     const float bg = grid.background();
-    const float tol = float(tolerance);
-    openvdb::tree::LeafManager<openvdb::FloatTree> leaves(grid.tree());
-    leaves.foreach([bg, tol](openvdb::FloatTree::LeafNodeType& leaf, size_t) {
-        for (auto it = leaf.beginValueOn(); it; ++it) {
-            if (std::fabs(*it - bg) <= tol) {
-                it.setValue(bg);
-                it.setValueOff();
+    // Leaves the region no longer has.
+    {
+        openvdb::tree::ValueAccessor<const openvdb::MaskTree> racc(region.tree());
+        std::vector<openvdb::Coord> gone;
+        for (auto it = tree.cbeginLeaf(); it; ++it)
+            if (!racc.probeConstLeaf(it->origin())) gone.push_back(it->origin());
+        for (const auto& o : gone) delete tree.stealNode<FloatLeaf>(o, bg, false);
+    }
+    // Tiles are not expected (kernels write leaves); a tile would hide voxels, so voxelize.
+    tree.voxelizeActiveTiles();
+    // Leaves it gains (serial: topology changes), then masks and background values in parallel.
+    {
+        openvdb::tree::ValueAccessor<openvdb::FloatTree> acc(tree);
+        for (auto it = region.tree().cbeginLeaf(); it; ++it)
+            if (!acc.probeLeaf(it->origin())) acc.touchLeaf(it->origin());
+    }
+    openvdb::tree::LeafManager<openvdb::FloatTree> leaves(tree);
+    leaves.foreach([&](FloatLeaf& leaf, size_t) {
+        openvdb::tree::ValueAccessor<const openvdb::MaskTree> racc(region.tree());
+        const MaskLeaf* m = racc.probeConstLeaf(leaf.origin());
+        const auto& want = m->getValueMask();
+        if (leaf.getValueMask() == want) return; // off voxels already hold the background
+        float* v = leaf.buffer().data();
+        for (openvdb::Index n = 0; n < FloatLeaf::SIZE; ++n)
+            if (!want.isOn(n)) v[n] = bg;
+        leaf.setValueMask(want);
+    });
+}
+
+namespace {
+inline uint64_t mix64(uint64_t x)
+{
+    x ^= x >> 33;
+    x *= 0xff51afd7ed558ccdull;
+    x ^= x >> 33;
+    x *= 0xc4ceb9fe1a85ec53ull;
+    x ^= x >> 33;
+    return x;
+}
+} // namespace
+
+uint64_t gridFingerprint(const openvdb::FloatGrid& grid)
+{
+    using FloatLeaf = openvdb::FloatTree::LeafNodeType;
+    openvdb::tree::LeafManager<const openvdb::FloatTree> leaves(grid.tree());
+    std::atomic<uint64_t> sum{0};
+    leaves.foreach([&](const FloatLeaf& leaf, size_t) {
+        const openvdb::Coord o = leaf.origin();
+        uint64_t h = (uint64_t(uint32_t(o.x())) << 32) ^ (uint64_t(uint32_t(o.y())) << 16) ^ uint32_t(o.z());
+        const auto& mask = leaf.getValueMask();
+        const float* v = leaf.buffer().data();
+        // A sum of (offset, value bits) products over the active voxels plus the mask words:
+        // independent terms, so the loop runs at memory speed; changing one value or one mask
+        // bit changes the sum. Mixed once per leaf.
+        constexpr uint64_t kOdd = 0x9e3779b97f4a7c15ull;
+        for (openvdb::Index w = 0; w < FloatLeaf::NodeMaskType::WORD_COUNT; ++w) {
+            uint64_t word = mask.template getWord<uint64_t>(w);
+            h += mix64(word + w);
+            while (word) {
+                const openvdb::Index n = w * 64 + openvdb::Index(__builtin_ctzll(word));
+                word &= word - 1;
+                uint32_t bits;
+                std::memcpy(&bits, v + n, 4);
+                h += ((uint64_t(n) << 32) | bits) * kOdd;
             }
         }
+        h = mix64(h);
+        sum.fetch_add(h, std::memory_order_relaxed); // a sum: the same whatever the order
     });
-    openvdb::tools::pruneInactive(grid.tree());
+    uint32_t bgBits;
+    const float bg = grid.background();
+    std::memcpy(&bgBits, &bg, 4);
+    return sum.load() + mix64(bgBits) + grid.tree().leafCount();
+}
+
+int RegionCadence::automaticSteps(bool forced) const
+{
+    if (forced) return 1;
+    const int perStep = std::max(1, mReach + mSettings.frontTravel);
+    return std::max(1, int(MaskLeaf::DIM) / perStep);
+}
+
+int RegionCadence::begin(bool forced)
+{
+    const int k = mSettings.dense ? RegionCadence::kFullDomainSteps
+                : mSettings.rebuildEvery > 0 ? mSettings.rebuildEvery
+                                             : automaticSteps(forced);
+    mLeft = k;
+    return k;
+}
+
+void RegionCadence::filledDomain()
+{
+    if (mSettings.rebuildEvery == 0) mLeft = std::max(mLeft, kFullDomainSteps);
+}
+
+bool truncateToTolerance(openvdb::FloatGrid& grid, double tolerance)
+{
+    std::atomic<bool> changed{false};
+    const float bg = grid.background();
+    const float tol = float(tolerance);
+    std::atomic<bool> emptied{false};
+    openvdb::tree::LeafManager<openvdb::FloatTree> leaves(grid.tree());
+    // Word by word over the value mask: most voxels stay on, so only the ones to switch off are
+    // touched (the per-voxel iterator was the truncation's cost).
+    leaves.foreach([bg, tol, &emptied, &changed](openvdb::FloatTree::LeafNodeType& leaf, size_t) {
+        auto& mask = leaf.getValueMask();
+        float* v = leaf.buffer().data();
+        bool any = false;
+        for (openvdb::Index w = 0; w < openvdb::FloatTree::LeafNodeType::NodeMaskType::WORD_COUNT; ++w) {
+            uint64_t& word = mask.template getWord<uint64_t>(w);
+            uint64_t bits = word, off = 0;
+            while (bits) {
+                const int b = __builtin_ctzll(bits);
+                bits &= bits - 1;
+                float& x = v[w * 64 + b];
+                if (std::fabs(x - bg) <= tol) { x = bg; off |= uint64_t(1) << b; }
+            }
+            word &= ~off;
+            any = any || word;
+            if (off) changed = true;
+        }
+        if (!any) emptied = true;
+    });
+    if (emptied) openvdb::tools::pruneInactive(grid.tree());
+    return changed;
 }
 
 } // namespace frostvdb

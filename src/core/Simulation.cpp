@@ -70,6 +70,10 @@ void readRegionSection(ParamDict& d, RegionSettings& r)
     r.dense = d.getBool("dense", false, "reference mode: every domain voxel is active every step");
     r.frontTravel = int(d.getInt("front_travel", 1, 0, 16, "cells",
         "extra dilation of the active region for the distance the front moves in one step"));
+    r.rebuildEvery = int(d.getInt("rebuild_every", 0, 0, 64, "steps",
+        "rebuild the active region (and truncate) every k steps, the dilation widened to k steps of travel; "
+        "0: automatic (k = 8 cells / (stencil reach + front_travel), 16 once the region fills the domain; "
+        "1 while another effect writes the fields)"));
 }
 
 /// [output] world_scale lives in World::shared (key below) so effects writing their own files see it.

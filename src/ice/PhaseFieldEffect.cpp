@@ -110,7 +110,8 @@ void PhaseFieldEffect::addToFrame(World& world, Frame& frame) { ice::addIceOutpu
 std::vector<std::pair<std::string, double>> PhaseFieldEffect::timings() const
 {
     std::vector<std::pair<std::string, double>> t{
-        {"region", mStats.regionSeconds}, {"kernel", mStats.kernelSeconds}, {"truncate", mStats.truncateSeconds}};
+        {"region", mStats.regionSeconds}, {"kernel", mStats.kernelSeconds}, {"truncate", mStats.truncateSeconds},
+        {"region_rebuilds", double(mStats.rebuilds)}};
     if (mParams.scheme == PhaseFieldScheme::SecondOrder) {
         t.push_back({"solve", mStats.solveSeconds});
         t.push_back({"heat", mStats.heatSeconds});

@@ -9,6 +9,9 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <string>
+#include <vector>
+#include <algorithm>
 #include <memory>
 
 namespace frostvdb {
@@ -40,6 +43,115 @@ openvdb::FloatGrid::Ptr iceCover(int n, double fraction)
     return p;
 }
 
+/// The realistic case of issue 10: one disc seed on a square plane grown with forward Euler
+/// until its heat covers the domain, region tolerance 0, the engine's whole step (region +
+/// kernel + truncation, with the growth and freeze-time accumulators of the effect) against the
+/// plain dense-array loop of the same equations from the same start, in the same run.
+struct RealisticResult {
+    double engineSeconds = 0, denseSeconds = 0, fullEngineSeconds = 0, fullDenseSeconds = 0;
+    int64_t fullSteps = 0, rebuilds = 0;
+    PhaseFieldStepStats stats, fullStats; ///< all steps; the fully active ones
+    double finalFraction = 0;
+    double maxDiff = 0;
+    double area = 0;
+};
+
+RealisticResult realistic(int n, int steps, int rebuildEvery)
+{
+    KobayashiParams k;
+    k.dt = 0.0002;
+    k.delta = 0.04;
+    k.latentHeat = 1.6;
+    const Lattice lat(LatticeKind::Square, 0.03);
+    const Domain dom(DomainKind::Plane, lat, openvdb::Coord(n, n, 1), 1e-4);
+    RegionSettings rs;
+    rs.tolerance = 0.0;
+    rs.rebuildEvery = rebuildEvery;
+    PhaseFieldSolver solver(k, dom, rs);
+    DensePhaseField ref(k, lat, n, n);
+    auto p = openvdb::FloatGrid::create(0.f);
+    auto T = openvdb::FloatGrid::create(float(k.farTemperature));
+    auto growth = openvdb::FloatGrid::create(0.f), freeze = openvdb::FloatGrid::create(0.f);
+    const double c = 0.5 * (n - 1), r = 5.0;
+    for (int j = 0; j < n; ++j)
+        for (int i = 0; i < n; ++i) {
+            const double v = std::clamp(r + 0.5 - std::hypot(i - c, j - c), 0.0, 1.0);
+            if (v <= 0) continue;
+            p->tree().setValue(openvdb::Coord(i, j, 0), float(v));
+            ref.p()[ref.index(i, j)] = float(v);
+        }
+    RealisticResult out;
+    // Interleaved step by step so that both see the same machine load; the steps where the
+    // engine's region is the whole domain are also summed apart.
+    for (int s = 0; s < steps; ++s) {
+        PhaseFieldStepStats st;
+        auto t0 = Clock::now();
+        solver.step(p, T, growth.get(), freeze.get(), s, s * k.dt, 1, &st);
+        const double te = since(t0);
+        t0 = Clock::now();
+        ref.step();
+        const double td = since(t0);
+        out.engineSeconds += te;
+        out.denseSeconds += td;
+        if (st.regionVoxels == dom.voxelCount()) {
+            out.fullEngineSeconds += te;
+            out.fullDenseSeconds += td;
+            ++out.fullSteps;
+            out.fullStats.regionSeconds += st.regionSeconds;
+            out.fullStats.kernelSeconds += st.kernelSeconds;
+            out.fullStats.truncateSeconds += st.truncateSeconds;
+        }
+        out.stats.regionSeconds += st.regionSeconds;
+        out.stats.kernelSeconds += st.kernelSeconds;
+        out.stats.truncateSeconds += st.truncateSeconds;
+        out.rebuilds += st.rebuilds;
+        out.finalFraction = double(st.regionVoxels) / double(dom.voxelCount());
+    }
+    auto pa = p->getConstAccessor();
+    auto ta = T->getConstAccessor();
+    for (int j = 0; j < n; ++j)
+        for (int i = 0; i < n; ++i) {
+            const openvdb::Coord q(i, j, 0);
+            out.maxDiff = std::max(out.maxDiff, double(std::fabs(pa.getValue(q) - ref.p()[ref.index(i, j)])));
+            out.maxDiff = std::max(out.maxDiff, double(std::fabs(ta.getValue(q) - ref.T()[ref.index(i, j)])));
+            out.area += ref.p()[ref.index(i, j)] > 0.5f;
+        }
+    return out;
+}
+
+void benchRealistic(const BenchArgs& args)
+{
+    const int steps = args.quick ? 200 : 2000;
+    std::printf("Realistic full-domain run (issue 10): square plane, spacing 0.03, forward Euler dt 0.0002, delta 0.04, "
+                "K 1.6, one disc seed of radius 5 cells, %d steps, region tolerance 0, threads %s.\n"
+                "Engine = PhaseFieldSolver::step (region + kernel + truncation, growth and freeze-time accumulators); "
+                "dense = DensePhaseField::step, the plain dense-array loop of the same arithmetic, stepped alternately "
+                "in the same run.\n\n",
+                steps, args.threads > 0 ? std::to_string(args.threads).c_str() : "all");
+    std::printf("| size | rebuild_every | engine (s) | region / kernel / truncation (s) | rebuilds | dense loop (s) | "
+                "dense / engine | fully active steps | dense / engine there | final region | max diff |\n");
+    std::printf("|---|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|\n");
+    std::vector<int> sizes{300, 600};
+    if (args.args.size() > 1) sizes = {std::stoi(args.args[1])}; // `bench sparse realistic N`: one size
+    for (int n : sizes) {
+        for (int every : {1, 0}) {
+            if (n != 300 && every == 1) continue; // the old cadence once, at the issue's size
+            const RealisticResult r = realistic(n, steps, every);
+            std::printf("| %dx%d | %s | %.2f | %.2f / %.2f / %.2f | %lld | %.2f | %.2fx | %lld | %.2fx | %.0f%% | %g |\n", n, n,
+                        every == 0 ? "auto" : std::to_string(every).c_str(), r.engineSeconds, r.stats.regionSeconds,
+                        r.stats.kernelSeconds, r.stats.truncateSeconds, (long long)r.rebuilds, r.denseSeconds,
+                        r.denseSeconds / r.engineSeconds, (long long)r.fullSteps,
+                        r.fullSteps ? r.fullDenseSeconds / r.fullEngineSeconds : 0.0, 100.0 * r.finalFraction, r.maxDiff);
+            std::fflush(stdout);
+            if (r.fullSteps)
+                std::fprintf(stderr, "  %dx%d fully active steps, per step: region %.3f ms, kernel %.3f ms, truncation %.3f ms; dense loop %.3f ms\n",
+                             n, n, 1e3 * r.fullStats.regionSeconds / r.fullSteps, 1e3 * r.fullStats.kernelSeconds / r.fullSteps,
+                             1e3 * r.fullStats.truncateSeconds / r.fullSteps, 1e3 * r.fullDenseSeconds / r.fullSteps);
+        }
+    }
+    std::printf("\n");
+}
+
 int benchSparse(const BenchArgs& args)
 {
     std::unique_ptr<tbb::global_control> gc;
@@ -53,11 +165,16 @@ int benchSparse(const BenchArgs& args)
     RegionSettings sparse, dense;
     dense.dense = true;
 
+    const std::string only = args.args.empty() ? "" : args.args[0]; // realistic | fractions | kernel
+    if (only.empty() || only == "realistic") benchRealistic(args);
+    if (only == "realistic") return 0;
+
     std::printf("frostvdb bench sparse: %dx%d plane, Kobayashi phase field (forward Euler), %d timed steps after %d warm-up\n\n",
                 n, n, steps, 2);
     std::printf("| ice fraction | active region | sparse step (ms) | dense step (ms) | dense / sparse |\n");
     std::printf("|---:|---:|---:|---:|---:|\n");
     for (double fraction : {0.002, 0.01, 0.03, 0.10, 0.30}) {
+        if (only == "kernel") break;
         double t[2] = {0, 0};
         uint64_t regionVoxels = 0;
         for (int mode = 0; mode < 2; ++mode) {

@@ -32,6 +32,7 @@ struct RegionSettings {
     double tolerance = 1e-6; ///< |v - far field| above this keeps a voxel active
     bool dense = false;      ///< reference mode: the whole domain is active every step
     int frontTravel = 1;     ///< extra dilation (cells) for the front's travel in one step
+    int rebuildEvery = 0;    ///< steps between region rebuilds (and truncations); 0: automatic
 };
 
 /// Everything a run shares: the domain, its fields and the run-wide settings.

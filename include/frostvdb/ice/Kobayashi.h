@@ -232,6 +232,21 @@ inline double kobayashiEuler(const float* p, const float* T, const float* a, con
     return dp;
 }
 
+/// kobayashiEuler at a cell whose p is exactly 0 at every cell within two stencil steps (the
+/// whole neighbourhood pass 1 and 2 read): there the anisotropy coefficients are constants, every
+/// term of dp is an exact zero, so p stays 0 and T takes the plain heat step; the same
+/// operations in the same order give the same bits. Keep in step with kobayashiEuler's T update.
+inline void kobayashiEulerHeatOnly(const float* T, std::size_t i, const FlatStencil& st, const KobayashiParams& k,
+                                   float& pOut, float& tOut)
+{
+    const double t0 = T[i];
+    double lapT = 0;
+    for (int q = 0; q < st.n; ++q) lapT += st.wLap[q] * (double(T[i + st.off[q]]) - t0);
+    const double dp = 0.0;
+    pOut = 0.f;
+    tOut = float(t0 + k.dt * lapT + k.latentHeat * dp);
+}
+
 /// c^T H(u) c at cell i from the lattice's directional second differences
 /// D_k = (u(+e_k) - 2 u + u(-e_k)) / h^2: sum_k (c.e_k)^2 D_k on the square lattice (the
 /// paper's per-axis Lax-Wendroff form: exact when u_xy = 0), and on the hexagonal lattice

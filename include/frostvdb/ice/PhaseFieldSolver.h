@@ -2,20 +2,24 @@
 /// @file PhaseFieldSolver.h
 /// @brief Steps the Kobayashi phase field (p, T) on sparse OpenVDB grids.
 ///
-/// Each step: build the active region (|p| or |T - T_inf| above the tolerance, dilated by the
-/// stencil reach 2 plus the front travel), give the new p and T grids that topology, then update
-/// every region leaf in parallel (tree::LeafManager + TBB): the leaf's values and a halo of 2
-/// are gathered into a padded dense block, pass 1 computes the anisotropy coefficients on the
-/// block, pass 2 the Euler update of the leaf's voxels. Values back within the tolerance of the
-/// far field are then switched off and pruned, so memory and cost follow the ice front.
+/// Each step: when due (every k steps, see RegionCadence in ActiveRegion.h) or when another
+/// effect changed p or T, rebuild the active region (|p| or |T - T_inf| above the tolerance,
+/// dilated by k (stencil reach 2 + front travel), whole leaves); give the output grids (the last
+/// step's inputs, reused) that topology; then update the region's leaves in parallel in blocks of
+/// up to 4x4 leaves (plane): the values and a halo of 2 are gathered into a padded dense block,
+/// pass 1 computes the anisotropy coefficients where the block's leaves need them, pass 2 the
+/// Euler update of the active voxels. When the region is retired, values back within the
+/// tolerance of the far field are switched off and pruned, so memory and cost follow the ice.
 /// In dense mode the region is the whole domain: the same code is the dense reference.
 #include <frostvdb/core/ActiveRegion.h>
 #include <frostvdb/core/Domain.h>
+#include <frostvdb/ice/ImplicitSystem.h>
 #include <frostvdb/ice/Kobayashi.h>
 
 #include <openvdb/openvdb.h>
 #include <openvdb/tree/LeafManager.h>
 
+#include <memory>
 #include <vector>
 
 namespace frostvdb {
@@ -29,11 +33,15 @@ struct PhaseFieldStepStats {
     int64_t solves = 0, solverIterationsP = 0, solverIterationsT = 0, unconverged = 0;
     double lastResidual = 0;
     int64_t clippedVoxels = 0; ///< lw_cn: p values clipped back into [0, 1] (Lax-Wendroff overshoot)
+    int64_t rebuilds = 0;      ///< region rebuilds (every k steps, or when another effect wrote p or T)
 };
+
+struct LeafGroups;
 
 class PhaseFieldSolver {
 public:
     PhaseFieldSolver(const KobayashiParams& params, const Domain& domain, const RegionSettings& region);
+    ~PhaseFieldSolver();
 
     const KobayashiParams& params() const { return mParams; }
     KobayashiParams& params() { return mParams; }
@@ -56,22 +64,44 @@ public:
     void setMeltMap(const openvdb::FloatGrid* melt) { mMelt = melt; }
 
     struct Failure;
+    struct Accumulators;
 
 private:
     using FloatLeaf = openvdb::FloatTree::LeafNodeType;
     void stepSecondOrder(const openvdb::FloatGrid& p, const openvdb::FloatGrid& T,
                          openvdb::tree::LeafManager<openvdb::FloatTree>& pLeaves,
                          openvdb::tree::LeafManager<openvdb::FloatTree>& tLeaves,
-                         const std::vector<FloatLeaf*>& gLeaves, const std::vector<FloatLeaf*>& fLeaves,
-                         int64_t stepIndex, double tNext, uint64_t seed, Failure& failure,
+                         Accumulators& acc, int64_t stepIndex, double tNext, uint64_t seed, Failure& failure,
                          PhaseFieldStepStats* stats);
+    /// True when @a p and @a T are, unchanged, the grids this solver returned last step.
+    bool inputsAreOurs(const openvdb::FloatGrid& p, const openvdb::FloatGrid& T) const;
+    /// An output grid with the region's topology, reusing @a spare when nobody else holds it.
+    openvdb::FloatGrid::Ptr outputGrid(openvdb::FloatGrid::Ptr& spare, uint64_t spareGeneration,
+                                       openvdb::FloatGrid& like);
 
     KobayashiParams mParams;
     Domain mDomain;
     RegionSettings mRegion;
     const openvdb::FloatGrid* mMelt = nullptr;
-    /// The second-order scheme's last increments of p and T, for its midpoint coefficients.
-    openvdb::FloatGrid::Ptr mLastDp, mLastDt;
+    /// The second-order scheme's last increments of p and T, for its midpoint coefficients, and
+    /// the buffers of the ones before (reused).
+    openvdb::FloatGrid::Ptr mLastDp, mLastDt, mSpareDp, mSpareDt;
+    uint64_t mLastIncGeneration = 0, mSpareIncGeneration = 0;
+
+    // Region cadence (see ActiveRegion.h). A generation numbers each distinct region topology;
+    // a grid tagged with the current generation has exactly the region's topology (0: unknown).
+    RegionCadence mCadence;
+    openvdb::MaskGrid::Ptr mRegionMask;
+    uint64_t mGeneration = 0, mRegionVoxels = 0;
+    const openvdb::FloatGrid *mOutP = nullptr, *mOutT = nullptr; ///< what the last step returned
+    uint64_t mPrintP = 0, mPrintT = 0, mOutGeneration = 0;      ///< their fingerprints, topology
+    bool mInputsTruncated = true; ///< the last outputs were truncated (or are the initial state)
+    openvdb::FloatGrid::Ptr mSpareP, mSpareT; ///< last step's inputs: this step's output buffers
+    uint64_t mSpareGeneration = 0;
+    std::unique_ptr<LeafGroups> mGroups;      ///< the region's leaves in kernel blocks
+    uint64_t mGroupsGeneration = 0;
+    std::unique_ptr<SlotLayout> mLayout;      ///< the implicit systems' rows (second order)
+    uint64_t mLayoutGeneration = 0;
 };
 
 /// The plain dense-array loop of the same stencil and arithmetic, on a 2D nx x ny plane with a
