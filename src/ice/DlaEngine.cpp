@@ -53,8 +53,8 @@ struct DlaEngine::Sparse {
     int dim = 2;
     int brickVolume = 64;
     uint8_t cap = 16;
-    KeyMap<uint32_t> brickOf;  ///< brick key -> brick number
-    std::vector<uint8_t> pool; ///< brick number * brickVolume + cell
+    KeyMap<uint8_t*> brickOf;                     ///< brick key -> its cells (stable storage)
+    std::vector<std::unique_ptr<uint8_t[]>> pool; ///< the bricks
     /// Level k: blocks of 8 * 2^k cells. occupied[k]: blocks holding ice; near[k]: blocks with
     /// ice in their 3^d neighbourhood (the complement is where a Chebyshev bound holds).
     std::vector<KeyMap<uint8_t>> occupied, near;
@@ -63,14 +63,23 @@ struct DlaEngine::Sparse {
     {
         brickOf.clear();
         pool.clear();
-        pool.shrink_to_fit();
         for (auto& m : occupied) m.clear();
         for (auto& m : near) m.clear();
     }
     const uint8_t* brick(int bx, int by, int bz) const
     {
-        const uint32_t* b = brickOf.find(packKey(bx, by, bz));
-        return b ? &pool[size_t(*b) * size_t(brickVolume)] : nullptr;
+        uint8_t* const* b = brickOf.find(packKey(bx, by, bz));
+        return b ? *b : nullptr;
+    }
+    uint8_t* brickForWrite(int bx, int by, int bz)
+    {
+        auto ins = brickOf.insert(packKey(bx, by, bz), nullptr);
+        if (ins.second) {
+            pool.emplace_back(new uint8_t[size_t(brickVolume)]);
+            std::fill(pool.back().get(), pool.back().get() + brickVolume, cap);
+            *ins.first = pool.back().get();
+        }
+        return *ins.first;
     }
     int fine(int x, int y, int z) const
     {
@@ -79,10 +88,7 @@ struct DlaEngine::Sparse {
     }
     void setFine(int x, int y, int z, int d)
     {
-        auto ins = brickOf.insert(packKey(x >> kBrickLog2, y >> kBrickLog2, z >> kBrickLog2),
-                                  uint32_t(pool.size() / size_t(brickVolume)));
-        if (ins.second) pool.resize(pool.size() + size_t(brickVolume), cap);
-        pool[size_t(*ins.first) * size_t(brickVolume) + size_t(cellInBrick(x, y, z))] = uint8_t(d);
+        brickForWrite(x >> kBrickLog2, y >> kBrickLog2, z >> kBrickLog2)[cellInBrick(x, y, z)] = uint8_t(d);
     }
     void addIce(int x, int y, int z)
     {
@@ -103,15 +109,13 @@ struct DlaEngine::Sparse {
     int bound(int x, int y, int z, bool anyIce) const
     {
         if (!anyIce) return kNoBound;
-        auto freeAt = [&](int k) {
+        // free at level k implies free below it (the neighbourhoods nest); scanned upwards, as
+        // most walkers that ask are close to the ice (one or two probes)
+        int lo = -1;
+        for (int k = 0; k < int(near.size()); ++k) {
             const int sh = kBrickLog2 + k;
-            return !near[size_t(k)].contains(packKey(x >> sh, y >> sh, z >> sh));
-        };
-        // free at level k implies free below it (the neighbourhoods nest): binary search
-        int lo = -1, hi = int(near.size());
-        while (hi - lo > 1) {
-            const int mid = (lo + hi) / 2;
-            (freeAt(mid) ? lo : hi) = mid;
+            if (near[size_t(k)].contains(packKey(x >> sh, y >> sh, z >> sh))) break;
+            lo = k;
         }
         if (lo < 0) return 0;
         const int s = kB << lo;
@@ -122,11 +126,40 @@ struct DlaEngine::Sparse {
     }
 };
 
+/// Cached brick access for a sequence of nearby cells (one hash probe per brick change).
+struct BrickCursor {
+    DlaEngine::Sparse& S;
+    int bx = -1, by = -1, bz = -1;
+    uint8_t* brick = nullptr;
+    explicit BrickCursor(DlaEngine::Sparse& s) : S(s) {}
+    int get(int x, int y, int z)
+    {
+        at(x, y, z, false);
+        return brick ? brick[cellInBrick(x, y, z)] : S.cap;
+    }
+    void set(int x, int y, int z, int d)
+    {
+        at(x, y, z, true);
+        brick[cellInBrick(x, y, z)] = uint8_t(d);
+    }
+    void at(int x, int y, int z, bool write)
+    {
+        const int cx = x >> DlaEngine::kBrickLog2, cy = y >> DlaEngine::kBrickLog2, cz = z >> DlaEngine::kBrickLog2;
+        // a missing brick is never cached: the other cursor of a BFS may create it meanwhile
+        if (cx != bx || cy != by || cz != bz || !brick) {
+            bx = cx;
+            by = cy;
+            bz = cz;
+            brick = write ? S.brickForWrite(cx, cy, cz) : const_cast<uint8_t*>(S.brick(cx, cy, cz));
+        }
+    }
+};
+
 DlaEngine::~DlaEngine() = default;
 
 size_t DlaEngine::memoryBytes() const
 {
-    size_t b = mSparse->brickOf.bytes() + mSparse->pool.capacity();
+    size_t b = mSparse->brickOf.bytes() + mSparse->pool.size() * (size_t(mSparse->brickVolume) + sizeof(void*));
     for (auto& m : mSparse->occupied) b += m.bytes();
     for (auto& m : mSparse->near) b += m.bytes();
     return b;
@@ -146,7 +179,7 @@ DlaEngine::DlaEngine(const Domain& domain, const DlaParams& params, uint64_t see
     if (std::max(std::max(mNx, mNy), mNz) >= (int64_t(1) << 21))
         throw std::invalid_argument("DlaEngine: at most 2^21 cells per axis");
     mDim = domain.dimension();
-    mCap = mDim == 3 ? 10 : 16;
+    mCap = mDim == 3 ? 10 : 32;
     mSparse->dim = mDim;
     mSparse->brickVolume = mDim == 3 ? kB * kB * kB : kB * kB;
     mSparse->cap = uint8_t(mCap);
@@ -159,6 +192,10 @@ DlaEngine::DlaEngine(const Domain& domain, const DlaParams& params, uint64_t see
     // A unit displacement in the lattice plane moves the index by at most this (Chebyshev): 1 on
     // the square lattice, 2/sqrt(3) on the hexagonal one (axial coordinates).
     mSphereScale = domain.lattice().kind() == LatticeKind::Hexagonal ? 2.0 / std::sqrt(3.0) : 1.0;
+    // and the lattice (graph) distance by at most this: sqrt(2) (square, L1), 2/sqrt(3)
+    // (hexagonal), sqrt(3) (cubic)
+    mGraphScale = domain.lattice().kind() == LatticeKind::Hexagonal ? 2.0 / std::sqrt(3.0)
+                                                                     : (mDim == 3 ? std::sqrt(3.0) : std::sqrt(2.0));
 
     // jump tables: every radius up to 16, then ~20% apart, up to the largest useful one
     if (params.jumps) {
@@ -196,18 +233,18 @@ int DlaEngine::iceDistance(const openvdb::Coord& c) const
 
 void DlaEngine::relaxQueue()
 {
-    Sparse& S = *mSparse;
+    BrickCursor here(*mSparse), there(*mSparse);
     const int64_t m = (int64_t(1) << 21) - 1;
     for (size_t q = 0; q < mQueue.size(); ++q) {
         const int64_t u = mQueue[q];
         const int x = int(u & m), y = int((u >> 21) & m), z = int(u >> 42);
-        const int d = S.fine(x, y, z) + 1;
+        const int d = here.get(x, y, z) + 1;
         if (d >= mCap) continue;
         for (const auto& o : mNbr) {
             const int i = x + o.x(), j = y + o.y(), k = z + o.z();
             if (i < 0 || j < 0 || k < 0 || i >= mNx || j >= mNy || k >= mNz) continue;
-            if (S.fine(i, j, k) > d) {
-                S.setFine(i, j, k, d);
+            if (there.get(i, j, k) > d) {
+                there.set(i, j, k, d);
                 mQueue.push_back(int64_t(packKey(i, j, k)));
             }
         }
@@ -257,6 +294,7 @@ void DlaEngine::sync(const openvdb::FloatGrid& p)
     std::vector<std::vector<int64_t>> fresh(nl);
     const openvdb::CoordBBox dom = mDomain.bbox();
     tbb::parallel_for(tbb::blocked_range<size_t>(0, nl, 8), [&](const tbb::blocked_range<size_t>& r) {
+        BrickCursor cur(*mSparse); // read only here
         for (size_t l = r.begin(); l != r.end(); ++l) {
             const auto& leaf = leaves.leaf(l);
             for (auto it = leaf.cbeginValueOn(); it; ++it) {
@@ -264,8 +302,8 @@ void DlaEngine::sync(const openvdb::FloatGrid& p)
                 const openvdb::Coord c = it.getCoord();
                 if (!dom.isInside(c)) continue;
                 ++counts[l];
-                const int64_t i = index(c);
-                if (!isIce(i)) fresh[l].push_back(i);
+                const openvdb::Coord q = c - mOrigin;
+                if (cur.get(q.x(), q.y(), q.z()) != 0) fresh[l].push_back(index(c));
             }
         }
     });
@@ -476,7 +514,9 @@ WalkEnd DlaEngine::walkFrom(WalkerRng& rng, int64_t idx, const Inputs& in, Probe
         // empty-space jump
         bool jumped = false;
         if ((maxR > 0 || spheres) && f >= P.jumpMinRadius + 2) {
-            const int dIce = f < cap ? f : std::max(cap, mSparse->bound(x, y, z, anyIce));
+            // exact lattice (graph) distance below the cap, else the pyramid's Chebyshev bound
+            const bool exact = f < cap;
+            const int dIce = exact ? f : std::max(cap, mSparse->bound(x, y, z, anyIce));
             int dOut = 1 + std::min(std::min(x, nx - 1 - x), std::min(y, ny - 1 - y));
             if (dim == 3) dOut = std::min(dOut, 1 + std::min(z, nz - 1 - z));
             // interior of the ball inside the domain (r <= dOut), no cell of it next to ice and the
@@ -493,9 +533,11 @@ WalkEnd DlaEngine::walkFrom(WalkerRng& rng, int64_t idx, const Inputs& in, Probe
                     r = std::min(r, int(rhoMax));
                 }
             }
-            // beyond the largest table: a circle (sphere) of plane radius rho whose index reach,
-            // with a cell of rounding, stays within r
-            const double rho = std::min(rhoMax, double(r - 1) / mSphereScale);
+            // beyond the largest table: a circle (sphere) of plane radius rho whose cells, with a
+            // cell of rounding, stay 2 away from the ice and inside the domain. A graph distance
+            // covers a disc of radius d / mGraphScale, a Chebyshev bound one of d / mSphereScale.
+            const double rhoIce = double(dIce - 3) / (exact ? mGraphScale : mSphereScale);
+            const double rho = std::min(std::min(rhoMax, rhoIce), double(dOut - 1) / mSphereScale);
             double jumpSteps = 0;
             if (spheres && rho > double(sphereMin)) {
                 const double u = rng.uniform(), w = rng.uniform();

@@ -230,22 +230,124 @@ openvdb::GridPtrVec exportGrids(const openvdb::GridPtrVec& grids, const Domain& 
     return out;
 }
 
-void writeDisplacementPng(const openvdb::FloatGrid& growth, const Domain& dom, const std::string& path)
+namespace {
+
+/// The raster pixels (a, b) a flat grid's active voxels can colour under BoxSampler, as 8x8
+/// pixel blocks (block = (a >> 3, b >> 3) relative to the raster origin), sorted and unique.
+std::vector<std::pair<int, int>> touchedBlocks(const openvdb::FloatGrid& g, const SquareRaster& r, double z)
 {
-    if (!dom.isPlane()) throw std::invalid_argument("displacement PNGs are for flat domains");
-    const SquareRaster r = squareRaster(dom);
-    const int W = r.width(), H = r.height();
-    std::vector<float> values(size_t(W) * H);
-    const double z = dom.transform()->indexToWorld(openvdb::Vec3d(0, 0, dom.bbox().min().z())).z();
-    tbb::parallel_for(0, H, [&](int y) {
+    const auto& xf = g.transform();
+    auto raster = openvdb::math::Transform::createLinearTransform(r.h);
+    openvdb::tree::LeafManager<const openvdb::FloatTree> leaves(g.tree());
+    std::vector<openvdb::CoordBBox> boxes(leaves.leafCount());
+    tbb::parallel_for(size_t(0), leaves.leafCount(), [&](size_t i) {
+        if (leaves.leaf(i).isEmpty()) return;
+        openvdb::CoordBBox bb;
+        leaves.leaf(i).evalActiveBoundingBox(bb, false);
+        boxes[i] = footprint(bb, xf, *raster, false);
+    });
+    auto tile = g.tree().cbeginValueOn();
+    tile.setMaxDepth(openvdb::FloatTree::ValueOnCIter::LEAF_DEPTH - 1);
+    for (; tile; ++tile) boxes.push_back(footprint(tile.getBoundingBox(), xf, *raster, false));
+    (void)z;
+    std::vector<std::pair<int, int>> blocks;
+    for (const auto& b : boxes) {
+        if (b.min().x() > b.max().x() || b.min().y() > b.max().y()) continue; // (z is not looked at)
+        const int x0 = std::max(b.min().x(), r.a0) - r.a0, x1 = std::min(b.max().x(), r.a1) - r.a0;
+        const int y0 = std::max(b.min().y(), r.b0) - r.b0, y1 = std::min(b.max().y(), r.b1) - r.b0;
+        for (int by = y0 >> 3; by <= (y1 >> 3) && y0 <= y1; ++by)
+            for (int bx = x0 >> 3; bx <= (x1 >> 3) && x0 <= x1; ++bx) blocks.emplace_back(bx, by);
+    }
+    std::sort(blocks.begin(), blocks.end());
+    blocks.erase(std::unique(blocks.begin(), blocks.end()), blocks.end());
+    return blocks;
+}
+
+/// Samples @a growth at the raster pixels of @a blocks that fall in the image window
+/// [ia, ia + W) x [ib, ib + H) (raster offsets; image row 0 at the top) into @a values.
+void sampleBlocks(const openvdb::FloatGrid& growth, const SquareRaster& r, double z,
+                  const std::vector<std::pair<int, int>>& blocks, int ia, int ib, int W, int H,
+                  std::vector<float>& values)
+{
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, blocks.size(), 16), [&](const tbb::blocked_range<size_t>& rg) {
         auto acc = growth.getConstAccessor();
         openvdb::tools::GridSampler<openvdb::FloatGrid::ConstAccessor, openvdb::tools::BoxSampler> s(
             acc, growth.transform());
-        const int b = r.b1 - y; // row 0 at the top (+y)
-        for (int x = 0; x < W; ++x)
-            values[size_t(y) * W + x] = s.wsSample(openvdb::Vec3d((r.a0 + x) * r.h, b * r.h, z));
+        for (size_t k = rg.begin(); k != rg.end(); ++k) {
+            for (int dy = 0; dy < 8; ++dy)
+                for (int dx = 0; dx < 8; ++dx) {
+                    const int a = blocks[k].first * 8 + dx - ia, b = blocks[k].second * 8 + dy - ib;
+                    if (a < 0 || b < 0 || a >= W || b >= H) continue;
+                    const int ra = r.a0 + ia + a, rb = r.b0 + ib + b;
+                    if (ra > r.a1 || rb > r.b1) continue;
+                    values[size_t(H - 1 - b) * W + a] = s.wsSample(openvdb::Vec3d(ra * r.h, rb * r.h, z));
+                }
+        }
     });
-    writePngGray(path, W, H, values, 16);
+}
+
+} // namespace
+
+std::vector<std::string> writeDisplacementMaps(const openvdb::FloatGrid& growth, const Domain& dom,
+                                               const std::string& stem, int tileSize)
+{
+    if (!dom.isPlane()) throw std::invalid_argument("displacement PNGs are for flat domains");
+    if (tileSize < 8) throw std::invalid_argument("displacement tile size must be at least 8 pixels");
+    const SquareRaster r = squareRaster(dom);
+    const int W = r.width(), H = r.height();
+    const double z = dom.transform()->indexToWorld(openvdb::Vec3d(0, 0, dom.bbox().min().z())).z();
+    const float bg = growth.background();
+    const auto blocks = touchedBlocks(growth, r, z);
+    if (W <= tileSize && H <= tileSize) { // one image, as large as the raster
+        std::vector<float> values(size_t(W) * H, bg);
+        sampleBlocks(growth, r, z, blocks, 0, 0, W, H, values);
+        writePngGray(stem + ".png", W, H, values, 16);
+        return {stem + ".png"};
+    }
+    // UDIM tiles: tile (u, v) holds raster offsets [u T, (u+1) T) x [v T, (v+1) T), u along +x
+    // from the raster's left edge, v along +y from its bottom; number 1001 + u + 10 v
+    const int nu = (W + tileSize - 1) / tileSize, nv = (H + tileSize - 1) / tileSize;
+    if (nu > 10)
+        throw std::invalid_argument("displacement map " + std::to_string(W) + " pixels wide needs " +
+                                    std::to_string(nu) + " UDIM tiles across (at most 10): raise output.tile_size");
+    std::vector<std::vector<std::pair<int, int>>> perTile(size_t(nu) * nv);
+    const int bt = tileSize / 8; // blocks per tile side when the tile is a multiple of 8
+    for (const auto& b : blocks) {
+        // a block may straddle two tiles when tileSize is not a multiple of 8: give it to both
+        for (int cy = 0; cy < 2; ++cy)
+            for (int cx = 0; cx < 2; ++cx) {
+                const int u = (b.first * 8 + cx * 7) / tileSize, v = (b.second * 8 + cy * 7) / tileSize;
+                if (u >= nu || v >= nv) continue;
+                auto& t = perTile[size_t(v) * nu + u];
+                if (t.empty() || t.back() != b) t.push_back(b);
+            }
+    }
+    (void)bt;
+    std::vector<int> udims;
+    for (int v = 0; v < nv; ++v)
+        for (int u = 0; u < nu; ++u)
+            if (!perTile[size_t(v) * nu + u].empty()) udims.push_back(1001 + u + 10 * v);
+    std::vector<std::string> files(udims.size());
+    // two tiles at a time at most: each holds tileSize^2 floats while it is encoded
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, udims.size(), 1), [&](const tbb::blocked_range<size_t>& rg) {
+        for (size_t i = rg.begin(); i != rg.end(); ++i) {
+            const int u = (udims[i] - 1001) % 10, v = (udims[i] - 1001) / 10;
+            auto& t = perTile[size_t(v) * nu + u];
+            std::sort(t.begin(), t.end());
+            t.erase(std::unique(t.begin(), t.end()), t.end());
+            std::vector<float> values(size_t(tileSize) * tileSize, bg);
+            sampleBlocks(growth, r, z, t, u * tileSize, v * tileSize, tileSize, tileSize, values);
+            files[i] = stem + "." + std::to_string(udims[i]) + ".png";
+            writePngGray(files[i], tileSize, tileSize, values, 16);
+        }
+    });
+    return files;
+}
+
+void writeDisplacementPng(const openvdb::FloatGrid& growth, const Domain& dom, const std::string& path)
+{
+    const std::string stem = path.size() > 4 && path.substr(path.size() - 4) == ".png" ? path.substr(0, path.size() - 4) : path;
+    writeDisplacementMaps(growth, dom, stem, 1 << 30);
 }
 
 } // namespace frostvdb

@@ -35,6 +35,7 @@ struct OutputSettings {
     bool halfFloat = false;
     bool keepLattice = false;     ///< hexagonal domains: write the sheared grids, not square resamples
     bool displacementPng = true;  ///< flat domains with a `growth` grid: <name>.<frame>.displacement.png
+    int displacementTile = 4096;  ///< larger rasters: UDIM tiles of this many pixels, only those with ice
 };
 
 struct RunSummary {
@@ -78,7 +79,7 @@ public:
     std::string writeFrame(const Frame& frame, const std::string& dir);
     /// Writes the frame's `growth` grid as a 16-bit PNG `<name>.<frame>.displacement.png` (flat
     /// domains; "" when there is nothing to write or output.displacement_png is off).
-    std::string writeDisplacement(const Frame& frame, const std::string& dir);
+    std::vector<std::string> writeDisplacement(const Frame& frame, const std::string& dir);
 
 private:
     Scene mScene;
