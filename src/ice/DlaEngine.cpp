@@ -106,17 +106,25 @@ struct DlaEngine::Sparse {
         }
     }
     /// Chebyshev lower bound of the distance to the ice (0: none known; kNoBound: no ice).
-    int bound(int x, int y, int z, bool anyIce) const
+    /// @a hint: the level found last time for a nearby cell (updated), where the scan starts.
+    int bound(int x, int y, int z, bool anyIce, int& hint) const
     {
         if (!anyIce) return kNoBound;
-        // free at level k implies free below it (the neighbourhoods nest); scanned upwards, as
-        // most walkers that ask are close to the ice (one or two probes)
-        int lo = -1;
-        for (int k = 0; k < int(near.size()); ++k) {
+        // free at level k implies free below it (the neighbourhoods nest): from the hint, scan
+        // up while free or down until free (a walker's successive cells mostly keep their level)
+        auto freeAt = [&](int k) {
             const int sh = kBrickLog2 + k;
-            if (near[size_t(k)].contains(packKey(x >> sh, y >> sh, z >> sh))) break;
-            lo = k;
+            return !near[size_t(k)].contains(packKey(x >> sh, y >> sh, z >> sh));
+        };
+        const int top = int(near.size()) - 1;
+        int lo = std::min(std::max(hint, -1), top);
+        if (lo >= 0 && !freeAt(lo)) {
+            do --lo;
+            while (lo >= 0 && !freeAt(lo));
+        } else {
+            while (lo < top && freeAt(lo + 1)) ++lo;
         }
+        hint = lo;
         if (lo < 0) return 0;
         const int s = kB << lo;
         auto edge = [&](int v) { const int o = v & (s - 1); return std::min(o, s - 1 - o); };
@@ -228,7 +236,8 @@ int DlaEngine::iceDistance(const openvdb::Coord& c) const
     const openvdb::Coord r = c - mOrigin;
     const int f = mSparse->fine(r.x(), r.y(), r.z());
     if (f < mCap) return f;
-    return std::max(mCap, mSparse->bound(r.x(), r.y(), r.z(), mIceCount > 0));
+    int hint = -1;
+    return std::max(mCap, mSparse->bound(r.x(), r.y(), r.z(), mIceCount > 0, hint));
 }
 
 void DlaEngine::relaxQueue()
@@ -473,6 +482,7 @@ WalkEnd DlaEngine::walkFrom(WalkerRng& rng, int64_t idx, const Inputs& in, Probe
     const bool hex = mDomain.lattice().kind() == LatticeKind::Hexagonal;
     const auto xform = mDomain.transform();
     const bool anyIce = mIceCount > 0;
+    int levelHint = -1; // the pyramid level of the last bound
 
     auto abs = [&](int i, int j, int k) { return openvdb::Coord(i + o0.x(), j + o0.y(), k + o0.z()); };
     auto velocityAt = [&](int i, int j, int k) {
@@ -516,7 +526,7 @@ WalkEnd DlaEngine::walkFrom(WalkerRng& rng, int64_t idx, const Inputs& in, Probe
         if ((maxR > 0 || spheres) && f >= P.jumpMinRadius + 2) {
             // exact lattice (graph) distance below the cap, else the pyramid's Chebyshev bound
             const bool exact = f < cap;
-            const int dIce = exact ? f : std::max(cap, mSparse->bound(x, y, z, anyIce));
+            const int dIce = exact ? f : std::max(cap, mSparse->bound(x, y, z, anyIce, levelHint));
             int dOut = 1 + std::min(std::min(x, nx - 1 - x), std::min(y, ny - 1 - y));
             if (dim == 3) dOut = std::min(dOut, 1 + std::min(z, nz - 1 - z));
             // interior of the ball inside the domain (r <= dOut), no cell of it next to ice and the
