@@ -128,24 +128,34 @@ TEST_CASE("Hexagonal DLA grows 6 arms and square DLA 4 arms", "[fast][dla]")
 
 TEST_CASE("More hits per cell give more regular arms", "[fast][dla]")
 {
-    // at about the same mass (~2000 cells), the 6-fold arm mode is much stronger with n = 24
-    auto plain = runSteps(dlaScene("hexagonal", 160, "humidity = 60\nhits = 1\n"), 100);
-    auto noiseReduced = runSteps(dlaScene("hexagonal", 160, "humidity = 1500\nhits = 24\n"), 150);
-    const auto m1 = armModes(*plain->world().fields.get<openvdb::FloatGrid>("p"), plain->world().domain);
-    const auto m8 = armModes(*noiseReduced->world().fields.get<openvdb::FloatGrid>("p"), noiseReduced->world().domain);
-    INFO("n=1 frozen " << dla(plain).stats().frozen << modesText(m1));
-    INFO("n=24 frozen " << dla(noiseReduced).stats().frozen << modesText(m8));
-    // dominance of the 6-fold mode over the strongest other mode
+    // at about the same mass (~2000 cells), the 6-fold arm mode is much stronger with n = 24.
+    // One realisation is too noisy to judge (seed 7 alone gives an n = 1 cluster with a 6-fold
+    // mode of 0.28, seed 8 one with a dominance of 1.46): means over three seeds.
     auto dominance = [](const std::vector<double>& m) {
         double other = 0;
         for (int k = 2; k <= 8; ++k)
             if (k != 6 && k != 3) other = std::max(other, m[k]);
         return m[6] / other;
     };
-    INFO("dominance n=1 " << dominance(m1) << ", n=24 " << dominance(m8));
-    CHECK(m8[6] > 2.0 * m1[6]);
-    CHECK(dominance(m8) > 2.0 * dominance(m1));
-    CHECK(dla(plain).stats().frozen > 500);
+    double m1six = 0, m8six = 0, dom1 = 0, dom8 = 0;
+    for (int seed = 1; seed <= 3; ++seed) {
+        const std::string o = "scene.seed=" + std::to_string(seed);
+        auto plain = runSteps(dlaScene("hexagonal", 160, "humidity = 60\nhits = 1\n"), 100, {o});
+        auto noiseReduced = runSteps(dlaScene("hexagonal", 160, "humidity = 1500\nhits = 24\n"), 150, {o});
+        const auto m1 = armModes(*plain->world().fields.get<openvdb::FloatGrid>("p"), plain->world().domain);
+        const auto m8 = armModes(*noiseReduced->world().fields.get<openvdb::FloatGrid>("p"), noiseReduced->world().domain);
+        INFO("seed " << seed << ": n=1 frozen " << dla(plain).stats().frozen << modesText(m1));
+        INFO("seed " << seed << ": n=24 frozen " << dla(noiseReduced).stats().frozen << modesText(m8));
+        CHECK(dla(plain).stats().frozen > 500);
+        m1six += m1[6] / 3;
+        m8six += m8[6] / 3;
+        dom1 += dominance(m1) / 3;
+        dom8 += dominance(m8) / 3;
+    }
+    // dominance of the 6-fold mode over the strongest other mode
+    INFO("mean 6-fold mode n=1 " << m1six << ", n=24 " << m8six << "; dominance n=1 " << dom1 << ", n=24 " << dom8);
+    CHECK(m8six > 2.0 * m1six);
+    CHECK(dom8 > 2.0 * dom1);
 }
 
 TEST_CASE("Higher humidity makes hybrid ice more branched", "[fast][dla][hybrid]")
@@ -284,6 +294,92 @@ TEST_CASE("Empty-space jumps keep the hitting statistics of the plain walk", "[f
         CHECK(sJump.moves * 3 < sPlain.moves);     // and jumps save steps
         CHECK(sJump.latticeSteps == Approx(sPlain.latticeSteps).epsilon(0.05)); // same walk length on average
     }
+}
+
+TEST_CASE("Walk-on-spheres jumps keep the hitting statistics of the exact-table walk", "[fast][dla][jumps]")
+{
+    // Beyond the largest exact table the walkers jump to a uniform point of the largest free
+    // circle. Two separated pieces of ice in a 256^2 plane; tables capped at radius 8 so the
+    // circles are used from radius 8 on (the harshest case: the default cap is 128). Where the
+    // walkers stick (piece, angle) and how many leave, against tables only: chi-square.
+    for (auto kind : {LatticeKind::Hexagonal, LatticeKind::Square}) {
+        Domain dom(DomainKind::Plane, Lattice(kind), openvdb::Coord(256, 256, 1), 1e-4);
+        auto p = openvdb::FloatGrid::create(0.f);
+        for (int j = 120; j <= 136; ++j)
+            for (int i = 90; i <= 106; ++i)
+                if ((i - 98) * (i - 98) + (j - 128) * (j - 128) < 40) p->tree().setValue(openvdb::Coord(i, j, 0), 1.f);
+        for (int j = 60; j <= 75; ++j) p->tree().setValue(openvdb::Coord(180, j, 0), 1.f); // a bar
+        const int bins = 2 * 12 + 1;
+        auto histogram = [&](bool spheres, uint64_t seed, ice::DlaStats* st) {
+            ice::DlaParams prm;
+            prm.jumpMaxRadius = 8;
+            prm.sphereJumps = spheres;
+            ice::DlaEngine eng(dom, prm, seed);
+            eng.sync(*p);
+            std::vector<double> h(bins, 0.0);
+            std::vector<ice::WalkEnd> ends;
+            ice::DlaEngine::Inputs in;
+            const uint64_t n = 40000;
+            eng.walkBatch(0, 0, n, in, ends);
+            for (const auto& e : ends) {
+                st->moves += e.moves;
+                st->latticeSteps += e.latticeSteps;
+                if (e.kind != ice::WalkEnd::Stuck) {
+                    h[bins - 1] += 1;
+                    continue;
+                }
+                const auto c = eng.coord(e.cell);
+                const bool bar = c.x() > 150;
+                const auto q = dom.lattice().planePosition(c.x(), c.y()) -
+                               dom.lattice().planePosition(bar ? 180 : 98, bar ? 67.5 : 128);
+                const int a = std::min(11, int((std::atan2(q.y(), q.x()) + M_PI) / (2 * M_PI) * 12));
+                h[size_t(a + (bar ? 12 : 0))] += 1;
+            }
+            return h;
+        };
+        ice::DlaStats sTable, sSphere;
+        const auto table = histogram(false, 21, &sTable);
+        const auto sphere = histogram(true, 22, &sSphere);
+        double c = 0;
+        for (int k = 0; k < bins; ++k)
+            if (table[k] + sphere[k] > 0) c += (table[k] - sphere[k]) * (table[k] - sphere[k]) / (table[k] + sphere[k]);
+        WARN(Lattice::kindName(kind) << ": chi2 tables vs spheres " << c << "; leaving " << table[bins - 1] << " / "
+                                     << sphere[bins - 1] << "; moves per walker " << sTable.moves / 40000.0 << " -> "
+                                     << sSphere.moves / 40000.0);
+        CHECK(c < 51.2); // 24 degrees of freedom, P(chi2 > 51.2) = 0.001
+        CHECK(sSphere.moves * 2 < sTable.moves);
+        CHECK(sSphere.latticeSteps == Approx(sTable.latticeSteps).epsilon(0.05));
+    }
+}
+
+TEST_CASE("DLA memory follows the ice, not the domain", "[fast][dla]")
+{
+    // The same small seed in a 512^2 and a 8192^2 plane: the sparse structures hold the same
+    // number of distance bricks, and the engine's memory is far below one byte per cell.
+    size_t bricks[2], bytes[2];
+    int k = 0;
+    for (int n : {512, 8192}) {
+        Domain dom(DomainKind::Plane, Lattice(LatticeKind::Square), openvdb::Coord(n, n, 1), 1e-4);
+        auto p = openvdb::FloatGrid::create(0.f);
+        for (int j = -3; j <= 3; ++j)
+            for (int i = -3; i <= 3; ++i) p->tree().setValue(openvdb::Coord(n / 2 + i, n / 2 + j, 0), 1.f);
+        ice::DlaParams prm;
+        ice::DlaEngine eng(dom, prm, 5);
+        eng.sync(*p);
+        CHECK(eng.iceCount() == 49);
+        CHECK(eng.iceDistance(openvdb::Coord(n / 2 + 3, n / 2 + 4, 0)) == 1);
+        CHECK(eng.iceDistance(openvdb::Coord(n / 2, n / 2 + 10, 0)) == 7);
+        // far away: an uncapped lower bound, never more than the true Chebyshev distance
+        const int far = eng.iceDistance(openvdb::Coord(n / 2, 0, 0));
+        CHECK(far >= n / 8);
+        CHECK(far <= n / 2 - 3);
+        bricks[k] = eng.brickCount();
+        bytes[k] = eng.memoryBytes();
+        ++k;
+    }
+    CHECK(bricks[0] == bricks[1]);
+    CHECK(bytes[1] < 4 * bytes[0]);
+    CHECK(bytes[1] < size_t(8192) * 8192 / 1000);
 }
 
 TEST_CASE("Shell tables are normalised and lattice symmetric", "[fast][dla][jumps]")

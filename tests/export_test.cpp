@@ -227,3 +227,36 @@ TEST_CASE("Displacement PNG is 16-bit, raster-sized and follows growth", "[fast]
         CHECK_FALSE(std::filesystem::exists(dir + "/b.0001.displacement.png"));
     }
 }
+
+TEST_CASE("Large displacement maps are UDIM tiles, only those with ice, equal to growth", "[fast][export]")
+{
+    // 300 x 40 square plane, 128-pixel tiles: 3 tiles across, 1 up; growth in tiles 1001 and 1003
+    const Domain dom(DomainKind::Plane, Lattice(LatticeKind::Square), Coord(300, 40, 1), kH);
+    auto g = openvdb::FloatGrid::create(0.f);
+    g->setTransform(dom.transform());
+    for (int j = 5; j <= 10; ++j)
+        for (int i = 10; i <= 20; ++i) g->tree().setValue(Coord(i, j, 0), 0.5f);
+    g->tree().setValue(Coord(260, 30, 0), 1.f);
+    const std::string dir = tempDir("export_udim");
+    const auto files = writeDisplacementMaps(*g, dom, dir + "/d.0001.displacement", 128);
+    REQUIRE(files.size() == 2);
+    CHECK(files[0] == dir + "/d.0001.displacement.1001.png");
+    CHECK(files[1] == dir + "/d.0001.displacement.1003.png");
+    CHECK(!std::filesystem::exists(dir + "/d.0001.displacement.1002.png"));
+    int w = 0, h = 0, bits = 0;
+    const auto t1 = readPngGray(files[0], w, h, &bits);
+    CHECK(w == 128);
+    CHECK(h == 128);
+    CHECK(bits == 16);
+    auto acc = g->getConstAccessor();
+    for (int b = 0; b < 40; ++b) // row 0 at the top of the tile: b = 127 - row
+        for (int a = 0; a < 128; ++a)
+            CHECK(t1[size_t(127 - b) * 128 + a] == Approx(acc.getValue(Coord(a, b, 0))).margin(1.0 / 65535 + 1e-6));
+    const auto t3 = readPngGray(files[1], w, h, &bits);
+    CHECK(t3[size_t(127 - 30) * 128 + (260 - 256)] == Approx(1.0));
+    CHECK(t3[size_t(127 - 30) * 128 + (261 - 256)] == Approx(0.0).margin(1e-6));
+    // a raster within one tile stays one image, as before
+    const auto one = writeDisplacementMaps(*g, dom, dir + "/e", 4096);
+    REQUIRE(one.size() == 1);
+    CHECK(one[0] == dir + "/e.png");
+}

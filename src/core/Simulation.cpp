@@ -93,7 +93,12 @@ void readOutputSection(ParamDict& d, OutputSettings& o, double* worldScale = nul
         "(same as `frostvdb run --keep-lattice`)");
     o.displacementPng = d.getBool("displacement_png", true,
         "flat domains with ice: also write the displacement map (grid `growth`) as a 16-bit greyscale "
-        "<name>.<frame>.displacement.png on the square export raster");
+        "<name>.<frame>.displacement.png on the square export raster (one pixel per lattice spacing); rasters "
+        "larger than displacement_tile are cut into UDIM tiles <name>.<frame>.displacement.<1001+>.png and only "
+        "tiles holding ice are written");
+    o.displacementTile = int(d.getInt("displacement_tile", 4096, 64, 65536, "pixels",
+        "side of a displacement UDIM tile: a raster up to this size is one PNG, a larger one is tiled "
+        "(tile 1001 at the raster's bottom-left, u along +x, v along +y, at most 10 across)"));
     const double scale = d.getFloat("world_scale", 1.0, 1e-6, 1e9, "",
         "multiplies the world size of everything written (grid transforms, meshes); e.g. 100 for a 1 cm flake "
         "in a renderer that loses sub-millimetre voxels (docs/snowflakes3d.md)");
@@ -215,7 +220,7 @@ std::string Simulation::writeFrame(const Frame& frame, const std::string& dir)
     return path;
 }
 
-std::string Simulation::writeDisplacement(const Frame& frame, const std::string& dir)
+std::vector<std::string> Simulation::writeDisplacement(const Frame& frame, const std::string& dir)
 {
     if (!mOutput.displacementPng || !mWorld.domain.isPlane()) return {};
     for (auto& g : frame.grids) {
@@ -223,8 +228,7 @@ std::string Simulation::writeDisplacement(const Frame& frame, const std::string&
         if (!growth || g->getName() != "growth") continue;
         makeDirectories(dir);
         const std::string path = framePath(dir, mWorld.sceneName, frame.frame, "displacement.png");
-        writeDisplacementPng(*growth, mWorld.domain, path);
-        return path;
+        return writeDisplacementMaps(*growth, mWorld.domain, path.substr(0, path.size() - 4), mOutput.displacementTile);
     }
     return {};
 }
@@ -265,7 +269,7 @@ RunSummary Simulation::run(const RunOptions& opt)
         const auto t0 = Clock::now();
         Frame frame = currentFrame(f);
         if (mOutput.vdb) sum.files.push_back(writeFrame(frame, dir));
-        if (auto png = writeDisplacement(frame, dir); !png.empty()) sum.files.push_back(png);
+        for (const auto& png : writeDisplacement(frame, dir)) sum.files.push_back(png);
         ++sum.framesWritten;
         if (mOutput.preview && (mOutput.previewEvery || f == last)) {
             makeDirectories(dir);

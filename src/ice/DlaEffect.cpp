@@ -64,10 +64,15 @@ std::unique_ptr<Effect> DlaEffect::create(ParamDict& d, const World& world)
     p.jumps = d.getBool("jumps", true,
                         "empty-space jumps: far from the ice a walker jumps to the exact first-passage point of "
                         "the largest free lattice ball around it (same statistics, far fewer steps)");
+    p.sphereJumps = d.getBool("sphere_jumps", true,
+                              "beyond the largest jump table: walk-on-spheres jumps (a uniform exit point on the "
+                              "largest free circle/sphere, the lattice walk's continuum limit), so a walker far "
+                              "from the ice needs a few jumps whatever the domain size; false: tables only");
     p.jumpMinRadius = int(d.getInt("jump_min_radius", 3, 2, 1000, "cells",
                                    "smallest jump radius (below it walkers step cell by cell)"));
     p.jumpMaxRadius = int(d.getInt("jump_max_radius", 0, 0, 1000, "cells",
-                                   "largest jump table radius; 0: 128 on a plane, 32 in a box"));
+                                   "largest exact jump table radius (beyond it: sphere_jumps); 0: 128 on a plane, "
+                                   "32 in a box"));
     p.batch = int(d.getInt("batch", 1024, 1, int64_t(1) << 30, "walkers",
                            "walkers per parallel batch: a batch walks against the ice at its start, sticks are "
                            "applied in walker order (smaller is closer to the paper's one-by-one release)"));
@@ -100,12 +105,12 @@ void DlaEffect::initialize(World& world)
     const auto t0 = Clock::now();
     mEngine = std::make_unique<DlaEngine>(world.domain, mParams, world.seed);
     if (mParams.hits > 1) {
-        // dense counts while walking (a VDB probe per stick costs more than the walk near the
-        // ice); the field dla_hits is refreshed from them at the end of every step
-        mHitCount.assign(size_t(mEngine->cellCount()), 0);
+        // counts in a flat hash map while walking (a VDB probe per stick costs more than the walk
+        // near the ice); the field dla_hits is refreshed from them at the end of every step
+        mHitCount.clear();
         if (auto g = world.fields.get<openvdb::Int32Grid>(kDlaHits))
             for (auto it = g->cbeginValueOn(); it; ++it)
-                if (world.domain.contains(it.getCoord())) mHitCount[size_t(mEngine->index(it.getCoord()))] = *it;
+                if (world.domain.contains(it.getCoord())) *mHitCount.insert(uint64_t(mEngine->index(it.getCoord()))).first = *it;
     }
     mStats.tableSeconds += since(t0);
     mEngine->sync(*world.fields.get<openvdb::FloatGrid>(kPhase));
@@ -255,7 +260,7 @@ void DlaEffect::step(World& world, const StepInfo& info)
             freezeCell(cell);
             return;
         }
-        int32_t& n = mHitCount[size_t(cell)];
+        int32_t& n = *mHitCount.insert(uint64_t(cell), 0).first;
         touched.push_back(cell);
         if (++n >= mParams.hits) {
             n = 0;
@@ -312,7 +317,8 @@ void DlaEffect::step(World& world, const StepInfo& info)
         touched.erase(std::unique(touched.begin(), touched.end()), touched.end());
         auto hAcc = hitsGrid->getAccessor();
         for (int64_t cell : touched) {
-            const int32_t n = mHitCount[size_t(cell)];
+            const int32_t* found = mHitCount.find(uint64_t(cell));
+            const int32_t n = found ? *found : 0;
             if (n > 0) hAcc.setValue(mEngine->coord(cell), n);
             else hAcc.setValueOff(mEngine->coord(cell), 0);
         }

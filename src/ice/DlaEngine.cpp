@@ -1,10 +1,12 @@
 /// @file DlaEngine.cpp
-/// @brief The DLA walkers: a dense view of the domain (ice flag + capped exact lattice distance
-/// to the ice, one byte per cell; an 8-cell block distance for far jumps), release, walk, jump.
+/// @brief The DLA walkers, sparse: exact capped lattice distances to the ice in 8-cell bricks
+/// that exist only near the ice, an occupancy pyramid of the ice for uncapped lower bounds of
+/// the distance anywhere, release, walk, jumps (exact tables, then walk on spheres).
 ///
-/// Why dense arrays and not VDB accessors: a walker reads its cell's distance at every step, and
-/// 10^9 steps per run make the ~1 ns of a byte array against the ~10-20 ns of a ValueAccessor
-/// probe the difference between seconds and minutes. A 1024^2 plane costs 1 MB.
+/// Why bricks in a flat hash map and not VDB accessors: a walker reads its cell's distance at
+/// every step, and 10^9 steps per run make a byte read from a cached brick (~1 ns) against a
+/// ValueAccessor probe (~10-20 ns) the difference between seconds and minutes. A walker keeps
+/// the brick it is in; a hash probe happens only when it crosses into another brick.
 #include <frostvdb/ice/Dla.h>
 #include <frostvdb/core/Error.h>
 
@@ -38,32 +40,174 @@ std::vector<openvdb::Coord> walkerNeighbours(const Domain& domain)
 }
 
 namespace {
-constexpr uint16_t kFar = 65535;
+constexpr int kB = 1 << DlaEngine::kBrickLog2; // brick side
+constexpr int kBMask = kB - 1;
+constexpr int kNoBound = 1 << 30;
+
+inline uint64_t packKey(int64_t x, int64_t y, int64_t z) { return uint64_t(x) | uint64_t(y) << 21 | uint64_t(z) << 42; }
+inline int cellInBrick(int x, int y, int z) { return (x & kBMask) | (y & kBMask) << 3 | (z & kBMask) << 6; }
+} // namespace
+
+/// The sparse state: distance bricks and the occupancy pyramid, in cell offsets from the origin.
+struct DlaEngine::Sparse {
+    int dim = 2;
+    int brickVolume = 64;
+    uint8_t cap = 16;
+    KeyMap<uint8_t*> brickOf;                     ///< brick key -> its cells (stable storage)
+    std::vector<std::unique_ptr<uint8_t[]>> pool; ///< the bricks
+    /// Level k: blocks of 8 * 2^k cells. occupied[k]: blocks holding ice; near[k]: blocks with
+    /// ice in their 3^d neighbourhood (the complement is where a Chebyshev bound holds).
+    std::vector<KeyMap<uint8_t>> occupied, near;
+
+    void clear()
+    {
+        brickOf.clear();
+        pool.clear();
+        for (auto& m : occupied) m.clear();
+        for (auto& m : near) m.clear();
+    }
+    const uint8_t* brick(int bx, int by, int bz) const
+    {
+        uint8_t* const* b = brickOf.find(packKey(bx, by, bz));
+        return b ? *b : nullptr;
+    }
+    uint8_t* brickForWrite(int bx, int by, int bz)
+    {
+        auto ins = brickOf.insert(packKey(bx, by, bz), nullptr);
+        if (ins.second) {
+            pool.emplace_back(new uint8_t[size_t(brickVolume)]);
+            std::fill(pool.back().get(), pool.back().get() + brickVolume, cap);
+            *ins.first = pool.back().get();
+        }
+        return *ins.first;
+    }
+    int fine(int x, int y, int z) const
+    {
+        const uint8_t* b = brick(x >> kBrickLog2, y >> kBrickLog2, z >> kBrickLog2);
+        return b ? b[cellInBrick(x, y, z)] : cap;
+    }
+    void setFine(int x, int y, int z, int d)
+    {
+        brickForWrite(x >> kBrickLog2, y >> kBrickLog2, z >> kBrickLog2)[cellInBrick(x, y, z)] = uint8_t(d);
+    }
+    void addIce(int x, int y, int z)
+    {
+        const int zr = dim == 3 ? 1 : 0;
+        for (size_t k = 0; k < occupied.size(); ++k) {
+            const int sh = kBrickLog2 + int(k);
+            const int bx = x >> sh, by = y >> sh, bz = z >> sh;
+            if (!occupied[k].insert(packKey(bx, by, bz)).second) break; // and every level above
+            for (int dz = -zr; dz <= zr; ++dz)
+                for (int dy = -1; dy <= 1; ++dy)
+                    for (int dx = -1; dx <= 1; ++dx) {
+                        if (bx + dx < 0 || by + dy < 0 || bz + dz < 0) continue;
+                        near[k].insert(packKey(bx + dx, by + dy, bz + dz));
+                    }
+        }
+    }
+    /// Chebyshev lower bound of the distance to the ice (0: none known; kNoBound: no ice).
+    /// @a hint: the level found last time for a nearby cell (updated), where the scan starts.
+    int bound(int x, int y, int z, bool anyIce, int& hint) const
+    {
+        if (!anyIce) return kNoBound;
+        // free at level k implies free below it (the neighbourhoods nest): from the hint, scan
+        // up while free or down until free (a walker's successive cells mostly keep their level)
+        auto freeAt = [&](int k) {
+            const int sh = kBrickLog2 + k;
+            return !near[size_t(k)].contains(packKey(x >> sh, y >> sh, z >> sh));
+        };
+        const int top = int(near.size()) - 1;
+        int lo = std::min(std::max(hint, -1), top);
+        if (lo >= 0 && !freeAt(lo)) {
+            do --lo;
+            while (lo >= 0 && !freeAt(lo));
+        } else {
+            while (lo < top && freeAt(lo + 1)) ++lo;
+        }
+        hint = lo;
+        if (lo < 0) return 0;
+        const int s = kB << lo;
+        auto edge = [&](int v) { const int o = v & (s - 1); return std::min(o, s - 1 - o); };
+        int m = std::min(edge(x), edge(y));
+        if (dim == 3) m = std::min(m, edge(z));
+        return s + 1 + m;
+    }
+};
+
+/// Cached brick access for a sequence of nearby cells (one hash probe per brick change).
+struct BrickCursor {
+    DlaEngine::Sparse& S;
+    int bx = -1, by = -1, bz = -1;
+    uint8_t* brick = nullptr;
+    explicit BrickCursor(DlaEngine::Sparse& s) : S(s) {}
+    int get(int x, int y, int z)
+    {
+        at(x, y, z, false);
+        return brick ? brick[cellInBrick(x, y, z)] : S.cap;
+    }
+    void set(int x, int y, int z, int d)
+    {
+        at(x, y, z, true);
+        brick[cellInBrick(x, y, z)] = uint8_t(d);
+    }
+    void at(int x, int y, int z, bool write)
+    {
+        const int cx = x >> DlaEngine::kBrickLog2, cy = y >> DlaEngine::kBrickLog2, cz = z >> DlaEngine::kBrickLog2;
+        // a missing brick is never cached: the other cursor of a BFS may create it meanwhile
+        if (cx != bx || cy != by || cz != bz || !brick) {
+            bx = cx;
+            by = cy;
+            bz = cz;
+            brick = write ? S.brickForWrite(cx, cy, cz) : const_cast<uint8_t*>(S.brick(cx, cy, cz));
+        }
+    }
+};
+
+DlaEngine::~DlaEngine() = default;
+
+size_t DlaEngine::memoryBytes() const
+{
+    size_t b = mSparse->brickOf.bytes() + mSparse->pool.size() * (size_t(mSparse->brickVolume) + sizeof(void*));
+    for (auto& m : mSparse->occupied) b += m.bytes();
+    for (auto& m : mSparse->near) b += m.bytes();
+    return b;
 }
 
+size_t DlaEngine::brickCount() const { return mSparse->brickOf.size(); }
+
 DlaEngine::DlaEngine(const Domain& domain, const DlaParams& params, uint64_t seed)
-    : mDomain(domain), mParams(params), mSeed(hashCounters(seed, 0xD1A)), mNbr(walkerNeighbours(domain))
+    : mDomain(domain), mParams(params), mSeed(hashCounters(seed, 0xD1A)), mNbr(walkerNeighbours(domain)),
+      mSparse(std::make_unique<Sparse>())
 {
     const auto& bb = domain.bbox();
-    if (bb.min() != openvdb::Coord(0)) throw std::logic_error("DlaEngine: the domain must start at 0");
+    mOrigin = bb.min();
     mNx = bb.dim().x();
     mNy = bb.dim().y();
     mNz = bb.dim().z();
+    if (std::max(std::max(mNx, mNy), mNz) >= (int64_t(1) << 21))
+        throw std::invalid_argument("DlaEngine: at most 2^21 cells per axis");
     mDim = domain.dimension();
-    for (const auto& o : mNbr) mNbrDelta.push_back(int64_t(o.x()) + mNx * (int64_t(o.y()) + mNy * int64_t(o.z())));
-    mCap = mDim == 3 ? 16 : 64;
-    mFine.assign(size_t(cellCount()), uint8_t(mCap));
-    const int b = 1 << kBlockLog2;
-    mBx = (mNx + b - 1) / b;
-    mBy = (mNy + b - 1) / b;
-    mBz = (mNz + b - 1) / b;
-    mBlockIce.assign(size_t(mBx * mBy * mBz), 0);
-    mCoarse.assign(mBlockIce.size(), kFar);
+    mCap = mDim == 3 ? 10 : 32;
+    mSparse->dim = mDim;
+    mSparse->brickVolume = mDim == 3 ? kB * kB * kB : kB * kB;
+    mSparse->cap = uint8_t(mCap);
+    int levels = 1;
+    const int64_t extent = std::max(std::max(mNx, mNy), mNz);
+    while ((int64_t(kB) << (levels - 1)) < extent) ++levels;
+    mSparse->occupied.resize(size_t(levels));
+    mSparse->near.resize(size_t(levels));
     mDigits = std::max(1, int(48.0 / std::log2(double(mNbr.size()))));
+    // A unit displacement in the lattice plane moves the index by at most this (Chebyshev): 1 on
+    // the square lattice, 2/sqrt(3) on the hexagonal one (axial coordinates).
+    mSphereScale = domain.lattice().kind() == LatticeKind::Hexagonal ? 2.0 / std::sqrt(3.0) : 1.0;
+    // and the lattice (graph) distance by at most this: sqrt(2) (square, L1), 2/sqrt(3)
+    // (hexagonal), sqrt(3) (cubic)
+    mGraphScale = domain.lattice().kind() == LatticeKind::Hexagonal ? 2.0 / std::sqrt(3.0)
+                                                                     : (mDim == 3 ? std::sqrt(3.0) : std::sqrt(2.0));
 
     // jump tables: every radius up to 16, then ~20% apart, up to the largest useful one
     if (params.jumps) {
-        int rmax = params.jumpMaxRadius > 0 ? params.jumpMaxRadius : (domain.isPlane() ? 128 : 32);
+        int rmax = params.jumpMaxRadius > 0 ? params.jumpMaxRadius : (mDim == 2 ? 128 : 32);
         int64_t half = std::max(mNx, mNy);
         if (mDim == 3) half = std::max(half, mNz);
         rmax = int(std::min<int64_t>(rmax, (half + 1) / 2));
@@ -81,115 +225,72 @@ DlaEngine::DlaEngine(const Domain& domain, const DlaParams& params, uint64_t see
     }
 }
 
-int DlaEngine::outsideDistance(int x, int y, int z) const
+bool DlaEngine::isIce(int64_t cell) const
 {
-    int m = std::min(std::min(x, int(mNx) - 1 - x), std::min(y, int(mNy) - 1 - y));
-    if (mDim == 3) m = std::min(m, std::min(z, int(mNz) - 1 - z));
-    return m + 1;
+    const int64_t m = (int64_t(1) << 21) - 1;
+    return mSparse->fine(int(cell & m), int((cell >> 21) & m), int(cell >> 42)) == 0;
 }
 
 int DlaEngine::iceDistance(const openvdb::Coord& c) const
 {
-    const int f = mFine[size_t(index(c))];
+    const openvdb::Coord r = c - mOrigin;
+    const int f = mSparse->fine(r.x(), r.y(), r.z());
     if (f < mCap) return f;
-    const int64_t b = (c.x() >> kBlockLog2) + mBx * ((c.y() >> kBlockLog2) + mBy * (c.z() >> kBlockLog2));
-    const int k = mCoarse[size_t(b)];
-    if (k == 0) return mCap;
-    const int mask = (1 << kBlockLog2) - 1;
-    auto edge = [&](int v) { const int o = v & mask; return std::min(o, mask - o); };
-    int m = std::min(edge(c.x()), edge(c.y()));
-    if (mDim == 3) m = std::min(m, edge(c.z()));
-    // an ice cell lies >= k blocks away along some axis: >= (k-1) B + 1 + m cells (Chebyshev),
-    // and a lattice step moves each index by at most 1
-    const int64_t bound = int64_t(k - 1) * (1 << kBlockLog2) + 1 + m;
-    return int(std::max<int64_t>(mCap, std::min<int64_t>(bound, 1 << 30)));
-}
-
-void DlaEngine::relaxFrom(int64_t cell)
-{
-    mQueue.clear();
-    mQueue.push_back(cell);
-    relaxQueue();
+    int hint = -1;
+    return std::max(mCap, mSparse->bound(r.x(), r.y(), r.z(), mIceCount > 0, hint));
 }
 
 void DlaEngine::relaxQueue()
 {
+    BrickCursor here(*mSparse), there(*mSparse);
+    const int64_t m = (int64_t(1) << 21) - 1;
     for (size_t q = 0; q < mQueue.size(); ++q) {
         const int64_t u = mQueue[q];
-        const int d = mFine[size_t(u)] + 1;
+        const int x = int(u & m), y = int((u >> 21) & m), z = int(u >> 42);
+        const int d = here.get(x, y, z) + 1;
         if (d >= mCap) continue;
-        const openvdb::Coord c = coord(u);
-        for (size_t k = 0; k < mNbr.size(); ++k) {
-            const openvdb::Coord n = c + mNbr[k];
-            if (n.x() < 0 || n.y() < 0 || n.z() < 0 || n.x() >= mNx || n.y() >= mNy || n.z() >= mNz) continue;
-            const int64_t v = u + mNbrDelta[k];
-            if (mFine[size_t(v)] > d) {
-                mFine[size_t(v)] = uint8_t(d);
-                mQueue.push_back(v);
+        for (const auto& o : mNbr) {
+            const int i = x + o.x(), j = y + o.y(), k = z + o.z();
+            if (i < 0 || j < 0 || k < 0 || i >= mNx || j >= mNy || k >= mNz) continue;
+            if (there.get(i, j, k) > d) {
+                there.set(i, j, k, d);
+                mQueue.push_back(int64_t(packKey(i, j, k)));
             }
         }
     }
 }
 
-void DlaEngine::markBlock(int64_t cell)
-{
-    const openvdb::Coord c = coord(cell);
-    const int64_t b = (c.x() >> kBlockLog2) + mBx * ((c.y() >> kBlockLog2) + mBy * (c.z() >> kBlockLog2));
-    if (mBlockIce[size_t(b)]++ > 0) return;
-    // incremental Chebyshev BFS over the blocks
-    mCoarse[size_t(b)] = 0;
-    std::vector<int64_t> q{b};
-    const int zr = mDim == 3 ? 1 : 0;
-    for (size_t h = 0; h < q.size(); ++h) {
-        const int64_t u = q[h];
-        const int d = mCoarse[size_t(u)] + 1;
-        const int64_t ux = u % mBx, uy = (u / mBx) % mBy, uz = u / (mBx * mBy);
-        for (int dz = -zr; dz <= zr; ++dz)
-            for (int dy = -1; dy <= 1; ++dy)
-                for (int dx = -1; dx <= 1; ++dx) {
-                    const int64_t x = ux + dx, y = uy + dy, z = uz + dz;
-                    if (x < 0 || y < 0 || z < 0 || x >= mBx || y >= mBy || z >= mBz) continue;
-                    const int64_t v = x + mBx * (y + mBy * z);
-                    if (mCoarse[size_t(v)] > d) {
-                        mCoarse[size_t(v)] = uint16_t(std::min(d, int(kFar) - 1));
-                        q.push_back(v);
-                    }
-                }
-    }
-}
-
 void DlaEngine::freeze(int64_t cell)
 {
-    if (mFine[size_t(cell)] == 0) return;
-    mFine[size_t(cell)] = 0;
+    if (isIce(cell)) return;
+    const openvdb::Coord r = coord(cell) - mOrigin;
+    mSparse->setFine(r.x(), r.y(), r.z(), 0);
+    mSparse->addIce(r.x(), r.y(), r.z());
     ++mIceCount;
-    markBlock(cell);
-    relaxFrom(cell);
+    mQueue.clear();
+    mQueue.push_back(cell);
+    relaxQueue();
 }
 
 void DlaEngine::rebuild(const openvdb::FloatGrid& p)
 {
-    std::fill(mFine.begin(), mFine.end(), uint8_t(mCap));
-    std::fill(mBlockIce.begin(), mBlockIce.end(), 0u);
-    std::fill(mCoarse.begin(), mCoarse.end(), kFar);
+    mSparse->clear();
     mIceCount = 0;
-    std::vector<int64_t> ice;
+    mQueue.clear();
     for (auto it = p.cbeginValueOn(); it; ++it) {
         if (!(*it > 0.5f)) continue;
         openvdb::CoordBBox bb = it.getBoundingBox();
         bb.intersect(mDomain.bbox());
-        for (auto c = bb.begin(); c; ++c) ice.push_back(index(*c));
-    }
-    for (int64_t i : ice)
-        if (mFine[size_t(i)] != 0) {
-            mFine[size_t(i)] = 0;
+        for (auto c = bb.begin(); c; ++c) {
+            const openvdb::Coord r = *c - mOrigin;
+            if (mSparse->fine(r.x(), r.y(), r.z()) == 0) continue;
+            mSparse->setFine(r.x(), r.y(), r.z(), 0);
+            mSparse->addIce(r.x(), r.y(), r.z());
             ++mIceCount;
-            markBlock(i);
+            mQueue.push_back(index(*c));
         }
-    // multi-source BFS
-    mQueue.clear();
-    for (int64_t i : ice) mQueue.push_back(i);
-    relaxQueue();
+    }
+    relaxQueue(); // multi-source BFS
 }
 
 void DlaEngine::sync(const openvdb::FloatGrid& p)
@@ -202,6 +303,7 @@ void DlaEngine::sync(const openvdb::FloatGrid& p)
     std::vector<std::vector<int64_t>> fresh(nl);
     const openvdb::CoordBBox dom = mDomain.bbox();
     tbb::parallel_for(tbb::blocked_range<size_t>(0, nl, 8), [&](const tbb::blocked_range<size_t>& r) {
+        BrickCursor cur(*mSparse); // read only here
         for (size_t l = r.begin(); l != r.end(); ++l) {
             const auto& leaf = leaves.leaf(l);
             for (auto it = leaf.cbeginValueOn(); it; ++it) {
@@ -209,8 +311,8 @@ void DlaEngine::sync(const openvdb::FloatGrid& p)
                 const openvdb::Coord c = it.getCoord();
                 if (!dom.isInside(c)) continue;
                 ++counts[l];
-                const int64_t i = index(c);
-                if (mFine[size_t(i)] != 0) fresh[l].push_back(i);
+                const openvdb::Coord q = c - mOrigin;
+                if (cur.get(q.x(), q.y(), q.z()) != 0) fresh[l].push_back(index(c));
             }
         }
     });
@@ -229,7 +331,7 @@ void DlaEngine::sync(const openvdb::FloatGrid& p)
         for (auto c = bb.begin(); c; ++c) {
             ++count;
             const int64_t i = index(*c);
-            if (mFine[size_t(i)] != 0) tiles.push_back(i);
+            if (!isIce(i)) tiles.push_back(i);
         }
     }
     nfresh += tiles.size();
@@ -259,7 +361,8 @@ int64_t DlaEngine::release(int64_t step, uint64_t walker, WalkerRng& rng, const 
             const size_t k = size_t(std::upper_bound(in.steamCdf->begin(), in.steamCdf->end(), u) - in.steamCdf->begin());
             cell = (*in.steamCells)[std::min(k, in.steamCells->size() - 1)];
         } else if (mParams.release == DlaRelease::Uniform) {
-            cell = int64_t(below(n));
+            const int64_t k = int64_t(below(n));
+            cell = int64_t(packKey(k % mNx, (k / mNx) % mNy, k / (mNx * mNy)));
         } else {
             // perimeter: a face (edge) chosen by its cell count, then a cell on it
             const int64_t fx = mNy * mNz, fy = mNx * mNz, fz = mDim == 3 ? mNx * mNy : 0;
@@ -285,34 +388,43 @@ int64_t DlaEngine::release(int64_t step, uint64_t walker, WalkerRng& rng, const 
                 x = k % mNx;
                 y = k / mNx;
             }
-            cell = x + mNx * (y + mNy * z);
+            cell = int64_t(packKey(x, y, z));
         }
-        if (mFine[size_t(cell)] != 0) return cell;
+        if (!isIce(cell)) return cell;
     }
     return -1;
 }
 
-namespace {
+/// One walk in progress: position (offsets from the origin), the brick it reads from.
+struct DlaEngine::Walker {
+    const Sparse& S;
+    int x = 0, y = 0, z = 0;
+    int bx = -1, by = -1, bz = -1;
+    const uint8_t* brick = nullptr;
+    explicit Walker(const Sparse& s) : S(s) {}
+    int fine(int i, int j, int k)
+    {
+        const int ci = i >> kBrickLog2, cj = j >> kBrickLog2, ck = k >> kBrickLog2;
+        if (ci != bx || cj != by || ck != bz) {
+            bx = ci;
+            by = cj;
+            bz = ck;
+            brick = S.brick(ci, cj, ck);
+        }
+        return brick ? brick[cellInBrick(i, j, k)] : S.cap;
+    }
+};
 
-/// Per-thread probes of the optional grids.
-struct Probes {
+/// Per-thread probes of the optional grids (an accessor registers with its tree: one per task).
+struct DlaEngine::Probes {
     std::unique_ptr<openvdb::FloatGrid::ConstAccessor> melt;
     std::unique_ptr<openvdb::Vec3SGrid::ConstAccessor> vel;
-    explicit Probes(const DlaEngine::Inputs& in)
+    explicit Probes(const Inputs& in)
     {
         if (in.melt) melt = std::make_unique<openvdb::FloatGrid::ConstAccessor>(in.melt->getConstAccessor());
         if (in.vel) vel = std::make_unique<openvdb::Vec3SGrid::ConstAccessor>(in.vel->getConstAccessor());
     }
 };
-
-} // namespace
-
-// The walk proper; Probes carries the per-thread accessors.
-static WalkEnd walkImpl(const DlaEngine& e, const DlaParams& P, const std::vector<uint8_t>& fine,
-                        const std::vector<int64_t>& delta, int dim, int digits,
-                        const std::vector<std::shared_ptr<const ShellTable>>& tables,
-                        const std::vector<int16_t>& tableFor, WalkerRng& rng, int64_t idx,
-                        const DlaEngine::Inputs& in, Probes& pr);
 
 WalkEnd DlaEngine::walk(int64_t step, uint64_t walker, uint64_t salt, int64_t start, const Inputs& in) const
 {
@@ -320,7 +432,7 @@ WalkEnd DlaEngine::walk(int64_t step, uint64_t walker, uint64_t salt, int64_t st
     const int64_t idx = start >= 0 ? start : release(step, walker, rng, in);
     if (idx < 0) return WalkEnd{};
     Probes pr(in);
-    return walkImpl(*this, mParams, mFine, mNbrDelta, mDim, mDigits, mTables, mTableForRadius, rng, idx, in, pr);
+    return walkFrom(rng, idx, in, pr);
 }
 
 void DlaEngine::walkBatch(int64_t step, uint64_t first, uint64_t count, const Inputs& in,
@@ -333,41 +445,53 @@ void DlaEngine::walkBatch(int64_t step, uint64_t first, uint64_t count, const In
             WalkerRng rng(mSeed, first + w, uint64_t(step));
             const int64_t idx = release(step, first + w, rng, in);
             if (idx < 0) continue;
-            out[size_t(w)] = walkImpl(*this, mParams, mFine, mNbrDelta, mDim, mDigits, mTables, mTableForRadius,
-                                      rng, idx, in, pr);
+            out[size_t(w)] = walkFrom(rng, idx, in, pr);
         }
     });
 }
 
-static WalkEnd walkImpl(const DlaEngine& e, const DlaParams& P, const std::vector<uint8_t>& fine,
-                        const std::vector<int64_t>& delta, int dim, int digits,
-                        const std::vector<std::shared_ptr<const ShellTable>>& tables,
-                        const std::vector<int16_t>& tableFor, WalkerRng& rng, int64_t idx,
-                        const DlaEngine::Inputs& in, Probes& pr)
+WalkEnd DlaEngine::walkFrom(WalkerRng& rng, int64_t idx, const Inputs& in, Probes& pr) const
 {
+    const DlaParams& P = mParams;
+    const int dim = mDim, cap = mCap, digits = mDigits;
+    auto& meltAcc = pr.melt;
+    auto& velAcc = pr.vel;
     WalkEnd end;
-    const auto& nbr = e.neighbours();
+    const auto& nbr = mNbr;
     const int deg = int(nbr.size());
-    const auto& bb = e.domain().bbox();
-    const int nx = bb.dim().x(), ny = bb.dim().y(), nz = bb.dim().z();
-    openvdb::Coord c = e.coord(idx);
-    int x = c.x(), y = c.y(), z = c.z();
+    const int nx = int(mNx), ny = int(mNy), nz = int(mNz);
+    const openvdb::Coord o0 = mOrigin;
+    Walker W(*mSparse);
+    {
+        const openvdb::Coord c = coord(idx) - o0;
+        W.x = c.x();
+        W.y = c.y();
+        W.z = c.z();
+    }
+    int &x = W.x, &y = W.y, &z = W.z;
     int64_t prev = -1;
     uint64_t bits = 0;
     int left = 0;
     double steps = 0;
-    const bool drift = pr.vel != nullptr;
+    const bool drift = velAcc != nullptr;
     openvdb::Vec3d acc(0.0);
-    const int maxR = tableFor.empty() ? 0 : int(tableFor.size()) - 1;
-    const auto xform = e.domain().transform();
+    const int maxR = mTableForRadius.empty() ? 0 : int(mTableForRadius.size()) - 1;
+    // walk on spheres beyond the tables: not for a hexagonal box (its walk is not isotropic)
+    const bool spheres = P.jumps && P.sphereJumps && !(dim == 3 && mDomain.lattice().kind() == LatticeKind::Hexagonal);
+    const int sphereMin = std::max(maxR, P.jumpMinRadius);
+    const bool hex = mDomain.lattice().kind() == LatticeKind::Hexagonal;
+    const auto xform = mDomain.transform();
+    const bool anyIce = mIceCount > 0;
+    int levelHint = -1; // the pyramid level of the last bound
 
+    auto abs = [&](int i, int j, int k) { return openvdb::Coord(i + o0.x(), j + o0.y(), k + o0.z()); };
     auto velocityAt = [&](int i, int j, int k) {
         openvdb::Vec3d v;
         if (in.velOnDomainTransform) {
-            v = pr.vel->getValue(openvdb::Coord(i, j, k));
+            v = velAcc->getValue(abs(i, j, k));
         } else {
-            const openvdb::Vec3d w = xform->indexToWorld(openvdb::Vec3d(i, j, k));
-            v = pr.vel->getValue(in.vel->transform().worldToIndexNodeCentered(w));
+            const openvdb::Vec3d w = xform->indexToWorld(abs(i, j, k).asVec3d());
+            v = velAcc->getValue(in.vel->transform().worldToIndexNodeCentered(w));
         }
         const auto& m = in.velToCells;
         openvdb::Vec3d cells(m(0, 0) * v[0] + m(0, 1) * v[1] + m(0, 2) * v[2],
@@ -376,15 +500,16 @@ static WalkEnd walkImpl(const DlaEngine& e, const DlaParams& P, const std::vecto
         return cells;
     };
     auto outside = [&](int i, int j, int k) { return i < 0 || j < 0 || k < 0 || i >= nx || j >= ny || k >= nz; };
+    auto key = [&](int i, int j, int k) { return int64_t(packKey(i, j, k)); };
 
     for (;;) {
-        const int f = fine[size_t(idx)];
+        const int f = W.fine(x, y, z);
         if (f == 1) { // next to ice: the sticking roll
             double s = 1.0;
-            if (pr.melt) s = double(pr.melt->getValue(openvdb::Coord(x, y, z)));
+            if (meltAcc) s = double(meltAcc->getValue(abs(x, y, z)));
             if (s >= 1.0 || (s > 0.0 && rng.uniform() < s)) {
                 end.kind = WalkEnd::Stuck;
-                end.cell = idx;
+                end.cell = key(x, y, z);
                 end.prev = prev;
                 end.latticeSteps = steps;
                 return end;
@@ -398,39 +523,78 @@ static WalkEnd walkImpl(const DlaEngine& e, const DlaParams& P, const std::vecto
         ++end.moves;
         // empty-space jump
         bool jumped = false;
-        if (maxR > 0 && f >= P.jumpMinRadius + 2) {
-            const int dIce = e.iceDistance(openvdb::Coord(x, y, z));
+        if ((maxR > 0 || spheres) && f >= P.jumpMinRadius + 2) {
+            // exact lattice (graph) distance below the cap, else the pyramid's Chebyshev bound
+            const bool exact = f < cap;
+            const int dIce = exact ? f : std::max(cap, mSparse->bound(x, y, z, anyIce, levelHint));
             int dOut = 1 + std::min(std::min(x, nx - 1 - x), std::min(y, ny - 1 - y));
             if (dim == 3) dOut = std::min(dOut, 1 + std::min(z, nz - 1 - z));
             // interior of the ball inside the domain (r <= dOut), no cell of it next to ice and the
             // landing cell at least 2 from the ice (r <= dIce - 2): the walk inside is a free walk
-            int r = std::min(std::min(dIce - 2, dOut), maxR);
+            int r = std::min(dIce - 2, dOut);
             openvdb::Vec3d v(0.0);
+            double rhoMax = 1e300;
             if (drift) {
                 v = velocityAt(x, y, z);
                 const double vm = v.length();
                 // the drift over the jump's mean time (~r^2 steps) must stay under half a cell
-                if (vm > 0) r = std::min(r, int(std::sqrt(0.5 / vm)));
-            }
-            const int ti = r >= P.jumpMinRadius ? tableFor[size_t(r)] : -1;
-            if (ti >= 0) {
-                const ShellTable& t = *tables[size_t(ti)];
-                uint32_t k = t.sample(rng.next());
-                if (P.testJumpBias > 0 && rng.uniform() < P.testJumpBias) {
-                    const uint32_t k2 = t.sample(rng.next());
-                    if (t.exits[k2].x() > t.exits[k].x()) k = k2;
+                if (vm > 0) {
+                    rhoMax = std::sqrt(0.5 / vm);
+                    r = std::min(r, int(rhoMax));
                 }
-                const openvdb::Coord& o = t.exits[k];
-                x += o.x();
-                y += o.y();
-                z += o.z();
-                steps += t.meanSteps;
+            }
+            // beyond the largest table: a circle (sphere) of plane radius rho whose cells, with a
+            // cell of rounding, stay 2 away from the ice and inside the domain. A graph distance
+            // covers a disc of radius d / mGraphScale, a Chebyshev bound one of d / mSphereScale.
+            const double rhoIce = double(dIce - 3) / (exact ? mGraphScale : mSphereScale);
+            const double rho = std::min(std::min(rhoMax, rhoIce), double(dOut - 1) / mSphereScale);
+            double jumpSteps = 0;
+            if (spheres && rho > double(sphereMin)) {
+                const double u = rng.uniform(), w = rng.uniform();
+                double px, py, pz = 0.0;
+                if (dim == 2) {
+                    const double a = 2.0 * M_PI * u;
+                    px = rho * std::cos(a);
+                    py = rho * std::sin(a);
+                } else {
+                    const double c = 2.0 * u - 1.0, sn = std::sqrt(std::max(0.0, 1.0 - c * c)), a = 2.0 * M_PI * w;
+                    px = rho * sn * std::cos(a);
+                    py = rho * sn * std::sin(a);
+                    pz = rho * c;
+                }
+                double di = px, dj = py;
+                if (hex) { // plane (X, Y) -> axial (i, j): Y = j sqrt(3)/2, X = i + j/2
+                    dj = py * (2.0 / std::sqrt(3.0));
+                    di = px - 0.5 * dj;
+                }
+                x += int(std::lround(di));
+                y += int(std::lround(dj));
+                z += int(std::lround(pz));
+                jumpSteps = rho * rho; // E[exit time] = rho^2 / E|step|^2, unit steps
+            } else {
+                r = std::min(r, maxR);
+                const int ti = r >= P.jumpMinRadius ? mTableForRadius[size_t(r)] : -1;
+                if (ti >= 0) {
+                    const ShellTable& t = *mTables[size_t(ti)];
+                    uint32_t k = t.sample(rng.next());
+                    if (P.testJumpBias > 0 && rng.uniform() < P.testJumpBias) {
+                        const uint32_t k2 = t.sample(rng.next());
+                        if (t.exits[k2].x() > t.exits[k].x()) k = k2;
+                    }
+                    const openvdb::Coord& o = t.exits[k];
+                    x += o.x();
+                    y += o.y();
+                    z += o.z();
+                    jumpSteps = t.meanSteps;
+                }
+            }
+            if (jumpSteps > 0) {
+                steps += jumpSteps;
                 ++end.jumps;
                 prev = -1;
                 if (outside(x, y, z)) break;
-                idx = int64_t(x) + int64_t(nx) * (int64_t(y) + int64_t(ny) * int64_t(z));
                 if (!drift) continue;
-                acc += v * t.meanSteps;
+                acc += v * jumpSteps;
                 jumped = true;
             }
         }
@@ -445,10 +609,9 @@ static WalkEnd walkImpl(const DlaEngine& e, const DlaParams& P, const std::vecto
             --left;
             const int i = x + nbr[dir].x(), j = y + nbr[dir].y(), k = z + nbr[dir].z();
             if (outside(i, j, k)) break;
-            const int64_t n = idx + delta[dir];
-            if (fine[size_t(n)] != 0) { // ice cannot be entered: the walker stays
-                prev = idx;
-                idx = n;
+            // ice cannot be entered: the walker stays (only a cell next to ice has an ice neighbour)
+            if (f != 1 || W.fine(i, j, k) != 0) {
+                prev = key(x, y, z);
                 x = i;
                 y = j;
                 z = k;
@@ -467,13 +630,11 @@ static WalkEnd walkImpl(const DlaEngine& e, const DlaParams& P, const std::vecto
                         killed = true;
                         break;
                     }
-                    const int64_t n = int64_t(i) + int64_t(nx) * (int64_t(j) + int64_t(ny) * int64_t(k));
-                    if (fine[size_t(n)] == 0) { // pushed against the ice: the drift is spent
+                    if (W.fine(i, j, k) == 0) { // pushed against the ice: the drift is spent
                         acc[a] = 0;
                         break;
                     }
-                    prev = idx;
-                    idx = n;
+                    prev = key(x, y, z);
                     x = i;
                     y = j;
                     z = k;

@@ -2,11 +2,17 @@
 /// @brief `frostvdb bench snowflake`: the ice paper's Figure 7 scene (scenes/snowflake.toml:
 /// 1024^2 hexagonal, H = 60000 walkers per step, 200 steps, DLA + phase field) run end to end
 /// with its frames written, timed per phase. The paper needed 2 hours on a 2.66 GHz Xeon; the
-/// target here is under 60 s on the 2-core machine.
+/// target here (issue 10) is at most 15 s on the 2-core machine, output under 10 % of it.
 #include <frostvdb/BuildPaths.h>
 #include <frostvdb/core/Bench.h>
 #include <frostvdb/core/Error.h>
 #include <frostvdb/core/Simulation.h>
+#include <frostvdb/io/Export.h>
+#include <frostvdb/io/Preview.h>
+
+#include <sys/resource.h>
+
+#include <chrono>
 
 #include <cstdio>
 #include <filesystem>
@@ -53,8 +59,38 @@ int benchSnowflake(const BenchArgs& args)
                 detail["phase_field.region"], detail["phase_field.kernel"], detail["phase_field.solve"],
                 detail["phase_field.truncate"], detail["phase_field.mean_iterations_p"],
                 detail["phase_field.mean_iterations_T"], detail["phase_field.clipped_voxels"]);
-    std::printf("peak memory %.0f MiB; the paper: 2 hours (7200 s) on a 2.66 GHz Xeon; target < 60 s: %s\n",
-                sum.peakRssBytes / 1048576.0, sum.totalSeconds < 60.0 ? "met" : "MISSED");
+    std::printf("peak memory %.0f MiB; the paper: 2 hours (7200 s) on a 2.66 GHz Xeon; target <= 15 s with output < 10%%: %s\n",
+                sum.peakRssBytes / 1048576.0,
+                sum.totalSeconds <= 15.0 && sum.outputSeconds < 0.1 * sum.totalSeconds ? "met" : "MISSED");
+    // the last frame's output once more, piece by piece
+    using Clock = std::chrono::steady_clock;
+    auto since = [](Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); };
+    Frame frame = sim.currentFrame(sum.framesWritten);
+    auto t0 = Clock::now();
+    const auto grids = exportGrids(frame.grids, sim.world().domain, sim.output().keepLattice);
+    const double tResample = since(t0);
+    t0 = Clock::now();
+    sim.writeFrame(frame, out.string()); // resamples again, then writes
+    const double tVdb = since(t0) - tResample;
+    t0 = Clock::now();
+    sim.writeDisplacement(frame, out.string());
+    const double tDisp = since(t0);
+    double tPreview = 0;
+    for (auto& g : frame.grids)
+        if (g->getName() == "ice") {
+            t0 = Clock::now();
+            writePreview(*g, (out / "preview_timing.png").string());
+            tPreview = since(t0);
+        }
+    uint64_t voxels = 0;
+    for (auto& g : grids) voxels += g->activeVoxelCount();
+    std::printf("last frame output again: resample to square %.2f s (%zu grids, %llu active voxels), VDB write "
+                "%.2f s, displacement map %.2f s, preview %.2f s\n",
+                tResample, grids.size(), (unsigned long long)voxels, tVdb, tDisp, tPreview);
+    rusage ru{};
+    getrusage(RUSAGE_SELF, &ru);
+    std::printf("process CPU time: user %.1f s, system %.1f s (wall figures above depend on the machine's load)\n",
+                ru.ru_utime.tv_sec + ru.ru_utime.tv_usec * 1e-6, ru.ru_stime.tv_sec + ru.ru_stime.tv_usec * 1e-6);
     std::printf("frames in %s\n", out.string().c_str());
     return 0;
 }

@@ -3,15 +3,133 @@
 
 #include <openvdb/tools/GridTransformer.h>
 #include <openvdb/tools/Interpolation.h>
+#include <openvdb/tools/Prune.h>
+#include <openvdb/tree/LeafManager.h>
+
+#include <tbb/blocked_range.h>
 
 #include <tbb/parallel_for.h>
 
+#include <algorithm>
 #include <cmath>
 #include <stdexcept>
 
 namespace frostvdb {
 
 namespace {
+
+/// Output index bounding box of the points whose resampling stencil can reach an input voxel of
+/// @a inBox (input index space): the input box widened by one cell, mapped through the (affine)
+/// input -> world -> output chain, open at its ends (a point exactly one cell away has weight 0).
+openvdb::CoordBBox footprint(const openvdb::CoordBBox& inBox, const openvdb::math::Transform& in,
+                             const openvdb::math::Transform& out, bool nearest)
+{
+    const double w = nearest ? 0.5 + 1e-6 : 1.0;
+    openvdb::Vec3d lo(1e300), hi(-1e300);
+    for (int c = 0; c < 8; ++c) {
+        const openvdb::Vec3d ip((c & 1) ? inBox.max().x() + w : inBox.min().x() - w,
+                                (c & 2) ? inBox.max().y() + w : inBox.min().y() - w,
+                                (c & 4) ? inBox.max().z() + w : inBox.min().z() - w);
+        const openvdb::Vec3d op = out.worldToIndex(in.indexToWorld(ip));
+        lo = openvdb::math::minComponent(lo, op);
+        hi = openvdb::math::maxComponent(hi, op);
+    }
+    const double eps = 1e-9;
+    return openvdb::CoordBBox(
+        openvdb::Coord(int(std::ceil(lo.x() + eps)), int(std::ceil(lo.y() + eps)), int(std::ceil(lo.z() + eps))),
+        openvdb::Coord(int(std::floor(hi.x() - eps)), int(std::floor(hi.y() - eps)), int(std::floor(hi.z() - eps))));
+}
+
+/// Sparse resampling onto an affine target: only output leaves under the footprint of the
+/// input's active leaves and tiles are visited, so the cost follows the active voxels (not the
+/// bounding box, and not the 8^3 node boxes tools::resampleToMatch walks, which for a flat grid
+/// is 8 layers where 1 is active). An output voxel is active when an input voxel with a non-zero
+/// interpolation weight is; its value is the sampler's (BoxSampler: trilinear; PointSampler:
+/// nearest). Each output voxel is a pure function of its position: the result does not depend
+/// on the thread count.
+template <typename GridT, typename Sampler, bool Nearest>
+openvdb::GridBase::Ptr resampleSparse(const openvdb::GridBase& base, const openvdb::math::Transform& target)
+{
+    using TreeT = typename GridT::TreeType;
+    using LeafT = typename TreeT::LeafNodeType;
+    const auto& in = static_cast<const GridT&>(base);
+    const auto& inXf = in.transform();
+    auto out = GridT::create(in.background());
+    out->setTransform(target.copy());
+    for (auto it = in.beginMeta(); it != in.endMeta(); ++it) out->insertMeta(it->first, *it->second);
+
+    // 1. the footprints: output leaf origins, from every active leaf and tile
+    std::vector<openvdb::CoordBBox> boxes;
+    {
+        openvdb::tree::LeafManager<const TreeT> leaves(in.tree());
+        boxes.resize(leaves.leafCount());
+        tbb::parallel_for(size_t(0), leaves.leafCount(), [&](size_t i) {
+            const auto& leaf = leaves.leaf(i);
+            if (leaf.isEmpty()) return;
+            openvdb::CoordBBox bb;
+            leaf.evalActiveBoundingBox(bb, false);
+            boxes[i] = footprint(bb, inXf, target, Nearest);
+        });
+        auto tile = in.tree().cbeginValueOn();
+        tile.setMaxDepth(TreeT::ValueOnCIter::LEAF_DEPTH - 1);
+        for (; tile; ++tile) boxes.push_back(footprint(tile.getBoundingBox(), inXf, target, Nearest));
+    }
+    std::vector<std::vector<openvdb::Coord>> origins(boxes.size());
+    tbb::parallel_for(size_t(0), boxes.size(), [&](size_t i) {
+        const auto& b = boxes[i];
+        if (b.empty()) return;
+        const int m = ~int(LeafT::DIM - 1);
+        for (int x = b.min().x() & m; x <= b.max().x(); x += LeafT::DIM)
+            for (int y = b.min().y() & m; y <= b.max().y(); y += LeafT::DIM)
+                for (int z = b.min().z() & m; z <= b.max().z(); z += LeafT::DIM) origins[i].emplace_back(x, y, z);
+    });
+    openvdb::CoordBBox zone; // voxels outside every footprint are never touched
+    std::vector<openvdb::Coord> all;
+    for (size_t i = 0; i < boxes.size(); ++i) {
+        if (!boxes[i].empty()) zone.expand(boxes[i]);
+        all.insert(all.end(), origins[i].begin(), origins[i].end());
+    }
+    std::sort(all.begin(), all.end());
+    all.erase(std::unique(all.begin(), all.end()), all.end());
+    std::vector<LeafT*> outLeaves;
+    for (const auto& o : all) outLeaves.push_back(out->tree().touchLeaf(o));
+
+    // 2. sample every voxel of those leaves that lies in some footprint's z range
+    // output index -> input index, affine: p = p0 + A c
+    auto map = [&](const openvdb::Vec3d& c) { return inXf.worldToIndex(target.indexToWorld(c)); };
+    const openvdb::Vec3d p0 = map(openvdb::Vec3d(0.0)), ax = map(openvdb::Vec3d(1, 0, 0)) - p0,
+                         ay = map(openvdb::Vec3d(0, 1, 0)) - p0, az = map(openvdb::Vec3d(0, 0, 1)) - p0;
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, outLeaves.size(), 4), [&](const tbb::blocked_range<size_t>& r) {
+        typename GridT::ConstAccessor acc = in.getConstAccessor();
+        for (size_t l = r.begin(); l != r.end(); ++l) {
+            LeafT& leaf = *outLeaves[l];
+            for (openvdb::Index n = 0; n < LeafT::SIZE; ++n) {
+                const openvdb::Coord c = leaf.offsetToGlobalCoord(n);
+                if (!zone.isInside(c)) continue;
+                const openvdb::Vec3d p = p0 + ax * double(c.x()) + ay * double(c.y()) + az * double(c.z());
+                bool on = false;
+                if (Nearest) {
+                    on = acc.isValueOn(openvdb::Coord::round(p));
+                } else {
+                    const openvdb::Coord i0 = openvdb::Coord::floor(p);
+                    const openvdb::Vec3d f = p - i0.asVec3d();
+                    for (int k = 0; k < 8 && !on; ++k) {
+                        const double wx = (k & 1) ? f.x() : 1.0 - f.x(), wy = (k & 2) ? f.y() : 1.0 - f.y(),
+                                     wz = (k & 4) ? f.z() : 1.0 - f.z();
+                        if (wx * wy * wz > 0.0)
+                            on = acc.isValueOn(i0.offsetBy((k & 1) ? 1 : 0, (k & 2) ? 1 : 0, (k & 4) ? 1 : 0));
+                    }
+                }
+                if (!on) continue;
+                typename GridT::ValueType v;
+                Sampler::sample(acc, p, v);
+                leaf.setValueOn(n, v);
+            }
+        }
+    });
+    openvdb::tools::pruneInactive(out->tree());
+    return out;
+}
 
 template <typename GridT, typename Sampler>
 openvdb::GridBase::Ptr resampleAs(const openvdb::GridBase& base, const openvdb::math::Transform& target)
@@ -59,11 +177,23 @@ openvdb::math::Transform::Ptr squareTransform(const Domain& dom)
 openvdb::GridBase::Ptr resampleGrid(const openvdb::GridBase& grid, const openvdb::math::Transform& target)
 {
     using namespace openvdb;
-    if (grid.isType<FloatGrid>()) return resampleAs<FloatGrid, tools::BoxSampler>(grid, target);
-    if (grid.isType<DoubleGrid>()) return resampleAs<DoubleGrid, tools::BoxSampler>(grid, target);
-    if (grid.isType<Vec3SGrid>()) return resampleAs<Vec3SGrid, tools::BoxSampler>(grid, target);
-    if (grid.isType<Int32Grid>()) return resampleAs<Int32Grid, tools::PointSampler>(grid, target);
-    if (grid.isType<Int64Grid>()) return resampleAs<Int64Grid, tools::PointSampler>(grid, target);
+    // level sets are rebuilt by OpenVDB (their narrow band and sign need it); the rest sparsely
+    const bool sparse = grid.getGridClass() != GRID_LEVEL_SET && grid.transform().isLinear() && target.isLinear();
+    if (grid.isType<FloatGrid>())
+        return sparse ? resampleSparse<FloatGrid, tools::BoxSampler, false>(grid, target)
+                      : resampleAs<FloatGrid, tools::BoxSampler>(grid, target);
+    if (grid.isType<DoubleGrid>())
+        return sparse ? resampleSparse<DoubleGrid, tools::BoxSampler, false>(grid, target)
+                      : resampleAs<DoubleGrid, tools::BoxSampler>(grid, target);
+    if (grid.isType<Vec3SGrid>())
+        return sparse ? resampleSparse<Vec3SGrid, tools::BoxSampler, false>(grid, target)
+                      : resampleAs<Vec3SGrid, tools::BoxSampler>(grid, target);
+    if (grid.isType<Int32Grid>())
+        return sparse ? resampleSparse<Int32Grid, tools::PointSampler, true>(grid, target)
+                      : resampleAs<Int32Grid, tools::PointSampler>(grid, target);
+    if (grid.isType<Int64Grid>())
+        return sparse ? resampleSparse<Int64Grid, tools::PointSampler, true>(grid, target)
+                      : resampleAs<Int64Grid, tools::PointSampler>(grid, target);
     return grid.deepCopyGrid(); // unknown type: as it is
 }
 
@@ -100,22 +230,124 @@ openvdb::GridPtrVec exportGrids(const openvdb::GridPtrVec& grids, const Domain& 
     return out;
 }
 
-void writeDisplacementPng(const openvdb::FloatGrid& growth, const Domain& dom, const std::string& path)
+namespace {
+
+/// The raster pixels (a, b) a flat grid's active voxels can colour under BoxSampler, as 8x8
+/// pixel blocks (block = (a >> 3, b >> 3) relative to the raster origin), sorted and unique.
+std::vector<std::pair<int, int>> touchedBlocks(const openvdb::FloatGrid& g, const SquareRaster& r, double z)
 {
-    if (!dom.isPlane()) throw std::invalid_argument("displacement PNGs are for flat domains");
-    const SquareRaster r = squareRaster(dom);
-    const int W = r.width(), H = r.height();
-    std::vector<float> values(size_t(W) * H);
-    const double z = dom.transform()->indexToWorld(openvdb::Vec3d(0, 0, dom.bbox().min().z())).z();
-    tbb::parallel_for(0, H, [&](int y) {
+    const auto& xf = g.transform();
+    auto raster = openvdb::math::Transform::createLinearTransform(r.h);
+    openvdb::tree::LeafManager<const openvdb::FloatTree> leaves(g.tree());
+    std::vector<openvdb::CoordBBox> boxes(leaves.leafCount());
+    tbb::parallel_for(size_t(0), leaves.leafCount(), [&](size_t i) {
+        if (leaves.leaf(i).isEmpty()) return;
+        openvdb::CoordBBox bb;
+        leaves.leaf(i).evalActiveBoundingBox(bb, false);
+        boxes[i] = footprint(bb, xf, *raster, false);
+    });
+    auto tile = g.tree().cbeginValueOn();
+    tile.setMaxDepth(openvdb::FloatTree::ValueOnCIter::LEAF_DEPTH - 1);
+    for (; tile; ++tile) boxes.push_back(footprint(tile.getBoundingBox(), xf, *raster, false));
+    (void)z;
+    std::vector<std::pair<int, int>> blocks;
+    for (const auto& b : boxes) {
+        if (b.min().x() > b.max().x() || b.min().y() > b.max().y()) continue; // (z is not looked at)
+        const int x0 = std::max(b.min().x(), r.a0) - r.a0, x1 = std::min(b.max().x(), r.a1) - r.a0;
+        const int y0 = std::max(b.min().y(), r.b0) - r.b0, y1 = std::min(b.max().y(), r.b1) - r.b0;
+        for (int by = y0 >> 3; by <= (y1 >> 3) && y0 <= y1; ++by)
+            for (int bx = x0 >> 3; bx <= (x1 >> 3) && x0 <= x1; ++bx) blocks.emplace_back(bx, by);
+    }
+    std::sort(blocks.begin(), blocks.end());
+    blocks.erase(std::unique(blocks.begin(), blocks.end()), blocks.end());
+    return blocks;
+}
+
+/// Samples @a growth at the raster pixels of @a blocks that fall in the image window
+/// [ia, ia + W) x [ib, ib + H) (raster offsets; image row 0 at the top) into @a values.
+void sampleBlocks(const openvdb::FloatGrid& growth, const SquareRaster& r, double z,
+                  const std::vector<std::pair<int, int>>& blocks, int ia, int ib, int W, int H,
+                  std::vector<float>& values)
+{
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, blocks.size(), 16), [&](const tbb::blocked_range<size_t>& rg) {
         auto acc = growth.getConstAccessor();
         openvdb::tools::GridSampler<openvdb::FloatGrid::ConstAccessor, openvdb::tools::BoxSampler> s(
             acc, growth.transform());
-        const int b = r.b1 - y; // row 0 at the top (+y)
-        for (int x = 0; x < W; ++x)
-            values[size_t(y) * W + x] = s.wsSample(openvdb::Vec3d((r.a0 + x) * r.h, b * r.h, z));
+        for (size_t k = rg.begin(); k != rg.end(); ++k) {
+            for (int dy = 0; dy < 8; ++dy)
+                for (int dx = 0; dx < 8; ++dx) {
+                    const int a = blocks[k].first * 8 + dx - ia, b = blocks[k].second * 8 + dy - ib;
+                    if (a < 0 || b < 0 || a >= W || b >= H) continue;
+                    const int ra = r.a0 + ia + a, rb = r.b0 + ib + b;
+                    if (ra > r.a1 || rb > r.b1) continue;
+                    values[size_t(H - 1 - b) * W + a] = s.wsSample(openvdb::Vec3d(ra * r.h, rb * r.h, z));
+                }
+        }
     });
-    writePngGray(path, W, H, values, 16);
+}
+
+} // namespace
+
+std::vector<std::string> writeDisplacementMaps(const openvdb::FloatGrid& growth, const Domain& dom,
+                                               const std::string& stem, int tileSize)
+{
+    if (!dom.isPlane()) throw std::invalid_argument("displacement PNGs are for flat domains");
+    if (tileSize < 8) throw std::invalid_argument("displacement tile size must be at least 8 pixels");
+    const SquareRaster r = squareRaster(dom);
+    const int W = r.width(), H = r.height();
+    const double z = dom.transform()->indexToWorld(openvdb::Vec3d(0, 0, dom.bbox().min().z())).z();
+    const float bg = growth.background();
+    const auto blocks = touchedBlocks(growth, r, z);
+    if (W <= tileSize && H <= tileSize) { // one image, as large as the raster
+        std::vector<float> values(size_t(W) * H, bg);
+        sampleBlocks(growth, r, z, blocks, 0, 0, W, H, values);
+        writePngGray(stem + ".png", W, H, values, 16);
+        return {stem + ".png"};
+    }
+    // UDIM tiles: tile (u, v) holds raster offsets [u T, (u+1) T) x [v T, (v+1) T), u along +x
+    // from the raster's left edge, v along +y from its bottom; number 1001 + u + 10 v
+    const int nu = (W + tileSize - 1) / tileSize, nv = (H + tileSize - 1) / tileSize;
+    if (nu > 10)
+        throw std::invalid_argument("displacement map " + std::to_string(W) + " pixels wide needs " +
+                                    std::to_string(nu) + " UDIM tiles across (at most 10): raise output.tile_size");
+    std::vector<std::vector<std::pair<int, int>>> perTile(size_t(nu) * nv);
+    const int bt = tileSize / 8; // blocks per tile side when the tile is a multiple of 8
+    for (const auto& b : blocks) {
+        // a block may straddle two tiles when tileSize is not a multiple of 8: give it to both
+        for (int cy = 0; cy < 2; ++cy)
+            for (int cx = 0; cx < 2; ++cx) {
+                const int u = (b.first * 8 + cx * 7) / tileSize, v = (b.second * 8 + cy * 7) / tileSize;
+                if (u >= nu || v >= nv) continue;
+                auto& t = perTile[size_t(v) * nu + u];
+                if (t.empty() || t.back() != b) t.push_back(b);
+            }
+    }
+    (void)bt;
+    std::vector<int> udims;
+    for (int v = 0; v < nv; ++v)
+        for (int u = 0; u < nu; ++u)
+            if (!perTile[size_t(v) * nu + u].empty()) udims.push_back(1001 + u + 10 * v);
+    std::vector<std::string> files(udims.size());
+    // two tiles at a time at most: each holds tileSize^2 floats while it is encoded
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, udims.size(), 1), [&](const tbb::blocked_range<size_t>& rg) {
+        for (size_t i = rg.begin(); i != rg.end(); ++i) {
+            const int u = (udims[i] - 1001) % 10, v = (udims[i] - 1001) / 10;
+            auto& t = perTile[size_t(v) * nu + u];
+            std::sort(t.begin(), t.end());
+            t.erase(std::unique(t.begin(), t.end()), t.end());
+            std::vector<float> values(size_t(tileSize) * tileSize, bg);
+            sampleBlocks(growth, r, z, t, u * tileSize, v * tileSize, tileSize, tileSize, values);
+            files[i] = stem + "." + std::to_string(udims[i]) + ".png";
+            writePngGray(files[i], tileSize, tileSize, values, 16);
+        }
+    });
+    return files;
+}
+
+void writeDisplacementPng(const openvdb::FloatGrid& growth, const Domain& dom, const std::string& path)
+{
+    const std::string stem = path.size() > 4 && path.substr(path.size() - 4) == ".png" ? path.substr(0, path.size() - 4) : path;
+    writeDisplacementMaps(growth, dom, stem, 1 << 30);
 }
 
 } // namespace frostvdb

@@ -35,6 +35,7 @@ struct OutputSettings {
     bool halfFloat = false;
     bool keepLattice = false;     ///< hexagonal domains: write the sheared grids, not square resamples
     bool displacementPng = true;  ///< flat domains with a `growth` grid: <name>.<frame>.displacement.png
+    int displacementTile = 4096;  ///< larger rasters: UDIM tiles of this many pixels, only those with ice
 };
 
 struct RunSummary {
@@ -76,9 +77,10 @@ public:
     /// Writes a frame file (+ metadata) and returns its path. Grids of a hexagonal domain are
     /// resampled to a square grid unless output.keep_lattice (io/Export.h).
     std::string writeFrame(const Frame& frame, const std::string& dir);
-    /// Writes the frame's `growth` grid as a 16-bit PNG `<name>.<frame>.displacement.png` (flat
-    /// domains; "" when there is nothing to write or output.displacement_png is off).
-    std::string writeDisplacement(const Frame& frame, const std::string& dir);
+    /// Writes the frame's `growth` grid as a 16-bit PNG `<name>.<frame>.displacement.png`, or as
+    /// UDIM tiles `<name>.<frame>.displacement.<udim>.png` beyond output.displacement_tile pixels
+    /// (flat domains; none when there is nothing to write or output.displacement_png is off).
+    std::vector<std::string> writeDisplacement(const Frame& frame, const std::string& dir);
 
 private:
     Scene mScene;

@@ -12,7 +12,9 @@
 ///     next to a cell with p > 1/2 ?  stick with probability melt(cell)  -> hits(cell) += 1
 ///                                    (hits == n: p(cell) = 1, heat L (1 - p_before) into T)
 ///     far from ice (lattice distance d)? jump to the exit point of the walk from the lattice
-///                                    ball of radius d-2 around it (exact first-passage tables)
+///                                    ball of radius d-2 around it (exact first-passage tables);
+///                                    beyond the largest table, to a uniform point of the largest
+///                                    free circle/sphere (walk on spheres), no cap
 ///     else step to a random lattice neighbour (+ whole-cell flow drift); leaving the domain kills
 /// @endcode
 /// Determinism: the walkers of a step are cut into batches of `batch` consecutive walker ids;
@@ -23,6 +25,7 @@
 #include <frostvdb/core/Domain.h>
 #include <frostvdb/core/Effect.h>
 #include <frostvdb/core/Random.h>
+#include <frostvdb/ice/DlaSparse.h>
 
 #include <openvdb/openvdb.h>
 
@@ -69,6 +72,7 @@ struct DlaParams {
     bool jumps = true;            ///< empty-space jumps
     int jumpMinRadius = 3;        ///< smallest jump (lattice radius)
     int jumpMaxRadius = 0;        ///< largest jump table (0: 128 on a plane, 32 in a box)
+    bool sphereJumps = true;      ///< beyond the largest table: walk-on-spheres jumps, no cap
     int batch = 1024;             ///< walkers per parallel batch
     double steamHumidity = 0.0;   ///< gain of the local steam density on the walker release
     double steamReach = 0.05;     ///< metres above the plane where steam counts
@@ -127,32 +131,48 @@ struct WalkEnd {
     double latticeSteps = 0;
 };
 
-/// The walker machinery on a dense view of the domain: ice flags and a capped exact lattice
-/// distance to the ice (incrementally updated), a coarse 8-cell block distance for far jumps,
-/// and the walk itself. Used by the [dla] effect; public for tests.
+/// The walker machinery, sparse: memory and cost follow the ice and the walkers, not the domain.
+///  - exact lattice distance to the ice below a small cap (0: ice, 1: next to ice), one byte per
+///    cell, in 8-cell bricks allocated only where the distance is below the cap;
+///  - an occupancy pyramid of the ice (blocks of 8 * 2^k cells, k = 0, 1, ...; each level keeps
+///    the blocks whose 3^d neighbourhood holds ice): a Chebyshev lower bound of the distance to
+///    the ice anywhere, with no cap, in O(log levels) hash probes;
+///  - the walk: exact first-passage jump tables up to the largest table, and beyond it
+///    walk-on-spheres jumps (uniform exit point on the largest free circle/sphere, the
+///    continuum limit of the lattice walk) up to the distance to the ice or the domain edge.
+/// Cells are named by a packed key of their offsets from the domain's minimum corner (21 bits
+/// per axis). Used by the [dla] effect; public for tests.
 class DlaEngine {
 public:
     DlaEngine(const Domain& domain, const DlaParams& params, uint64_t seed);
+    ~DlaEngine();
 
     /// Brings the ice flags in line with p > 1/2 (incremental when ice was only added).
     void sync(const openvdb::FloatGrid& p);
     /// Marks a cell as ice and updates the distances.
     void freeze(int64_t cell);
-    bool isIce(int64_t cell) const { return mFine[size_t(cell)] == 0; }
-    /// Lattice distance to the nearest ice, exact below the fine cap, a lower bound above.
+    bool isIce(int64_t cell) const;
+    /// Lattice distance to the nearest ice: exact below distanceCap(), a lower bound above.
     int iceDistance(const openvdb::Coord& c) const;
     int distanceCap() const { return mCap; }
     uint64_t iceCount() const { return mIceCount; }
 
     int64_t index(const openvdb::Coord& c) const
     {
-        return int64_t(c.x()) + mNx * (int64_t(c.y()) + mNy * int64_t(c.z()));
+        return int64_t(c.x() - mOrigin.x()) | (int64_t(c.y() - mOrigin.y()) << 21) |
+               (int64_t(c.z() - mOrigin.z()) << 42);
     }
     openvdb::Coord coord(int64_t idx) const
     {
-        return openvdb::Coord(int(idx % mNx), int((idx / mNx) % mNy), int(idx / (mNx * mNy)));
+        const int64_t m = (int64_t(1) << 21) - 1;
+        return openvdb::Coord(int(idx & m), int((idx >> 21) & m), int(idx >> 42)) + mOrigin;
     }
+    /// Number of domain cells.
     int64_t cellCount() const { return mNx * mNy * mNz; }
+    /// Bytes held by the sparse structures (distance bricks, pyramid, tables not counted).
+    size_t memoryBytes() const;
+    /// Distance bricks allocated.
+    size_t brickCount() const;
 
     /// Optional inputs of a walk (null: none). The velocity is in index cells per lattice step.
     struct Inputs {
@@ -180,36 +200,35 @@ public:
     /// Largest jump table radius in use.
     int maxJumpRadius() const { return mTableForRadius.empty() ? 0 : int(mTableForRadius.size()) - 1; }
 
+    struct Sparse; ///< the bricks and the pyramid (DlaEngine.cpp)
+    struct Walker; ///< one walk in progress (DlaEngine.cpp)
+    struct Probes; ///< per-task accessors of the optional grids (DlaEngine.cpp)
+
 private:
     void rebuild(const openvdb::FloatGrid& p);
-    void relaxFrom(int64_t cell);
-    /// Breadth-first relaxation of the exact distance map from the cells queued in mQueue.
     void relaxQueue();
-    void markBlock(int64_t cell);
-    void rebuildCoarse();
     int64_t release(int64_t step, uint64_t walker, WalkerRng& rng, const Inputs& in) const;
-    int outsideDistance(int x, int y, int z) const;
+    WalkEnd walkFrom(WalkerRng& rng, int64_t idx, const Inputs& in, Probes& pr) const;
 
     Domain mDomain;
     DlaParams mParams;
     uint64_t mSeed;
+    openvdb::Coord mOrigin;
     int64_t mNx, mNy, mNz;
     int mDim;
     std::vector<openvdb::Coord> mNbr;
-    std::vector<int64_t> mNbrDelta;
-    int mCap = 64;              ///< exact distances below this (64 on a plane, 16 in a box)
-    std::vector<uint8_t> mFine; ///< 0 ice, 1..mCap-1 exact distance, mCap: >= mCap
-    int64_t mBx, mBy, mBz;      ///< coarse block counts
-    std::vector<uint32_t> mBlockIce;
-    std::vector<uint16_t> mCoarse; ///< Chebyshev block distance to a block with ice
+    int mCap = 32;              ///< exact distances below this (32 on a plane, 10 in a box)
+    double mSphereScale = 1.0;  ///< index Chebyshev reach of a unit plane displacement
+    double mGraphScale = 1.0;   ///< lattice (graph) distance reach of a unit plane displacement
     uint64_t mIceCount = 0;
+    std::unique_ptr<Sparse> mSparse;
     std::vector<int64_t> mQueue;
     std::vector<std::shared_ptr<const ShellTable>> mTables;
     std::vector<int16_t> mTableForRadius; ///< radius -> index in mTables of the largest <= it (-1)
     int mDigits = 1;
 
 public:
-    static constexpr int kBlockLog2 = 3;
+    static constexpr int kBrickLog2 = 3;
 };
 
 /// The [dla] effect.
@@ -239,7 +258,7 @@ private:
     std::unique_ptr<DlaEngine> mEngine;
     DlaStats mStats;
     openvdb::GridBase::ConstPtr mSteamSource; ///< the density grid the steam map was built from
-    std::vector<int32_t> mHitCount; ///< dense dla_hits while stepping (hits > 1)
+    KeyMap<int32_t> mHitCount; ///< dla_hits by cell while stepping (hits > 1), sparse
     std::vector<double> mSteamCdf;
     std::vector<int64_t> mSteamCells;
     double mSteamSum = 0;

@@ -15,6 +15,7 @@
 #include <openvdb/openvdb.h>
 
 #include <string>
+#include <vector>
 
 namespace frostvdb {
 
@@ -45,5 +46,15 @@ openvdb::GridPtrVec exportGrids(const openvdb::GridPtrVec& grids, const Domain& 
 /// Writes @a growth (values in [0,1]) as a 16-bit greyscale PNG on squareRaster(domain), sampled
 /// in world space (so it works for sheared and resampled grids alike). Flat domains only.
 void writeDisplacementPng(const openvdb::FloatGrid& growth, const Domain& domain, const std::string& path);
+
+/// The displacement map of a large domain, cost following the ice: a raster up to @a tileSize
+/// pixels on each side is one image `<stem>.png`; a larger one is cut into UDIM tiles of
+/// tileSize^2 pixels, `<stem>.<udim>.png`, udim = 1001 + u + 10 v (u: tile column from the
+/// raster's left edge, v: tile row from its bottom; pixel = the lattice spacing h, raster origin
+/// at the bottom-left corner of tile 1001, padding beyond the raster is background), and only
+/// tiles that hold active growth are written. Only pixels within reach of an active voxel are
+/// sampled. At most 10 tiles across (the UDIM convention). Returns the files written.
+std::vector<std::string> writeDisplacementMaps(const openvdb::FloatGrid& growth, const Domain& domain,
+                                               const std::string& stem, int tileSize);
 
 } // namespace frostvdb
