@@ -24,6 +24,11 @@ public:
     void addToFrame(World& world, Frame& frame) override;
     double time() const override { return mTime; }
     std::vector<std::pair<std::string, double>> timings() const override;
+    /// PhaseFieldSolver keeps about 21 dense float arrays over the domain, plus sparse fields.
+    MemoryEstimate memoryEstimate(const World& world) const override
+    {
+        return perVoxelEstimate(double(world.domain.bbox().volume()), 96.0, "domain.size", "phase-field arrays");
+    }
 
     const KobayashiParams& params() const { return mParams; }
 
