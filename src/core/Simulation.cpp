@@ -208,6 +208,12 @@ Simulation::Simulation(Scene scene) : mScene(std::move(scene))
 
 void Simulation::checkMemoryBudget() const
 {
+    // The displacement PNG is one raster over the whole plane (io/Export.h): 4-byte floats and
+    // 2-byte samples per cell, whatever the sparse fields hold.
+    if (mOutput.displacementPng && mWorld.domain.isPlane())
+        checkMemoryEstimate(perVoxelEstimate(double(mWorld.domain.bbox().volume()), 8.0, "domain.size",
+                                             "the displacement PNG raster (output.displacement_png)"),
+                            mWorld.memoryLimitBytes, mWorld.sceneLabel);
     MemoryEstimate total;
     for (auto& e : mEffects) {
         MemoryEstimate m = e->memoryEstimate(mWorld);
@@ -397,7 +403,7 @@ std::string Simulation::writeFramePreview(const Frame& frame, int64_t f, const s
     for (auto& e : mEffects)
         if (e->writePreview(mWorld, frame, png)) return png;
     openvdb::GridBase::Ptr pick;
-    for (const std::string want : {mOutput.previewGrid, std::string("ice"), std::string("density"),
+    for (const std::string& want : {mOutput.previewGrid, std::string("ice"), std::string("density"),
                                    std::string("cells")}) {
         if (want.empty() || pick) continue;
         for (auto& g : frame.grids)

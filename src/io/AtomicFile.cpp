@@ -160,16 +160,14 @@ void setWriteFaultHook(WriteFaultHook hook)
 
 void installTempCleanupHandlers()
 {
-    static std::once_flag once;
-    std::call_once(once, [] {
-        for (int sig : {SIGINT, SIGTERM, SIGHUP}) {
-            struct sigaction sa {};
-            sa.sa_handler = cleanupOnSignal;
-            sigemptyset(&sa.sa_mask);
-            sa.sa_flags = SA_RESETHAND;
-            ::sigaction(sig, &sa, nullptr);
-        }
-    });
+    // Installed at every call (idempotent), so it wins over handlers a host installed since.
+    for (int sig : {SIGINT, SIGTERM, SIGHUP}) {
+        struct sigaction sa {};
+        sa.sa_handler = cleanupOnSignal;
+        sigemptyset(&sa.sa_mask);
+        sa.sa_flags = SA_RESETHAND;
+        ::sigaction(sig, &sa, nullptr);
+    }
 }
 
 bool isTemporaryName(const std::string& name, long* pid)

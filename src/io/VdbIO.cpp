@@ -16,6 +16,11 @@
 #include <cstring>
 #include <fstream>
 
+#include <csignal>
+#include <sys/resource.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
 namespace frostvdb {
 
 std::string framePath(const std::string& dir, const std::string& name, int64_t frame, const std::string& ext)
@@ -273,23 +278,78 @@ void writeVdbAtomic(const std::string& path, const openvdb::GridPtrVec& grids,
     writeFileAtomic(path, bytes);
 }
 
+namespace {
+
+/// Parses @a bytes with OpenVDB's stream reader; throws what it throws.
+openvdb::GridPtrVecPtr parseGrids(const std::string& bytes, openvdb::MetaMap::Ptr* fileMeta)
+{
+    // A stream that throws on any read past the end, so a damaged count cannot make OpenVDB
+    // loop on a failed stream allocating nodes.
+    SpanBuf buf(bytes.data(), bytes.size());
+    std::istream is(&buf);
+    is.exceptions(std::ios::failbit | std::ios::badbit | std::ios::eofbit);
+    openvdb::io::Stream stream(is, /*delayLoad=*/false);
+    auto grids = stream.getGrids();
+    if (!grids) grids = std::make_shared<openvdb::GridPtrVec>();
+    if (fileMeta) *fileMeta = stream.getMetadata();
+    if (fileMeta && !*fileMeta) *fileMeta = std::make_shared<openvdb::MetaMap>();
+    return grids;
+}
+
+/// OpenVDB trusts the tree data inside a grid (node masks, compressed block sizes): a damaged
+/// byte there can corrupt memory or ask for gigabytes. So the bytes are parsed first in a child
+/// process with a memory cap and a time limit, which takes that risk; "" when the parse is safe.
+std::string trialParseInChild(const std::string& bytes)
+{
+    const pid_t pid = ::fork();
+    if (pid < 0) return {}; // cannot fork: parse directly, as OpenVDB itself would
+    if (pid == 0) {
+        for (int sig : {SIGSEGV, SIGABRT, SIGBUS, SIGFPE, SIGILL}) std::signal(sig, SIG_DFL);
+        long pages = 0, dummy = 0;
+        if (FILE* f = std::fopen("/proc/self/statm", "r")) {
+            if (std::fscanf(f, "%ld %ld", &pages, &dummy) != 2) pages = 0;
+            std::fclose(f);
+        }
+        const double extra = 2.0 * 1024 * 1024 * 1024 + 64.0 * double(bytes.size());
+        rlimit lim{};
+        lim.rlim_cur = lim.rlim_max = rlim_t(double(pages) * double(::sysconf(_SC_PAGESIZE)) + extra);
+        if (pages > 0) ::setrlimit(RLIMIT_AS, &lim);
+        try {
+            parseGrids(bytes, nullptr);
+        } catch (const std::bad_alloc&) {
+            ::_exit(4);
+        } catch (...) {
+            ::_exit(3); // an ordinary error: the parent parses again and reports it
+        }
+        ::_exit(0);
+    }
+    int status = 0;
+    for (int i = 0; i < 3000; ++i) { // 30 s
+        const pid_t r = ::waitpid(pid, &status, WNOHANG);
+        if (r == pid) {
+            if (WIFSIGNALED(status)) return "damaged grid data (parsing it crashed OpenVDB's reader)";
+            if (WIFEXITED(status) && WEXITSTATUS(status) == 4)
+                return "damaged grid data (it asks for more than 64x its size in memory)";
+            return {};
+        }
+        if (r < 0) return {};
+        ::usleep(10000);
+    }
+    ::kill(pid, SIGKILL);
+    ::waitpid(pid, &status, 0);
+    return "damaged grid data (parsing it takes more than 30 s)";
+}
+
+} // namespace
+
 openvdb::GridPtrVecPtr readVdb(const std::string& path, openvdb::MetaMap::Ptr* fileMeta, bool requireGrids)
 {
     const std::string bytes = readWholeFile(path);
     const VdbLayout layout = validateVdb(path, bytes);
     if (requireGrids && layout.gridCount == 0) throw VdbFileError(path, "the file holds no grids");
-    // Parse from memory through a stream that throws on any read past the end, so a damaged
-    // count cannot make OpenVDB loop on a failed stream allocating nodes.
-    SpanBuf buf(bytes.data(), bytes.size());
-    std::istream is(&buf);
-    is.exceptions(std::ios::failbit | std::ios::badbit | std::ios::eofbit);
+    if (const std::string why = trialParseInChild(bytes); !why.empty()) throw VdbFileError(path, why);
     try {
-        openvdb::io::Stream stream(is, /*delayLoad=*/false);
-        auto grids = stream.getGrids();
-        if (!grids) grids = std::make_shared<openvdb::GridPtrVec>();
-        if (fileMeta) *fileMeta = stream.getMetadata();
-        if (fileMeta && !*fileMeta) *fileMeta = std::make_shared<openvdb::MetaMap>();
-        return grids;
+        return parseGrids(bytes, fileMeta);
     } catch (const std::ios_base::failure&) {
         throw VdbFileError(path, "damaged grid data (a read runs past the end of the file)");
     } catch (const std::bad_alloc&) {
