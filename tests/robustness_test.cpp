@@ -291,6 +291,11 @@ TEST_CASE("Scenes that ask for more memory than the budget are refused before al
     // Many automaton flakes.
     m = refusal("[run]\nmemory_limit = 0.05\n[domain]\nsize = [64, 64]\n[packard]\nbatch = 512\n");
     CHECK(m.find("packard.batch") != std::string::npos);
+    // A value in the documented range that OpenVDB cannot represent is named at its key (it
+    // leaked as "ArithmeticError: Non-zero scale values required").
+    m = refusal("[domain]\nsize = [64, 64]\n[coxe_reiter]\nvoxels_per_cell = 8\n");
+    CHECK(m.find("coxe_reiter.voxels_per_cell") != std::string::npos);
+    CHECK(m.find("use at most 6") != std::string::npos);
 }
 
 // ---------------------------------------------------------------------------------------------
