@@ -218,5 +218,9 @@ TEST_CASE("A solver that leaves its bounds stops naming field, voxel, step and t
         CHECK(msg.find("in step ") != std::string::npos);
         CHECK(msg.find("t = ") != std::string::npos);
     }
-    CHECK(std::filesystem::is_empty(ro.outDir));
+    // No frame is written; run.json records the failure (and no file).
+    CHECK(frameFilesIn(ro.outDir).empty());
+    const std::string json = readFile(ro.outDir + "/run.json");
+    CHECK(json.find("\"status\": \"failed\"") != std::string::npos);
+    CHECK(json.find("\"files\": [\n  ]") != std::string::npos);
 }

@@ -1,5 +1,6 @@
 /// frostvdb: grows ice, frost and snowflakes and makes procedural steam as OpenVDB volumes.
 ///   frostvdb run [SCENE] [--out DIR] [--set K=V]... [--threads N] [--seed S] [--frames A-B] [--keep-lattice]
+///                [--overwrite]
 ///   frostvdb info FILE.vdb
 ///   frostvdb preview FILE.vdb -o FILE.png [--grid NAME]
 ///   frostvdb bench NAME [--threads N] [--quick]
@@ -7,6 +8,7 @@
 #include <frostvdb/core/Bench.h>
 #include <frostvdb/core/Error.h>
 #include <frostvdb/core/Simulation.h>
+#include <frostvdb/io/AtomicFile.h>
 #include <frostvdb/io/Preview.h>
 #include <frostvdb/io/VdbIO.h>
 
@@ -14,6 +16,7 @@
 #include <openvdb/openvdb.h>
 
 #include <iostream>
+#include <regex>
 #include <sstream>
 
 namespace po = boost::program_options;
@@ -34,23 +37,39 @@ commands:
 `frostvdb COMMAND --help` describes each command.
 )";
 
-/// Parses "A-B" or "A" into a frame range.
+/// Parses exactly "N" or "A-B" (decimal frame numbers from 1); anything else is an error.
+/// The range is checked against the scene's frames by the run.
 void parseFrames(const std::string& s, int64_t& first, int64_t& last)
 {
-    try {
-        const auto dash = s.find('-');
-        if (dash == std::string::npos) {
-            first = last = std::stoll(s);
-        } else {
-            first = std::stoll(s.substr(0, dash));
-            last = std::stoll(s.substr(dash + 1));
-        }
-    } catch (...) {
-        throw SceneError("--frames", 0, "", "expected A-B or A (frame numbers from 1), got '" + s + "'");
-    }
+    static const std::regex form(R"(^([0-9]{1,9})(-([0-9]{1,9}))?$)");
+    std::smatch m;
+    if (!std::regex_match(s, m, form))
+        throw SceneError("--frames", 0, "", "expected N or A-B (frame numbers from 1), got '" + shortMessage(s, 40) + "'");
+    first = std::stoll(m[1].str());
+    last = m[3].matched ? std::stoll(m[3].str()) : first;
     if (first < 1 || last < first)
         throw SceneError("--frames", 0, "", "expected 1 <= A <= B, got '" + s + "'");
 }
+
+/// The command line as a shell would re-run it (arguments with spaces or quotes single-quoted).
+std::string commandLineText(int argc, char** argv)
+{
+    std::string out;
+    for (int i = 0; i < argc; ++i) {
+        std::string a = argv[i];
+        const bool plain = !a.empty() && a.find_first_not_of("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz"
+                                                             "0123456789_-.,/=:+@[]") == std::string::npos;
+        if (!plain) {
+            std::string q = "'";
+            for (char c : a) q += c == '\'' ? std::string("'\\''") : std::string(1, c);
+            a = q + "'";
+        }
+        out += (i ? " " : "") + a;
+    }
+    return out;
+}
+
+std::string gCommandLine;
 
 int cmdRun(const std::vector<std::string>& args)
 {
@@ -65,8 +84,10 @@ int cmdRun(const std::vector<std::string>& args)
         ("out,o", po::value<std::string>(&out), "output folder (default out/<scene name>)")
         ("set,s", po::value<std::vector<std::string>>(&sets)->composing(), "override a key: section.key=value (repeatable)")
         ("threads,t", po::value<int>(&threads)->default_value(0), "worker threads (0: all cores)")
-        ("seed", po::value<int64_t>(&seed), "random seed (overrides scene.seed)")
-        ("frames", po::value<std::string>(&frames), "write only frames A-B (procedural effects skip the rest)")
+        ("seed", po::value<int64_t>(&seed), "random seed >= 0 (overrides scene.seed)")
+        ("frames", po::value<std::string>(&frames), "write only frame N or frames A-B, within the scene's frames "
+                                                    "(procedural effects skip the rest)")
+        ("overwrite", "the output folder may hold frames of another run: remove this scene's old frames first")
         ("keep-lattice", "hexagonal domains: write grids on the sheared lattice transform instead of resampling "
                          "them to square voxels (output.keep_lattice = true)")
         ("quiet,q", "no progress output")
@@ -88,12 +109,17 @@ int cmdRun(const std::vector<std::string>& args)
     if (threads < 0) throw SceneError("--threads", 0, "", "must be >= 0");
     Scene scene = vm.count("scene") ? Scene::load(vm["scene"].as<std::string>()) : Scene::builtinDefault();
     for (const auto& s : sets) scene.applyOverride(s);
-    if (seed >= 0) scene.applyOverride("scene.seed=" + std::to_string(seed));
+    if (vm.count("seed")) {
+        if (seed < 0) throw SceneError("--seed", 0, "", "must be >= 0, got " + std::to_string(seed));
+        scene.applyOverride("scene.seed=" + std::to_string(seed));
+    }
     if (vm.count("keep-lattice")) scene.applyOverride("output.keep_lattice=true");
     RunOptions ro;
     ro.outDir = out;
     ro.threads = threads;
     ro.progress = !vm.count("quiet");
+    ro.overwrite = vm.count("overwrite") > 0;
+    ro.commandLine = gCommandLine;
     if (!frames.empty()) parseFrames(frames, ro.firstFrame, ro.lastFrame);
     Simulation sim(std::move(scene)); // validates every section and key before anything runs
     const RunSummary sum = sim.run(ro);
@@ -126,7 +152,7 @@ int cmdInfo(const std::vector<std::string>& args)
     }
     const std::string path = vm["file"].as<std::string>();
     openvdb::MetaMap::Ptr meta;
-    auto grids = readVdb(path, &meta);
+    auto grids = readVdb(path, &meta, /*requireGrids=*/true);
     std::cout << path << ": " << grids->size() << " grid(s)\n";
     for (auto& g : *grids) {
         const auto bbox = g->evalActiveVoxelBoundingBox();
@@ -240,6 +266,7 @@ int main(int argc, char** argv)
         return 0;
     }
     const std::string cmd = argv[1];
+    gCommandLine = commandLineText(argc, argv);
     std::vector<std::string> args(argv + 2, argv + argc);
     try {
         if (cmd == "run") return cmdRun(args);
@@ -250,16 +277,23 @@ int main(int argc, char** argv)
         std::cerr << "frostvdb: unknown command '" << cmd << "'\n" << kUsage;
         return 2;
     } catch (const SceneError& e) {
-        std::cerr << "frostvdb: error: " << e.what() << "\n";
+        std::cerr << "frostvdb: error: " << shortMessage(e.what()) << "\n";
         return 2;
     } catch (const SimulationError& e) {
-        std::cerr << "frostvdb: simulation stopped: " << e.what() << "\n";
+        std::cerr << "frostvdb: simulation stopped: " << shortMessage(e.what()) << "\n";
         return 3;
+    } catch (const WriteError& e) {
+        std::cerr << "frostvdb: output failed: " << shortMessage(e.what()) << "\n";
+        return 4;
     } catch (const po::error& e) {
-        std::cerr << "frostvdb: " << cmd << ": " << e.what() << " (see frostvdb " << cmd << " --help)\n";
+        std::cerr << "frostvdb: " << cmd << ": " << shortMessage(e.what()) << " (see frostvdb " << cmd << " --help)\n";
         return 2;
+    } catch (const std::bad_alloc&) {
+        std::cerr << "frostvdb: error: out of memory (an allocation failed; lower the scene's sizes or "
+                     "run.memory_limit)\n";
+        return 1;
     } catch (const std::exception& e) {
-        std::cerr << "frostvdb: error: " << e.what() << "\n";
+        std::cerr << "frostvdb: error: " << shortMessage(e.what()) << "\n";
         return 1;
     }
 }

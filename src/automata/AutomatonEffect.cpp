@@ -2,6 +2,8 @@
 /// @brief Scene sections for the hexagonal automata, and the one place where their plain arrays
 /// become OpenVDB grids (`cells`, `ice`, `freeze_time`) and hexagon PNG previews.
 #include <frostvdb/automata/AutomatonEffect.h>
+
+#include <cstdio>
 #include <frostvdb/core/Error.h>
 #include <frostvdb/core/Lattice.h>
 #include <frostvdb/core/Random.h>
@@ -162,6 +164,29 @@ void AutomatonEffect::initialize(World& world)
     mFlakes.clear();
     for (int k = 0; k < mOut.batch; ++k)
         mFlakes.push_back(std::make_unique<HexAutomaton>(flakeConfig(base, mOut, k)));
+}
+
+MemoryEstimate AutomatonEffect::memoryEstimate(const World& world) const
+{
+    const openvdb::Coord dim = world.domain.bbox().dim();
+    const double R = mCfg.radius > 0 ? mCfg.radius : std::max(2, (std::min(dim.x(), dim.y()) - 1) / 2);
+    const bool is3D = mCfg.rule == Rule::GravnerGriffeath3D;
+    const double layers = is3D ? (mCfg.layers > 0 ? mCfg.layers : (world.domain.isPlane() ? 31 : dim.z())) : 1.0;
+    const double cells = (3.0 * R * R + 3.0 * R + 1.0) * layers;
+    const double X = (R + 1.0) * mOut.voxelsPerCell + 1.0; // `ice` half-width in voxels (writeFlake)
+    const double Z = is3D ? (layers * 0.5 + 1.0) * mOut.prismHeight * mOut.voxelsPerCell
+                          : 0.5 * mOut.plateThickness * mOut.voxelsPerCell + 1.0;
+    const double iceVoxels = (2 * X + 1) * (2 * X + 1) * (2 * Z + 1);
+    const double slabs = std::ceil((2 * X + 1) / 32.0);
+    // A non-empty OpenVDB float tree holds at least its top internal node (~300 KB); the 600 KB
+    // per grid is calibrated on [packard] batch = 512 at 64x64 (measured peak 3.3 GB).
+    const double perFlake = cells * 48.0 + 2.0 * iceVoxels * 4.5 + (4.0 + slabs) * 600e3;
+    char what[160];
+    std::snprintf(what, sizeof what, "%d flakes x %.3g bytes (%.3g cells, %.3g ice voxels each)", mOut.batch,
+                  perFlake, cells, iceVoxels);
+    const bool vpcDrives = iceVoxels * 9.0 > cells * 48.0;
+    return {perFlake * mOut.batch,
+            mSection + (mOut.batch > 1 ? ".batch" : vpcDrives ? ".voxels_per_cell" : ".radius"), what};
 }
 
 void AutomatonEffect::step(World&, const StepInfo&)
@@ -472,11 +497,20 @@ public:
 };
 
 template <Rule R>
-std::unique_ptr<Effect> RuleEffect<R>::create(ParamDict& d, const World&)
+std::unique_ptr<Effect> RuleEffect<R>::create(ParamDict& d, const World& world)
 {
     AutomatonConfig cfg;
     cfg.rule = R;
     OutputOptions out = readOutput(d, R, cfg);
+    // `ice` voxels are h / voxels_per_cell: OpenVDB refuses transforms below ~1.44e-5 m (its
+    // scale determinant must exceed 3e-15), so name the key here instead of failing at output.
+    const double iceVoxel = world.domain.voxelSize() / out.voxelsPerCell;
+    if (iceVoxel * iceVoxel * iceVoxel < 4e-15) {
+        const int most = int(std::floor(world.domain.voxelSize() / std::cbrt(4e-15)));
+        d.fail("voxels_per_cell", "ice voxels of domain.voxel_size / voxels_per_cell = " + std::to_string(iceVoxel) +
+                                      " m are smaller than OpenVDB can represent (about 1.6e-5 m); use at most " +
+                                      std::to_string(std::max(most, 0)) + " or a larger domain.voxel_size");
+    }
     switch (R) {
     case Rule::CoxeReiter: {
         auto& p = cfg.cr;

@@ -4,6 +4,7 @@
 #include <toml++/toml.h>
 
 #include <algorithm>
+#include <cctype>
 #include <fstream>
 #include <sstream>
 
@@ -58,7 +59,28 @@ std::vector<ParamDict> toTables(const toml::node& node, const std::string& file,
     return out;
 }
 
+bool isBareKey(const std::string& s)
+{
+    if (s.empty() || s.size() > 64) return false;
+    for (char c : s)
+        if (!(std::isalnum(static_cast<unsigned char>(c)) || c == '_' || c == '-')) return false;
+    return true;
+}
+
 } // namespace
+
+/// The parsed document, kept so overrides can be applied to it and the effective scene printed.
+struct Scene::Document {
+    toml::table root;
+};
+
+std::string Scene::effectiveText() const
+{
+    if (!mDoc) return mText;
+    std::ostringstream os;
+    os << mDoc->root;
+    return os.str() + "\n";
+}
 
 Scene Scene::load(const std::string& path)
 {
@@ -74,7 +96,8 @@ Scene Scene::fromString(const std::string& text, const std::string& label)
     Scene scene;
     scene.mLabel = label;
     scene.mText = text;
-    toml::table root;
+    scene.mDoc = std::make_shared<Document>();
+    toml::table& root = scene.mDoc->root;
     try {
         root = toml::parse(text, label);
     } catch (const toml::parse_error& err) {
@@ -122,11 +145,21 @@ void Scene::applyOverride(const std::string& assignment)
     const std::string section = assignment.substr(0, dot);
     const std::string key = assignment.substr(dot + 1, eq - dot - 1);
     const std::string valueText = assignment.substr(eq + 1);
+    if (!isBareKey(section) || !isBareKey(key))
+        throw SceneError("--set", 0, assignment.substr(0, eq),
+                         "section and key are names of letters, digits, '_' and '-' (at most 64)");
+    for (char c : valueText)
+        if (static_cast<unsigned char>(c) < 0x20 || c == 0x7f)
+            throw SceneError("--set", 0, section + "." + key, "the value holds a control character (newline, tab, ...); "
+                             "give one TOML value on one line");
     ParamValue value;
     std::vector<ParamDict> tables;
     bool isTables = false;
+    toml::table t;
     try {
-        auto t = toml::parse("v = " + valueText);
+        t = toml::parse("v = " + valueText);
+        if (t.size() != 1)
+            throw SceneError("--set", 0, section + "." + key, "expected one TOML value, got more ('" + valueText + "')");
         if (isTableArray(*t.get("v"))) {
             tables = toTables(*t.get("v"), "--set", section + "." + key);
             isTables = true;
@@ -134,11 +167,24 @@ void Scene::applyOverride(const std::string& assignment)
             value = toValue(*t.get("v"), "--set", section + "." + key);
         }
     } catch (const toml::parse_error&) {
-        // A bare word such as `lattice=hexagonal` is taken as a string.
-        if (valueText.empty() || valueText.find_first_of("\"'[]{}=\n") != std::string::npos)
-            throw SceneError("--set", 0, section + "." + key, "cannot parse value '" + valueText + "'");
+        // A bare word such as `lattice=hexagonal` or `file=maps/seed.png`: one word, no spaces.
+        if (valueText.empty() ||
+            valueText.find_first_not_of("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789_.,/:+-") !=
+                std::string::npos)
+            throw SceneError("--set", 0, section + "." + key,
+                             "expected one TOML value (number, boolean, \"string\", [array]) or one bare word, got '" +
+                                 valueText + "'");
         value = valueText;
+        t = toml::table{};
+        t.insert("v", valueText);
     }
+    if (mDoc) {
+        if (mDoc.use_count() > 1) mDoc = std::make_shared<Document>(*mDoc); // copies of a Scene stay apart
+        auto* sec = mDoc->root.get_as<toml::table>(section);
+        if (!sec) sec = mDoc->root.insert_or_assign(section, toml::table{}).first->second.as_table();
+        t.get("v")->visit([&](auto&& node) { sec->insert_or_assign(key, node); });
+    }
+    mOverrides.push_back(section + "." + key + "=" + valueText);
     auto it = mSections.find(section);
     if (it == mSections.end()) {
         it = mSections.emplace(section, ParamDict(section)).first;

@@ -1,6 +1,7 @@
 #include <frostvdb/core/Simulation.h>
 #include <frostvdb/core/Error.h>
 #include <frostvdb/core/Progress.h>
+#include <frostvdb/io/AtomicFile.h>
 #include <frostvdb/io/Export.h>
 #include <frostvdb/io/Preview.h>
 #include <frostvdb/io/VdbIO.h>
@@ -12,7 +13,9 @@
 #include <chrono>
 #include <filesystem>
 #include <fstream>
+#include <iomanip>
 #include <iostream>
+#include <regex>
 #include <set>
 #include <sstream>
 #include <sys/resource.h>
@@ -21,7 +24,7 @@ namespace frostvdb {
 
 namespace {
 
-const std::set<std::string> kCoreSections = {"scene", "domain", "region", "output"};
+const std::set<std::string> kCoreSections = {"scene", "domain", "region", "output", "run"};
 
 using Clock = std::chrono::steady_clock;
 double seconds(Clock::time_point a, Clock::time_point b) { return std::chrono::duration<double>(b - a).count(); }
@@ -58,6 +61,9 @@ void readSceneSection(ParamDict& d, World& w, const std::string& fallbackName)
     w.seed = uint64_t(d.getInt("seed", 1, 0, int64_t(1) << 53, "", "random seed (same seed, same bits)"));
     w.frames = d.getInt("frames", 8, 1, 1000000, "frames", "number of output frames");
     w.stepsPerFrame = d.getInt("steps_per_frame", 100, 1, 100000000, "steps", "simulation steps between frames");
+    if (d.has("name") && w.sceneName.empty()) d.fail("name", "must not be empty (it names the output files)");
+    if (w.sceneName.size() > 100)
+        d.fail("name", "at most 100 characters (it names files such as <name>.0001.displacement.png)");
     for (char c : d.has("name") ? w.sceneName : std::string())
         if (!(std::isalnum(static_cast<unsigned char>(c)) || c == '_' || c == '-'))
             d.fail("name", "use letters, digits, '_' and '-' only (it names files)");
@@ -105,7 +111,70 @@ void readOutputSection(ParamDict& d, OutputSettings& o, double* worldScale = nul
     if (worldScale) *worldScale = scale;
 }
 
+/// [run]: resources of the whole run. Returns the limit in bytes (0: unlimited).
+double readRunSettings(ParamDict& d)
+{
+    const double gib = d.getFloat("memory_limit", 0.0, -1.0, 1048576.0, "GiB",
+        "memory the run may use; effects estimate their allocations from the scene and refuse what exceeds it. "
+        "0: the memory available on the machine when the run starts (MemAvailable); -1: no limit");
+    if (gib < 0) return 0.0;
+    if (gib > 0) return gib * 1024.0 * 1024.0 * 1024.0;
+    const uint64_t avail = availableMemoryBytes();
+    return avail > 0 ? double(avail) : 0.0;
+}
+
+std::string fnv1aHex(const std::string& s)
+{
+    uint64_t h = 1469598103934665603ull;
+    for (unsigned char c : s) {
+        h ^= c;
+        h *= 1099511628211ull;
+    }
+    std::ostringstream os;
+    os << std::hex << std::setw(16) << std::setfill('0') << h;
+    return os.str();
+}
+
+/// The string value of "key": "..." in a run.json, or "" (no file, no key).
+std::string runJsonString(const std::string& path, const std::string& key)
+{
+    std::ifstream in(path);
+    if (!in) return {};
+    std::stringstream ss;
+    ss << in.rdbuf();
+    const std::string text = ss.str();
+    const std::string pat = "\"" + key + "\": \"";
+    const auto p = text.find(pat);
+    if (p == std::string::npos) return {};
+    const auto e = text.find('"', p + pat.size());
+    return e == std::string::npos ? std::string() : text.substr(p + pat.size(), e - p - pat.size());
+}
+
+std::string joinLines(const std::vector<std::string>& v)
+{
+    std::string o;
+    for (auto& x : v) o += (o.empty() ? "" : "\n") + x;
+    return o;
+}
+
 } // namespace
+
+std::vector<std::string> frameFilesIn(const std::string& dir, const std::string& sceneName)
+{
+    static const std::regex frameName(R"(^([A-Za-z0-9_-]+)\.[0-9]{4,}\.(vdb|png|displacement\.png)$)");
+    std::vector<std::string> out;
+    std::error_code ec;
+    for (auto it = std::filesystem::directory_iterator(dir, ec); !ec && it != std::filesystem::directory_iterator();
+         it.increment(ec)) {
+        const std::string name = it->path().filename().string();
+        std::smatch m;
+        if (!std::regex_match(name, m, frameName)) continue;
+        if (!sceneName.empty() && m[1].str() != sceneName) continue;
+        out.push_back(name);
+    }
+    std::sort(out.begin(), out.end());
+    return out;
+}
 
 Simulation::Simulation(Scene scene) : mScene(std::move(scene))
 {
@@ -114,12 +183,24 @@ Simulation::Simulation(Scene scene) : mScene(std::move(scene))
     std::replace_if(fallback.begin(), fallback.end(),
                     [](char c) { return !(std::isalnum(static_cast<unsigned char>(c)) || c == '_' || c == '-'); }, '_');
     readSceneSection(mScene.section("scene"), mWorld, fallback);
-    mWorld.domain = Domain::fromParams(mScene.section("domain"));
+    try {
+        mWorld.domain = Domain::fromParams(mScene.section("domain"));
+    } catch (const openvdb::Exception& e) {
+        throw SceneError(mScene.label(), mScene.sectionLine("domain"), "domain.voxel_size",
+                         "OpenVDB cannot build the domain's transform (" + shortMessage(e.what(), 120) + ")");
+    }
     readRegionSection(mScene.section("region"), mWorld.region);
     readOutputSection(mScene.section("output"), mOutput, &mWorld.shared<double>(kWorldScaleKey));
+    mWorld.memoryLimitBytes = readRunSettings(mScene.section("run"));
     mWorld.sceneLabel = mScene.label();
     mWorld.sceneText = mScene.text();
-    mWorld.fields = FieldSet(mWorld.domain.transform());
+    try {
+        mWorld.fields = FieldSet(mWorld.domain.transform());
+    } catch (const openvdb::Exception& e) {
+        // e.g. voxels below OpenVDB's smallest scale (its transform determinant must exceed 3e-15)
+        throw SceneError(mScene.label(), mScene.sectionLine("domain"), "domain.voxel_size",
+                         "OpenVDB cannot build the domain's transform (" + shortMessage(e.what(), 120) + ")");
+    }
     for (const auto& name : kCoreSections) mScene.section(name).checkAllRead();
 
     for (const auto& name : mScene.sectionNames()) {
@@ -138,9 +219,57 @@ Simulation::Simulation(Scene scene) : mScene(std::move(scene))
     if (mEffects.empty())
         throw SceneError(mScene.label(), 0, "", "the scene names no effect section, so there is nothing to simulate");
     mEffectSeconds.assign(mEffects.size(), 0.0);
+    checkMemoryBudget();
+}
+
+void Simulation::checkMemoryBudget() const
+{
+    // The displacement PNG is one raster over the whole plane (io/Export.h): 4-byte floats and
+    // 2-byte samples per cell, whatever the sparse fields hold.
+    if (mOutput.displacementPng && mWorld.domain.isPlane())
+        checkMemoryEstimate(perVoxelEstimate(double(mWorld.domain.bbox().volume()), 8.0, "domain.size",
+                                             "the displacement PNG raster (output.displacement_png)"),
+                            mWorld.memoryLimitBytes, mWorld.sceneLabel);
+    MemoryEstimate total;
+    for (auto& e : mEffects) {
+        MemoryEstimate m = e->memoryEstimate(mWorld);
+        if (m.key.empty()) m.key = e->name();
+        checkMemoryEstimate(m, mWorld.memoryLimitBytes, mWorld.sceneLabel);
+        if (m.bytes > total.bytes) total.key = m.key;
+        total.bytes += m.bytes;
+    }
+    total.detail = "all effects together";
+    if (mEffects.size() > 1) checkMemoryEstimate(total, mWorld.memoryLimitBytes, mWorld.sceneLabel);
 }
 
 Simulation::~Simulation() = default;
+
+/// Runs one effect call; an exception from a library (OpenVDB, toml++, libpng, the allocator)
+/// becomes one line naming the effect's section, so the user knows which part of the scene to
+/// change. Errors frostvdb raises itself already name their key and pass unchanged.
+template <typename F>
+void Simulation::atEffect(const Effect& e, const char* phase, F&& call)
+{
+    try {
+        call();
+    } catch (const SceneError&) {
+        throw;
+    } catch (const SimulationError&) {
+        throw;
+    } catch (const WriteError&) {
+        throw;
+    } catch (const std::bad_alloc&) {
+        throw SceneError(mWorld.sceneLabel, mScene.sectionLine(e.name()), "[" + e.name() + "]",
+                         std::string("out of memory during ") + phase +
+                             " (the estimate before the run was below run.memory_limit; lower this section's sizes)");
+    } catch (const openvdb::Exception& x) {
+        throw SceneError(mWorld.sceneLabel, mScene.sectionLine(e.name()), "[" + e.name() + "]",
+                         std::string("OpenVDB refused the ") + phase + ": " + shortMessage(x.what(), 200));
+    } catch (const std::exception& x) {
+        throw SceneError(mWorld.sceneLabel, mScene.sectionLine(e.name()), "[" + e.name() + "]",
+                         std::string(phase) + " failed: " + shortMessage(x.what(), 200));
+    }
+}
 
 Effect* Simulation::effect(const std::string& section) const
 {
@@ -157,7 +286,7 @@ void Simulation::initialize()
     std::stable_sort(order.begin(), order.end(), [](const Effect* a, const Effect* b) {
         return a->initializationOrder() < b->initializationOrder();
     });
-    for (Effect* e : order) e->initialize(mWorld);
+    for (Effect* e : order) atEffect(*e, "initialisation", [&] { e->initialize(mWorld); });
     mInitialized = true;
 }
 
@@ -169,7 +298,7 @@ void Simulation::step()
     info.frame = mStep / mWorld.stepsPerFrame + 1;
     for (size_t i = 0; i < mEffects.size(); ++i) {
         const auto t0 = Clock::now();
-        mEffects[i]->step(mWorld, info);
+        atEffect(*mEffects[i], "step", [&] { mEffects[i]->step(mWorld, info); });
         mEffectSeconds[i] += seconds(t0, Clock::now());
     }
     ++mStep;
@@ -183,7 +312,7 @@ Frame Simulation::currentFrame(int64_t frameNumber)
     frame.step = mStep;
     for (auto& e : mEffects)
         if (e->time() > 0.0) { frame.time = e->time(); break; }
-    for (auto& e : mEffects) e->addToFrame(mWorld, frame);
+    for (auto& e : mEffects) atEffect(*e, "output", [&] { e->addToFrame(mWorld, frame); });
     return frame;
 }
 
@@ -195,6 +324,9 @@ std::string Simulation::writeFrame(const Frame& frame, const std::string& dir)
     meta.insertMeta("frostvdb_version", openvdb::StringMetadata(FROSTVDB_VERSION));
     meta.insertMeta("scene", openvdb::StringMetadata(mWorld.sceneText));
     meta.insertMeta("scene_file", openvdb::StringMetadata(mWorld.sceneLabel));
+    meta.insertMeta("scene_effective", openvdb::StringMetadata(mScene.effectiveText()));
+    meta.insertMeta("overrides", openvdb::StringMetadata(joinLines(mScene.overrides())));
+    meta.insertMeta("command_line", openvdb::StringMetadata(mCommandLine));
     meta.insertMeta("seed", openvdb::Int64Metadata(int64_t(mWorld.seed)));
     meta.insertMeta("frame", openvdb::Int64Metadata(frame.frame));
     meta.insertMeta("step", openvdb::Int64Metadata(frame.step));
@@ -233,31 +365,103 @@ std::vector<std::string> Simulation::writeDisplacement(const Frame& frame, const
     return {};
 }
 
-RunSummary Simulation::run(const RunOptions& opt)
+void Simulation::checkFrameRange(int64_t first, int64_t last) const
 {
-    std::unique_ptr<tbb::global_control> threads;
-    if (opt.threads > 0)
-        threads = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism, opt.threads);
+    const std::string range = std::to_string(first) + "-" + std::to_string(last);
+    if (first < 1 || last < first || last > mWorld.frames)
+        throw SceneError("--frames", 0, "", "frame range " + range + " is not within the scene's frames 1-" +
+                                                std::to_string(mWorld.frames));
+}
 
-    const auto tStart = Clock::now();
+RunSummary Simulation::startSummary(const RunOptions& opt, int64_t first, int64_t last) const
+{
     RunSummary sum;
     sum.scene = mWorld.sceneName;
-    const std::string dir = opt.outDir.empty() ? "out/" + mWorld.sceneName : opt.outDir;
-    const int64_t first = opt.firstFrame > 0 ? opt.firstFrame : 1;
-    const int64_t last = opt.lastFrame > 0 ? std::min(opt.lastFrame, mWorld.frames) : mWorld.frames;
-    if (first > last)
-        throw SceneError("--frames", 0, "", "frame range " + std::to_string(first) + "-" + std::to_string(last) +
-                                                " is empty (the scene has " + std::to_string(mWorld.frames) + " frames)");
+    sum.status = "running";
+    sum.commandLine = opt.commandLine;
+    sum.overrides = mScene.overrides();
+    sum.effectiveScene = mScene.effectiveText();
+    sum.sceneHash = fnv1aHex(sum.effectiveScene);
+    sum.firstFrame = first;
+    sum.lastFrame = last;
+    for (auto& e : mEffects) sum.effects.push_back(e->name());
+    return sum;
+}
+
+/// Makes the folder trustworthy before the first frame: temporaries of killed runs removed, and
+/// frames named like ours but made by another run (other keys or overrides, per run.json's
+/// scene_hash) refused unless --overwrite, which removes them first. A run.json with status "running" then marks the folder as
+/// this run's, so a concurrent chunk of the same scene (another --frames range) is accepted.
+void Simulation::prepareOutputFolder(const std::string& dir, const RunOptions& opt, RunSummary& sum) const
+{
+    makeDirectories(dir);
+    installTempCleanupHandlers();
+    for (const auto& t : removeStaleTemporaries(dir))
+        std::cerr << "frostvdb: removed " << dir << "/" << t << " (temporary file of a run that was killed)\n";
+    const std::string runJson = dir + "/run.json";
+    const bool sameRun = runJsonString(runJson, "scene_hash") == sum.sceneHash;
+    const auto frames = frameFilesIn(dir, mWorld.sceneName);
+    if (!frames.empty() && !sameRun) {
+        if (!opt.overwrite) {
+            const std::string was = std::filesystem::exists(runJson)
+                                        ? "run.json records scene '" + runJsonString(runJson, "scene") +
+                                              "' with other keys or overrides"
+                                        : "no run.json";
+            throw SceneError(dir, 0, "--out", "holds " + std::to_string(frames.size()) + " frame files of another run of '" +
+                                                  mWorld.sceneName + "' (" + frames.front() + ", ...; " + was +
+                                                  "); use --overwrite to remove them first, or choose another folder");
+        }
+        for (const auto& f : frames) {
+            std::error_code ec;
+            if (!std::filesystem::remove(dir + "/" + f, ec) || ec)
+                throw WriteError(dir + "/" + f, "cannot remove the old frame: " + ec.message());
+        }
+        std::cerr << "frostvdb: --overwrite: removed " << frames.size() << " frame files of the previous run of '"
+                  << mWorld.sceneName << "' in " << dir << "\n";
+    }
+    writeRunJson(dir, sum);
+}
+
+std::string Simulation::writeFramePreview(const Frame& frame, int64_t f, const std::string& dir)
+{
+    const std::string png = framePath(dir, mWorld.sceneName, f, "png");
+    for (auto& e : mEffects)
+        if (e->writePreview(mWorld, frame, png)) return png;
+    openvdb::GridBase::Ptr pick;
+    for (const std::string& want : {mOutput.previewGrid, std::string("ice"), std::string("density"),
+                                   std::string("cells")}) {
+        if (want.empty() || pick) continue;
+        for (auto& g : frame.grids)
+            if (g->getName() == want && g->isType<openvdb::FloatGrid>()) pick = g;
+    }
+    if (!pick && !mOutput.previewGrid.empty())
+        throw SceneError(mWorld.sceneLabel, 0, "output.preview_grid",
+                         "no float grid named '" + mOutput.previewGrid + "' in the frame");
+    if (!pick) return {};
+    writePreview(*pick, png);
+    return png;
+}
+
+/// Writes frame @a f's files; each is listed in the summary only once it is complete.
+void Simulation::writeFrameOutputs(int64_t f, int64_t last, const std::string& dir, RunSummary& sum)
+{
+    Frame frame = currentFrame(f);
+    if (mOutput.vdb) sum.files.push_back(writeFrame(frame, dir));
+    for (const auto& png : writeDisplacement(frame, dir)) sum.files.push_back(png);
+    ++sum.framesWritten;
+    if (mOutput.preview && (mOutput.previewEvery || f == last))
+        if (auto png = writeFramePreview(frame, f, dir); !png.empty()) sum.files.push_back(png);
+}
+
+void Simulation::simulateFrames(int64_t first, int64_t last, const RunOptions& opt, const std::string& dir,
+                                RunSummary& sum)
+{
     bool stateless = true;
     for (auto& e : mEffects) stateless = stateless && !e->needsHistory();
-
     initialize();
     const int64_t stepsToRun = (stateless ? (last - first + 1) : last) * mWorld.stepsPerFrame;
     Progress progress(mWorld.sceneName, stepsToRun, "steps", opt.progress);
     int64_t done = 0;
-    double outputSeconds = 0;
-    std::string lastPreviewPath;
-    Frame lastFrame;
     for (int64_t f = stateless ? first : 1; f <= last; ++f) {
         if (stateless) mStep = (f - 1) * mWorld.stepsPerFrame;
         for (int64_t s = 0; s < mWorld.stepsPerFrame; ++s) {
@@ -267,52 +471,61 @@ RunSummary Simulation::run(const RunOptions& opt)
         sum.activeVoxels.emplace_back(mStep, mWorld.fields.activeVoxels());
         if (f < first || !opt.writeFiles) continue;
         const auto t0 = Clock::now();
-        Frame frame = currentFrame(f);
-        if (mOutput.vdb) sum.files.push_back(writeFrame(frame, dir));
-        for (const auto& png : writeDisplacement(frame, dir)) sum.files.push_back(png);
-        ++sum.framesWritten;
-        if (mOutput.preview && (mOutput.previewEvery || f == last)) {
-            makeDirectories(dir);
-            const std::string png = framePath(dir, mWorld.sceneName, f, "png");
-            bool drawn = false;
-            for (auto& e : mEffects)
-                if (!drawn && e->writePreview(mWorld, frame, png)) drawn = true;
-            if (!drawn) {
-                openvdb::GridBase::Ptr pick;
-                for (const std::string want : {mOutput.previewGrid, std::string("ice"), std::string("density"),
-                                               std::string("cells")}) {
-                    if (want.empty() || pick) continue;
-                    for (auto& g : frame.grids)
-                        if (g->getName() == want && g->isType<openvdb::FloatGrid>()) pick = g;
-                }
-                if (!pick && !mOutput.previewGrid.empty())
-                    throw SceneError(mWorld.sceneLabel, 0, "output.preview_grid",
-                                     "no float grid named '" + mOutput.previewGrid + "' in the frame");
-                if (pick) { writePreview(*pick, png); drawn = true; }
-            }
-            if (drawn) sum.files.push_back(png);
-        }
-        outputSeconds += seconds(t0, Clock::now());
+        writeFrameOutputs(f, last, dir, sum);
+        sum.outputSeconds += seconds(t0, Clock::now());
     }
     progress.finish();
+}
 
+void Simulation::finishSummary(RunSummary& sum) const
+{
     sum.steps = mStep;
+    sum.effectSeconds.clear();
+    sum.detailSeconds.clear();
     for (size_t i = 0; i < mEffects.size(); ++i) {
-        sum.effects.push_back(mEffects[i]->name());
         sum.effectSeconds.emplace_back(mEffects[i]->name(), mEffectSeconds[i]);
         for (auto& [k, v] : mEffects[i]->timings()) sum.detailSeconds.emplace_back(mEffects[i]->name() + "." + k, v);
     }
     sum.fields = mWorld.fields.names();
-    sum.outputSeconds = outputSeconds;
-    sum.totalSeconds = seconds(tStart, Clock::now());
     sum.peakRssBytes = peakRss();
-    if (opt.writeFiles) {
-        makeDirectories(dir);
-        const std::string jsonPath = dir + "/run.json";
-        const std::string tmp = temporaryPathFor(jsonPath);
-        { std::ofstream(tmp) << sum.toJson(); }
-        commitTemporary(tmp, jsonPath);
+}
+
+void Simulation::writeRunJson(const std::string& dir, const RunSummary& sum)
+{
+    writeFileAtomic(dir + "/run.json", sum.toJson());
+}
+
+RunSummary Simulation::run(const RunOptions& opt)
+{
+    std::unique_ptr<tbb::global_control> threads;
+    if (opt.threads > 0)
+        threads = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism, opt.threads);
+    const auto tStart = Clock::now();
+    const std::string dir = opt.outDir.empty() ? "out/" + mWorld.sceneName : opt.outDir;
+    const int64_t first = opt.firstFrame > 0 ? opt.firstFrame : 1;
+    const int64_t last = opt.lastFrame > 0 ? opt.lastFrame : mWorld.frames;
+    checkFrameRange(first, last);
+    mCommandLine = opt.commandLine;
+    RunSummary sum = startSummary(opt, first, last);
+    if (opt.writeFiles) prepareOutputFolder(dir, opt, sum);
+    try {
+        simulateFrames(first, last, opt, dir, sum);
+    } catch (const std::exception& e) {
+        // Record what is complete and why the run stopped; if even that cannot be written (a full
+        // disk), the run.json written at the start still says "running", never "complete".
+        if (opt.writeFiles) {
+            sum.status = "failed";
+            sum.error = shortMessage(e.what());
+            finishSummary(sum);
+            sum.totalSeconds = seconds(tStart, Clock::now());
+            try { writeRunJson(dir, sum); } catch (const std::exception&) {}
+        }
+        throw;
     }
+    sum.status = "complete";
+    finishSummary(sum);
+    sum.totalSeconds = seconds(tStart, Clock::now());
+    if (opt.writeFiles) writeRunJson(dir, sum);
     return sum;
 }
 
@@ -321,6 +534,13 @@ std::string RunSummary::toJson() const
     std::ostringstream os;
     os.precision(6);
     os << "{\n  \"scene\": \"" << jsonEscape(scene) << "\",\n  \"version\": \"" << FROSTVDB_VERSION << "\",\n";
+    os << "  \"status\": \"" << status << "\",\n";
+    if (!error.empty()) os << "  \"error\": \"" << jsonEscape(error) << "\",\n";
+    os << "  \"scene_hash\": \"" << sceneHash << "\",\n";
+    os << "  \"command_line\": \"" << jsonEscape(commandLine) << "\",\n  \"overrides\": [";
+    for (size_t i = 0; i < overrides.size(); ++i) os << (i ? ", " : "") << "\"" << jsonEscape(overrides[i]) << "\"";
+    os << "],\n  \"frames\": [" << firstFrame << ", " << lastFrame << "],\n";
+    os << "  \"effective_scene\": \"" << jsonEscape(effectiveScene) << "\",\n";
     os << "  \"effects\": [";
     for (size_t i = 0; i < effects.size(); ++i) os << (i ? ", " : "") << "\"" << jsonEscape(effects[i]) << "\"";
     os << "],\n  \"fields\": [";
@@ -377,16 +597,18 @@ std::string sceneReferenceMarkdown()
         os << "\n";
     };
     World w;
-    ParamDict scene("scene"), domain("domain"), region("region"), output("output");
+    ParamDict scene("scene"), domain("domain"), region("region"), output("output"), runSection("run");
     readSceneSection(scene, w, "<scene file name>");
     w.domain = Domain::fromParams(domain);
     readRegionSection(region, w.region);
     OutputSettings o;
     readOutputSection(output, o);
+    readRunSettings(runSection);
     table("scene", "Run-wide settings.", scene);
     table("domain", "Where effects live: a plane one voxel thick or a 3D box, on a square or hexagonal lattice.", domain);
     table("region", "The sparse active region of the PDE effects.", region);
     table("output", "What is written.", output);
+    table("run", "Resources of the whole run (see docs/guide.md, \"Failures and what frostvdb does\").", runSection);
     for (auto* info : EffectRegistry::all()) {
         ParamDict d(info->section);
         info->create(d, w);

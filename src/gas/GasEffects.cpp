@@ -20,6 +20,7 @@
 #include <openvdb/tools/Interpolation.h>
 
 #include <chrono>
+#include <cstdio>
 #include <map>
 #include <mutex>
 
@@ -218,6 +219,19 @@ public:
     {
         return {{"build", mBuildSeconds}};
     }
+    /// The largest frame without flows (they are known only at initialisation); build() checks
+    /// again with the flows before each frame.
+    MemoryEstimate memoryEstimate(const World& world) const override
+    {
+        MemoryEstimate out;
+        const auto xf = gasTransform(world);
+        for (int64_t f : {int64_t(1), world.frames}) {
+            const auto e = estimateGasBuild(*mModel, GasContext::at(double(f), mModel->common().fps, nullptr), *xf,
+                                            mBuild, world.sceneLabel, extentKey());
+            if (e.bytes > out.bytes) out = describe(e, world, extentKey());
+        }
+        return out;
+    }
     const GasModel& model() const { return *mModel; }
     void setPublish(bool p) { mPublish = p; }
 
@@ -227,12 +241,36 @@ private:
         const auto t0 = Clock::now();
         mFlows = FlowRegistry::get().list(&world);
         const GasContext ctx = GasContext::at(double(frameNumber), mModel->common().fps, &mFlows);
-        mGrids = buildGasGrids(*mModel, ctx, mXform ? mXform : gasTransform(world), mBuild);
+        const auto xf = mXform ? mXform : gasTransform(world);
+        const std::string key = flowKey().empty() ? extentKey() : flowKey();
+        const auto e = estimateGasBuild(*mModel, ctx, *xf, mBuild, world.sceneLabel, key);
+        checkMemoryEstimate(describe(e, world, key), world.memoryLimitBytes, world.sceneLabel);
+        mGrids = buildGasGrids(*mModel, ctx, xf, mBuild);
         mFrameBuilt = frameNumber;
         mVoxelsEvaluated += mGrids.evaluatedVoxels;
         mGrids.density->insertMeta("frostvdb_gas", openvdb::StringMetadata(mSection));
         if (mPublish) publish(world, mGrids.density);
         mBuildSeconds += std::chrono::duration<double>(Clock::now() - t0).count();
+    }
+    /// The key that sets the gas's extent (what to change when it is too large).
+    std::string extentKey() const
+    {
+        return mSection + (mSection == "steam" || mSection == "fire" ? ".height" : ".box_max");
+    }
+    /// A flow that widens the gas (an envelope shift), if any: it then drives the extent.
+    std::string flowKey() const
+    {
+        for (const auto& f : mFlows)
+            if (auto a = dynamic_cast<const SphericalAttractor*>(f.get()); a && a->maxEnvelopeShift() > 0)
+                return std::string(a->repulsor ? "repulsor" : "attractor") + ".envelope_shift";
+        return {};
+    }
+    static MemoryEstimate describe(const GasBuildEstimate& e, const World& world, const std::string& key)
+    {
+        char buf[256];
+        std::snprintf(buf, sizeof buf, "gas bounds %.3g x %.3g x %.3g m at domain.voxel_size %.3g m: up to %.3g voxels",
+                      e.hi.x - e.lo.x, e.hi.y - e.lo.y, e.hi.z - e.lo.z, world.domain.voxelSize(), e.boxLeaves * 512.0);
+        return {e.bytes, key, buf};
     }
     /// The field shares the grid's tree when the transforms agree. Otherwise (a sheared hexagonal
     /// lattice, whose transform cannot hold the gas itself) the density is resampled trilinearly

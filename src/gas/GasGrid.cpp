@@ -15,6 +15,8 @@
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
+#include <limits>
+#include <string>
 #include <cmath>
 
 namespace frostvdb::gas {
@@ -47,6 +49,45 @@ LeafT* newLeaf(const Coord& origin, typename LeafT::ValueType bg)
 }
 
 } // namespace
+
+GasBuildEstimate estimateGasBuild(const GasModel& model, const GasContext& ctx,
+                                  const openvdb::math::Transform& xform, const GasBuildOptions& opt,
+                                  const std::string& label, const std::string& key)
+{
+    GasBuildEstimate e;
+    model.bounds(ctx, e.lo, e.hi);
+    // Index range in double first: OpenVDB coordinates are 32-bit and would wrap silently.
+    constexpr double kMaxIndex = double(1 << 30);
+    double cells[3] = {1, 1, 1};
+    for (int a = 0; a < 3; ++a) {
+        double lo = std::numeric_limits<double>::max(), hi = -lo;
+        for (int c = 0; c < 8; ++c) {
+            const Vec3d w((c & 1) ? e.hi.x : e.lo.x, (c & 2) ? e.hi.y : e.lo.y, (c & 4) ? e.hi.z : e.lo.z);
+            const double i = xform.worldToIndex(w)[a];
+            lo = std::min(lo, i);
+            hi = std::max(hi, i);
+        }
+        if (!std::isfinite(lo) || !std::isfinite(hi) || std::fabs(lo) > kMaxIndex || std::fabs(hi) > kMaxIndex)
+            throw SceneError(label, 0, key,
+                             "the gas extends over " + std::to_string(e.hi.x - e.lo.x) + " x " +
+                                 std::to_string(e.hi.y - e.lo.y) + " x " + std::to_string(e.hi.z - e.lo.z) +
+                                 " m, beyond OpenVDB's index range (+-2^30 voxels) at voxel size " +
+                                 std::to_string(xform.voxelSize()[0]) +
+                                 " m: shrink the gas or raise domain.voxel_size");
+        cells[a] = std::floor(hi / 8.0) - std::floor(lo / 8.0) + 2.0;
+    }
+    e.boxLeaves = cells[0] * cells[1] * cells[2];
+    using FloatLeaf = openvdb::FloatTree::LeafNodeType;
+    using VecLeaf = openvdb::Vec3STree::LeafNodeType;
+    double leafBytes = sizeof(FloatLeaf) + FloatLeaf::SIZE * sizeof(float);
+    if (opt.velocity) leafBytes += sizeof(VecLeaf) + VecLeaf::SIZE * sizeof(openvdb::Vec3s);
+    if (opt.fire) {
+        leafBytes += 2 * (sizeof(FloatLeaf) + FloatLeaf::SIZE * sizeof(float));
+        if (opt.colour) leafBytes += sizeof(VecLeaf) + VecLeaf::SIZE * sizeof(openvdb::Vec3s);
+    }
+    e.bytes = e.boxLeaves * (leafBytes + sizeof(Coord) + 5 * sizeof(void*));
+    return e;
+}
 
 GasGrids buildGasGrids(const GasModel& model, const GasContext& ctx,
                        const openvdb::math::Transform::Ptr& xform, const GasBuildOptions& opt)

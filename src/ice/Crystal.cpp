@@ -1,4 +1,5 @@
 #include <frostvdb/ice/Crystal.h>
+#include <frostvdb/io/VdbIO.h>
 #include <frostvdb/core/Error.h>
 #include <frostvdb/ice/IceState.h>
 #include <frostvdb/io/Png.h>
@@ -341,31 +342,26 @@ void sampleMap(const Domain& dom, const MapSource& src, bool requireUnit,
     openvdb::GridBase::Ptr base;
     std::string names;
     try {
-        openvdb::io::File file(src.path);
-        file.open();
-        std::vector<std::string> floats;
-        for (auto it = file.beginName(); it != file.endName(); ++it) {
-            names += (names.empty() ? "" : ", ") + it.gridName();
+        // readVdb validates the file against its length first (a damaged map is refused cheaply).
+        const auto grids = readVdb(src.path, nullptr, /*requireGrids=*/true);
+        std::vector<openvdb::GridBase::Ptr> floats;
+        for (auto& g : *grids) {
+            names += (names.empty() ? "" : ", ") + g->getName();
+            if (g->isType<openvdb::FloatGrid>()) floats.push_back(g);
+            if (!src.grid.empty() && g->getName() == src.grid && !base) base = g;
         }
         if (src.grid.empty()) {
-            auto all = file.readAllGridMetadata();
-            for (auto& g : *all)
-                if (g->isType<openvdb::FloatGrid>()) floats.push_back(g->getName());
             if (floats.size() != 1)
                 mapFail(src, "'" + src.path + "' holds " + std::to_string(floats.size()) +
                                  " float grids (" + names + "): name one with the *_map_grid key");
-            base = file.readGrid(floats[0]);
-        } else {
-            if (!file.hasGrid(src.grid))
-                mapFail(src, "'" + src.path + "' has no grid '" + src.grid + "' (grids: " +
-                                 (names.empty() ? "none" : names) + ")");
-            base = file.readGrid(src.grid);
+            base = floats[0];
+        } else if (!base) {
+            mapFail(src, "'" + src.path + "' has no grid '" + src.grid + "' (grids: " + names + ")");
         }
-        file.close();
     } catch (const SceneError&) {
         throw;
     } catch (const std::exception& e) {
-        mapFail(src, "cannot read '" + src.path + "': " + e.what());
+        mapFail(src, shortMessage(e.what(), 240));
     }
     auto grid = openvdb::gridPtrCast<openvdb::FloatGrid>(base);
     if (!grid) mapFail(src, "grid '" + base->getName() + "' in '" + src.path + "' is " + base->type() + ", expected a float grid");

@@ -1,41 +1,49 @@
 #include <frostvdb/io/Png.h>
-#include <frostvdb/io/VdbIO.h>
+#include <frostvdb/io/AtomicFile.h>
 
 #include <png.h>
 
 #include <algorithm>
 #include <cstdio>
 #include <stdexcept>
+#include <string>
 
 namespace frostvdb {
 
 namespace {
 
+constexpr uint64_t kMaxMapPixels = uint64_t(16384) * 16384;
+
 uint8_t to8(float v) { return uint8_t(std::clamp(v, 0.0f, 1.0f) * 255.0f + 0.5f); }
 
 struct PngWriter {
-    FILE* fp = nullptr;
     png_structp png = nullptr;
     png_infop info = nullptr;
     ~PngWriter()
     {
         if (png) png_destroy_write_struct(&png, info ? &info : nullptr);
-        if (fp) std::fclose(fp);
     }
 };
 
+extern "C" void appendToString(png_structp png, png_bytep data, png_size_t n)
+{
+    static_cast<std::string*>(png_get_io_ptr(png))->append(reinterpret_cast<const char*>(data), n);
+}
+extern "C" void noFlush(png_structp) {}
+
+/// Encodes in memory, then writes through AtomicFile (every return checked).
 void writePng(const std::string& path, int w, int h, int colorType, int bitDepth,
               const std::vector<uint8_t>& rows, size_t rowBytes)
 {
-    const std::string tmp = temporaryPathFor(path);
+    std::string bytes;
     {
         PngWriter pw;
-        pw.fp = std::fopen(tmp.c_str(), "wb");
-        if (!pw.fp) throw std::runtime_error(path + ": cannot open for writing");
         pw.png = png_create_write_struct(PNG_LIBPNG_VER_STRING, nullptr, nullptr, nullptr);
+        if (!pw.png) throw WriteError(path, "libpng could not start");
         pw.info = png_create_info_struct(pw.png);
-        if (setjmp(png_jmpbuf(pw.png))) throw std::runtime_error(path + ": PNG write failed");
-        png_init_io(pw.png, pw.fp);
+        if (!pw.info) throw WriteError(path, "libpng could not start");
+        if (setjmp(png_jmpbuf(pw.png))) throw WriteError(path, "libpng could not encode the image");
+        png_set_write_fn(pw.png, &bytes, appendToString, noFlush);
         png_set_IHDR(pw.png, pw.info, w, h, bitDepth, colorType, PNG_INTERLACE_NONE,
                      PNG_COMPRESSION_TYPE_DEFAULT, PNG_FILTER_TYPE_DEFAULT);
         png_write_info(pw.png, pw.info);
@@ -43,7 +51,7 @@ void writePng(const std::string& path, int w, int h, int colorType, int bitDepth
             png_write_row(pw.png, const_cast<png_bytep>(rows.data() + size_t(y) * rowBytes));
         png_write_end(pw.png, nullptr);
     }
-    commitTemporary(tmp, path);
+    writeFileAtomic(path, bytes);
 }
 
 } // namespace
@@ -87,6 +95,12 @@ std::vector<float> readPngGray(const std::string& path, int& width, int& height,
     image.version = PNG_IMAGE_VERSION;
     if (!png_image_begin_read_from_file(&image, path.c_str()))
         throw std::runtime_error(path + ": cannot read PNG (" + image.message + ")");
+    // A damaged header can claim any size: refuse before allocating.
+    if (uint64_t(image.width) * image.height > kMaxMapPixels) {
+        png_image_free(&image);
+        throw std::runtime_error(path + ": PNG claims " + std::to_string(image.width) + " x " +
+                                 std::to_string(image.height) + " pixels; maps up to 16384 x 16384 are read");
+    }
     // Code values as they are: 16-bit files are read as 16-bit grey (libpng treats them as
     // linear, so no conversion), 8-bit files as 8-bit grey (no sRGB-to-linear decoding, which
     // would turn a painted 50% grey into 21%).

@@ -1,7 +1,10 @@
 #include <frostvdb/io/VdbIO.h>
 #include <frostvdb/core/Error.h>
+#include <frostvdb/io/AtomicFile.h>
 
-#include <openvdb/io/File.h>
+#include <openvdb/io/Archive.h>
+#include <openvdb/io/GridDescriptor.h>
+#include <openvdb/io/Stream.h>
 
 #include <atomic>
 #include <cmath>
@@ -9,6 +12,13 @@
 #include <filesystem>
 #include <iomanip>
 #include <sstream>
+#include <cerrno>
+#include <cstring>
+#include <fstream>
+
+#include <csignal>
+#include <sys/resource.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
 namespace frostvdb {
@@ -19,23 +29,6 @@ std::string framePath(const std::string& dir, const std::string& name, int64_t f
     os << dir << (dir.empty() || dir.back() == '/' ? "" : "/") << name << "." << std::setw(4)
        << std::setfill('0') << frame << "." << ext;
     return os.str();
-}
-
-std::string temporaryPathFor(const std::string& path)
-{
-    static std::atomic<int> counter{0};
-    std::filesystem::path p(path);
-    return (p.parent_path() / ("." + p.filename().string() + ".tmp" + std::to_string(::getpid()) + "_" +
-                               std::to_string(counter++)))
-        .string();
-}
-
-void commitTemporary(const std::string& tmp, const std::string& path)
-{
-    if (std::rename(tmp.c_str(), path.c_str()) != 0) {
-        std::remove(tmp.c_str());
-        throw std::runtime_error(path + ": cannot rename temporary file into place");
-    }
 }
 
 namespace {
@@ -69,12 +62,205 @@ void checkFinite(const openvdb::GridBase& grid)
         checkGrid<openvdb::Vec3SGrid>(grid);
 }
 
+// ---------------------------------------------------------------------------------------------
+// Reading hostile files: validate the layout against the file length before OpenVDB allocates.
+
+std::string shortMessage(std::string s, size_t maxChars)
+{
+    for (auto& c : s)
+        if (c == '\n' || c == '\r' || c == '\t') c = ' ';
+        else if (static_cast<unsigned char>(c) < 0x20 || static_cast<unsigned char>(c) == 0x7f) c = '?';
+    if (s.size() > maxChars) s = s.substr(0, maxChars - 3) + "...";
+    return s;
+}
+
+VdbFileError::VdbFileError(const std::string& path, const std::string& reason)
+    : std::runtime_error(shortMessage(path, 200) + ": not a readable VDB file (" + shortMessage(reason, 200) + ")")
+{
+}
+
+namespace {
+
+/// Bounds-checked reads over the file's bytes; every failure names what was being read.
+class Cursor {
+public:
+    Cursor(const std::string& path, const std::string& bytes) : mPath(path), mBytes(bytes) {}
+    size_t pos() const { return mPos; }
+    size_t remaining() const { return mBytes.size() - mPos; }
+    template <typename T>
+    T read(const char* what)
+    {
+        need(sizeof(T), what);
+        T v;
+        std::memcpy(&v, mBytes.data() + mPos, sizeof(T));
+        mPos += sizeof(T);
+        return v;
+    }
+    std::string readString(const char* what)
+    {
+        const uint32_t n = read<uint32_t>(what);
+        need(n, what);
+        std::string s = mBytes.substr(mPos, n);
+        mPos += n;
+        return s;
+    }
+    void skip(size_t n, const char* what)
+    {
+        need(n, what);
+        mPos += n;
+    }
+    void seek(size_t p) { mPos = p; }
+    [[noreturn]] void fail(const std::string& why) const
+    {
+        throw VdbFileError(mPath, why + " at byte " + std::to_string(mPos) + " of " + std::to_string(mBytes.size()));
+    }
+
+private:
+    void need(size_t n, const char* what) const
+    {
+        if (n > remaining())
+            fail(std::string(what) + " needs " + std::to_string(n) + " bytes but the file ends");
+    }
+    const std::string& mPath;
+    const std::string& mBytes;
+    size_t mPos = 0;
+};
+
+/// A read-only, seekable stream buffer over bytes already in memory.
+class SpanBuf : public std::streambuf {
+public:
+    SpanBuf(const char* data, size_t n)
+    {
+        char* p = const_cast<char*>(data);
+        setg(p, p, p + n);
+    }
+
+protected:
+    pos_type seekoff(off_type off, std::ios_base::seekdir dir, std::ios_base::openmode which) override
+    {
+        if (!(which & std::ios_base::in)) return pos_type(off_type(-1));
+        const off_type size = egptr() - eback();
+        const off_type base = dir == std::ios_base::beg ? 0 : dir == std::ios_base::cur ? gptr() - eback() : size;
+        const off_type p = base + off;
+        if (p < 0 || p > size) return pos_type(off_type(-1));
+        setg(eback(), eback() + p, egptr());
+        return pos_type(p);
+    }
+    pos_type seekpos(pos_type pos, std::ios_base::openmode which) override
+    {
+        return seekoff(off_type(pos), std::ios_base::beg, which);
+    }
+};
+
+void readHeader(Cursor& c, VdbLayout& out)
+{
+    if (c.remaining() < 8 || c.read<int64_t>("the magic number") != int64_t(openvdb::OPENVDB_MAGIC)) {
+        c.seek(0);
+        c.fail("no VDB magic number");
+    }
+    out.fileVersion = c.read<uint32_t>("the format version");
+    if (out.fileVersion < openvdb::OPENVDB_FILE_VERSION_BOOST_UUID || out.fileVersion > openvdb::OPENVDB_FILE_VERSION)
+        c.fail("format version " + std::to_string(out.fileVersion) + " outside the supported " +
+               std::to_string(openvdb::OPENVDB_FILE_VERSION_BOOST_UUID) + "-" +
+               std::to_string(openvdb::OPENVDB_FILE_VERSION));
+    c.read<uint32_t>("the library major version");
+    c.read<uint32_t>("the library minor version");
+    const char offsets = c.read<char>("the grid offsets flag");
+    if (offsets != 0 && offsets != 1) c.fail("grid offsets flag is neither 0 nor 1");
+    out.hasOffsets = offsets == 1;
+    if (out.fileVersion >= openvdb::OPENVDB_FILE_VERSION_SELECTIVE_COMPRESSION &&
+        out.fileVersion < openvdb::OPENVDB_FILE_VERSION_NODE_MASK_COMPRESSION)
+        c.read<char>("the compression flag");
+    c.skip(36, "the file UUID");
+}
+
+/// MetaMap layout: count, then (name, type name, byte count, bytes) per entry.
+void readMetaMap(Cursor& c, const char* what)
+{
+    const uint32_t count = c.read<uint32_t>(what);
+    if (uint64_t(count) * 12 > c.remaining()) c.fail(std::string(what) + ": " + std::to_string(count) + " entries cannot fit");
+    for (uint32_t i = 0; i < count; ++i) {
+        c.readString("a metadata name");
+        c.readString("a metadata type");
+        const uint32_t n = c.read<uint32_t>("a metadata size");
+        c.skip(n, "a metadata value");
+    }
+}
+
+void readDescriptors(Cursor& c, VdbLayout& out, size_t fileSize)
+{
+    const int32_t count = c.read<int32_t>("the grid count");
+    if (count < 0 || uint64_t(count) * 36 > c.remaining())
+        c.fail("grid count " + std::to_string(count) + " cannot fit");
+    out.gridCount = count;
+    for (int32_t i = 0; i < count; ++i) {
+        VdbGridSpan g;
+        g.name = openvdb::io::GridDescriptor::nameAsString(c.readString("a grid name"));
+        g.type = c.readString("a grid type");
+        const std::string half = "_HalfFloat";
+        const std::string base = g.type.size() > half.size() && g.type.compare(g.type.size() - half.size(), half.size(), half) == 0
+                                     ? g.type.substr(0, g.type.size() - half.size()) : g.type;
+        if (!openvdb::GridBase::isRegistered(base)) c.fail("grid '" + g.name + "' has unknown type '" + g.type + "'");
+        if (out.fileVersion >= openvdb::OPENVDB_FILE_VERSION_GRID_INSTANCING) c.readString("an instance parent name");
+        g.gridPos = c.read<int64_t>("a grid position");
+        g.blockPos = c.read<int64_t>("a grid data position");
+        g.endPos = c.read<int64_t>("a grid end position");
+        out.grids.push_back(g);
+        if (!out.hasOffsets) return; // a plain stream: grids follow inline, nothing to check against
+        if (g.gridPos != int64_t(c.pos()) || g.blockPos < g.gridPos || g.endPos < g.blockPos ||
+            uint64_t(g.endPos) > fileSize)
+            c.fail("grid '" + g.name + "' claims bytes " + std::to_string(g.gridPos) + "-" + std::to_string(g.endPos) +
+                   " (the file is truncated or damaged)");
+        c.seek(size_t(g.endPos));
+    }
+}
+
+} // namespace
+
+std::string readWholeFile(const std::string& path)
+{
+    std::error_code ec;
+    if (std::filesystem::is_directory(path, ec)) throw VdbFileError(path, "is a folder");
+    std::ifstream in(path, std::ios::binary);
+    if (!in) throw VdbFileError(path, std::string("cannot open: ") + std::strerror(errno));
+    const auto size = std::filesystem::file_size(path, ec);
+    if (ec) throw VdbFileError(path, "cannot read its size: " + ec.message());
+    std::string bytes(size, '\0');
+    if (size > 0 && !in.read(bytes.data(), std::streamsize(size)))
+        throw VdbFileError(path, "read error after " + std::to_string(in.gcount()) + " bytes");
+    return bytes;
+}
+
+VdbLayout validateVdb(const std::string& path, const std::string& bytes)
+{
+    VdbLayout out;
+    Cursor c(path, bytes);
+    readHeader(c, out);
+    readMetaMap(c, "the file metadata");
+    readDescriptors(c, out, bytes.size());
+    return out;
+}
+
 void makeDirectories(const std::string& dir)
 {
     std::error_code ec;
     if (!dir.empty()) std::filesystem::create_directories(dir, ec);
     if (ec) throw std::runtime_error(dir + ": cannot create directory (" + ec.message() + ")");
 }
+
+namespace {
+
+/// OpenVDB writes seekable files (grid offsets, as io::File does) only through Archive's
+/// protected writer; this exposes it for a memory stream, so the bytes are those of io::File.
+class MemoryArchive : public openvdb::io::Archive {
+public:
+    void writeTo(std::ostream& os, const openvdb::GridPtrVec& grids, const openvdb::MetaMap& meta) const
+    {
+        Archive::write(os, grids, /*seekable=*/true, meta);
+    }
+};
+
+} // namespace
 
 void writeVdbAtomic(const std::string& path, const openvdb::GridPtrVec& grids,
                     const openvdb::MetaMap& fileMeta, bool halfFloat)
@@ -83,26 +269,94 @@ void writeVdbAtomic(const std::string& path, const openvdb::GridPtrVec& grids,
         checkFinite(*g);
         g->setSaveFloatAsHalf(halfFloat);
     }
-    const std::string tmp = temporaryPathFor(path);
-    try {
-        openvdb::io::File file(tmp);
-        file.write(grids, fileMeta);
-        file.close();
-    } catch (...) {
-        std::remove(tmp.c_str());
-        throw;
-    }
-    commitTemporary(tmp, path);
+    // Serialise in memory (OpenVDB does not check its stream writes), then write with every
+    // return checked.
+    std::ostringstream os(std::ios::binary);
+    MemoryArchive().writeTo(os, grids, fileMeta);
+    if (!os) throw WriteError(path, "could not serialise the grids");
+    const std::string bytes = std::move(os).str();
+    writeFileAtomic(path, bytes);
 }
 
-openvdb::GridPtrVecPtr readVdb(const std::string& path, openvdb::MetaMap::Ptr* fileMeta)
+namespace {
+
+/// Parses @a bytes with OpenVDB's stream reader; throws what it throws.
+openvdb::GridPtrVecPtr parseGrids(const std::string& bytes, openvdb::MetaMap::Ptr* fileMeta)
 {
-    openvdb::io::File file(path);
-    file.open();
-    auto grids = file.getGrids();
-    if (fileMeta) *fileMeta = file.getMetadata();
-    file.close();
+    // A stream that throws on any read past the end, so a damaged count cannot make OpenVDB
+    // loop on a failed stream allocating nodes.
+    SpanBuf buf(bytes.data(), bytes.size());
+    std::istream is(&buf);
+    is.exceptions(std::ios::failbit | std::ios::badbit | std::ios::eofbit);
+    openvdb::io::Stream stream(is, /*delayLoad=*/false);
+    auto grids = stream.getGrids();
+    if (!grids) grids = std::make_shared<openvdb::GridPtrVec>();
+    if (fileMeta) *fileMeta = stream.getMetadata();
+    if (fileMeta && !*fileMeta) *fileMeta = std::make_shared<openvdb::MetaMap>();
     return grids;
+}
+
+/// OpenVDB trusts the tree data inside a grid (node masks, compressed block sizes): a damaged
+/// byte there can corrupt memory or ask for gigabytes. So the bytes are parsed first in a child
+/// process with a memory cap and a time limit, which takes that risk; "" when the parse is safe.
+std::string trialParseInChild(const std::string& bytes)
+{
+    const pid_t pid = ::fork();
+    if (pid < 0) return {}; // cannot fork: parse directly, as OpenVDB itself would
+    if (pid == 0) {
+        for (int sig : {SIGSEGV, SIGABRT, SIGBUS, SIGFPE, SIGILL}) std::signal(sig, SIG_DFL);
+        long pages = 0, dummy = 0;
+        if (FILE* f = std::fopen("/proc/self/statm", "r")) {
+            if (std::fscanf(f, "%ld %ld", &pages, &dummy) != 2) pages = 0;
+            std::fclose(f);
+        }
+        const double extra = 2.0 * 1024 * 1024 * 1024 + 64.0 * double(bytes.size());
+        rlimit lim{};
+        lim.rlim_cur = lim.rlim_max = rlim_t(double(pages) * double(::sysconf(_SC_PAGESIZE)) + extra);
+        if (pages > 0) ::setrlimit(RLIMIT_AS, &lim);
+        try {
+            parseGrids(bytes, nullptr);
+        } catch (const std::bad_alloc&) {
+            ::_exit(4);
+        } catch (...) {
+            ::_exit(3); // an ordinary error: the parent parses again and reports it
+        }
+        ::_exit(0);
+    }
+    int status = 0;
+    for (int i = 0; i < 3000; ++i) { // 30 s
+        const pid_t r = ::waitpid(pid, &status, WNOHANG);
+        if (r == pid) {
+            if (WIFSIGNALED(status)) return "damaged grid data (parsing it crashed OpenVDB's reader)";
+            if (WIFEXITED(status) && WEXITSTATUS(status) == 4)
+                return "damaged grid data (it asks for more than 64x its size in memory)";
+            return {};
+        }
+        if (r < 0) return {};
+        ::usleep(10000);
+    }
+    ::kill(pid, SIGKILL);
+    ::waitpid(pid, &status, 0);
+    return "damaged grid data (parsing it takes more than 30 s)";
+}
+
+} // namespace
+
+openvdb::GridPtrVecPtr readVdb(const std::string& path, openvdb::MetaMap::Ptr* fileMeta, bool requireGrids)
+{
+    const std::string bytes = readWholeFile(path);
+    const VdbLayout layout = validateVdb(path, bytes);
+    if (requireGrids && layout.gridCount == 0) throw VdbFileError(path, "the file holds no grids");
+    if (const std::string why = trialParseInChild(bytes); !why.empty()) throw VdbFileError(path, why);
+    try {
+        return parseGrids(bytes, fileMeta);
+    } catch (const std::ios_base::failure&) {
+        throw VdbFileError(path, "damaged grid data (a read runs past the end of the file)");
+    } catch (const std::bad_alloc&) {
+        throw VdbFileError(path, "damaged grid data (a size field asks for more memory than exists)");
+    } catch (const std::exception& e) {
+        throw VdbFileError(path, std::string("damaged grid data (") + e.what() + ")");
+    }
 }
 
 } // namespace frostvdb

@@ -13,6 +13,7 @@
 /// @endcode
 /// A factory must not allocate fields or do heavy work: `frostvdb keys` builds every effect with
 /// empty parameters to list its keys.
+#include <frostvdb/core/Budget.h>
 #include <frostvdb/core/Domain.h>
 #include <frostvdb/core/Fields.h>
 #include <frostvdb/core/Params.h>
@@ -46,6 +47,7 @@ struct World {
     Domain domain;
     FieldSet fields;
     RegionSettings region;
+    double memoryLimitBytes = 0; ///< [run] memory_limit resolved (0: no limit); see core/Budget.h
 
     /// State several effects share beyond grids (e.g. the ice clock in ice/IceState.h), created
     /// on first request and keyed by name. T must be default-constructible.
@@ -101,6 +103,11 @@ public:
     /// Writes a PNG preview of the frame; return false to let the driver draw the default one.
     virtual bool writePreview(World& world, const Frame& frame, const std::string& pngPath)
     { return false; }
+    /// The memory the effect will allocate for this world, estimated from the scene keys alone
+    /// (called after every effect is created, before any is initialised); the driver refuses
+    /// the run when it exceeds the budget. Effects whose size depends on other effects' state
+    /// also check at the point of allocation (checkMemoryEstimate with world.memoryLimitBytes).
+    virtual MemoryEstimate memoryEstimate(const World& world) const { return {}; }
     /// Named sub-timings (seconds) for the run summary, e.g. {"kernel", 1.2}.
     virtual std::vector<std::pair<std::string, double>> timings() const { return {}; }
 };

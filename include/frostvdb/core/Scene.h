@@ -6,6 +6,7 @@
 #include <frostvdb/core/Params.h>
 
 #include <map>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -26,7 +27,12 @@ public:
     void applyOverride(const std::string& assignment);
 
     const std::string& label() const { return mLabel; }
+    /// The file's text as written (comments included).
     const std::string& text() const { return mText; }
+    /// The scene after every override, as TOML: what the run actually used.
+    std::string effectiveText() const;
+    /// The overrides applied, in order, as "section.key=value".
+    const std::vector<std::string>& overrides() const { return mOverrides; }
     /// Sections in file order.
     const std::vector<std::string>& sectionNames() const { return mOrder; }
     bool hasSection(const std::string& name) const { return mSections.count(name) > 0; }
@@ -35,6 +41,9 @@ public:
     int sectionLine(const std::string& name) const;
 
 private:
+    struct Document;
+    std::shared_ptr<Document> mDoc;
+    std::vector<std::string> mOverrides;
     std::string mLabel;
     std::string mText;
     std::vector<std::string> mOrder;

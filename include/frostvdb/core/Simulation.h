@@ -8,6 +8,7 @@
 ///   [domain] kind, lattice, size, voxel_size, spacing
 ///   [region] tolerance, dense, front_travel
 ///   [output] vdb, preview, preview_grid, half_float, keep_lattice, displacement_png
+///   [run]    memory_limit
 /// Every other section must be a registered effect; effects run in the order of their sections.
 #include <frostvdb/core/Effect.h>
 #include <frostvdb/core/Scene.h>
@@ -25,6 +26,8 @@ struct RunOptions {
     bool writeFiles = true;  ///< false: simulate only (tests, benchmarks)
     int64_t firstFrame = 0;  ///< 0: from frame 1
     int64_t lastFrame = 0;   ///< 0: to the last frame
+    bool overwrite = false;  ///< replace this scene's frames of another run in outDir (--overwrite)
+    std::string commandLine; ///< recorded in run.json and every frame's metadata
 };
 
 struct OutputSettings {
@@ -40,6 +43,13 @@ struct OutputSettings {
 
 struct RunSummary {
     std::string scene;
+    std::string status = "complete"; ///< run.json: "running" (written at the start), "failed", "complete"
+    std::string error;               ///< the failure, when status is "failed"
+    std::string commandLine;
+    std::vector<std::string> overrides;  ///< --set (and --seed, --keep-lattice) as section.key=value
+    std::string effectiveScene;          ///< the scene after overrides (TOML)
+    std::string sceneHash;               ///< FNV-1a of effectiveScene: identifies "the same scene + overrides"
+    int64_t firstFrame = 0, lastFrame = 0;
     std::vector<std::string> effects;
     std::vector<std::string> fields;
     int64_t steps = 0;
@@ -49,7 +59,7 @@ struct RunSummary {
     std::vector<std::pair<std::string, double>> detailSeconds;          ///< effect sub-timings
     std::vector<std::pair<int64_t, uint64_t>> activeVoxels;             ///< (step, voxels) per frame
     uint64_t peakRssBytes = 0;
-    std::vector<std::string> files;
+    std::vector<std::string> files;      ///< complete files only (each listed after its rename)
     std::string toJson() const;
     std::string toText() const;
 };
@@ -83,7 +93,22 @@ public:
     std::vector<std::string> writeDisplacement(const Frame& frame, const std::string& dir);
 
 private:
+    // Pieces of run(), kept small so other drivers (checkpoint/resume) can reuse them.
+    template <typename F>
+    void atEffect(const Effect& e, const char* phase, F&& call);
+    void checkMemoryBudget() const;
+    void checkFrameRange(int64_t first, int64_t last) const;
+    RunSummary startSummary(const RunOptions& opt, int64_t first, int64_t last) const;
+    void prepareOutputFolder(const std::string& dir, const RunOptions& opt, RunSummary& sum) const;
+    void simulateFrames(int64_t first, int64_t last, const RunOptions& opt, const std::string& dir,
+                        RunSummary& sum);
+    void writeFrameOutputs(int64_t f, int64_t last, const std::string& dir, RunSummary& sum);
+    std::string writeFramePreview(const Frame& frame, int64_t f, const std::string& dir);
+    void finishSummary(RunSummary& sum) const;
+    static void writeRunJson(const std::string& dir, const RunSummary& sum);
+
     Scene mScene;
+    std::string mCommandLine;
     World mWorld;
     OutputSettings mOutput;
     std::vector<std::unique_ptr<Effect>> mEffects;
@@ -91,6 +116,9 @@ private:
     int64_t mStep = 0;
     bool mInitialized = false;
 };
+
+/// The frame files (`<name>.<4+ digits>.<ext>`) in @a dir, sorted; @a sceneName "" matches any name.
+std::vector<std::string> frameFilesIn(const std::string& dir, const std::string& sceneName = "");
 
 /// Lists every key of every section with default, unit, range and description (Markdown).
 std::string sceneReferenceMarkdown();

@@ -32,6 +32,20 @@ struct GasGrids {
     uint64_t evaluatedVoxels = 0; ///< voxels evaluated (candidate leaves x 512)
 };
 
+/// What building one frame of a gas costs at most: every leaf of the index box of the model's
+/// bounds evaluated and kept (an upper bound; mayHold usually skips part of the box).
+struct GasBuildEstimate {
+    double boxLeaves = 0;     ///< 8^3 leaves in the index box of the bounds
+    double bytes = 0;         ///< leaf buffers of every grid built, plus bookkeeping
+    V3 lo, hi;                ///< the world bounds counted
+};
+
+/// Counts the work of buildGasGrids without doing it. Throws SceneError (scene @a label, @a key)
+/// when the bounds do not fit OpenVDB's 32-bit index space at this voxel size (they would wrap).
+GasBuildEstimate estimateGasBuild(const GasModel& model, const GasContext& ctx,
+                                  const openvdb::math::Transform& xform, const GasBuildOptions& opt,
+                                  const std::string& label, const std::string& key);
+
 /// The transform gas grids use: the scene's field transform when it is a uniform scale (so gas
 /// and ice share it), else a uniform transform with the domain's voxel size.
 openvdb::math::Transform::Ptr gasTransform(const World& world);

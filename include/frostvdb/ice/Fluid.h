@@ -120,6 +120,11 @@ public:
     void addToFrame(World& world, Frame& frame) override;
     bool writePreview(World& world, const Frame& frame, const std::string& pngPath) override;
     std::vector<std::pair<std::string, double>> timings() const override;
+    /// The stable-fluid arrays (u, v, pressure, solid, temperature) over the plane.
+    MemoryEstimate memoryEstimate(const World& world) const override
+    {
+        return perVoxelEstimate(double(world.domain.bbox().volume()), 64.0, "domain.size", "fluid arrays");
+    }
 
     const ice::StableFluid2D& solver() const { return *mFluid; }
     const ice::FluidParams& params() const { return mParams; }

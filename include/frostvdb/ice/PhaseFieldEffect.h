@@ -24,6 +24,13 @@ public:
     void addToFrame(World& world, Frame& frame) override;
     double time() const override { return mTime; }
     std::vector<std::pair<std::string, double>> timings() const override;
+    /// PhaseFieldSolver keeps about 21 float arrays over the active region: the whole domain in
+    /// region.dense mode; the sparse region's size is not known before the run.
+    MemoryEstimate memoryEstimate(const World& world) const override
+    {
+        if (!world.region.dense) return {};
+        return perVoxelEstimate(double(world.domain.bbox().volume()), 96.0, "domain.size", "dense phase-field arrays");
+    }
 
     const KobayashiParams& params() const { return mParams; }
 

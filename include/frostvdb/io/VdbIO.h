@@ -1,21 +1,50 @@
 #pragma once
 /// @file VdbIO.h
-/// @brief Output files for DCC tools: frame sequences `name.0001.vdb`, written to a temporary
-/// name in the same folder and renamed, so a crash never leaves half a file and an existing
-/// file is only ever replaced by a complete one. Refuses to write non-finite values.
+/// @brief Output files for DCC tools: frame sequences `name.0001.vdb`, written through
+/// AtomicFile (temporary, checked writes, fsync, rename), so a crash or a full disk never leaves
+/// half a file under a frame name. Refuses to write non-finite values.
+///
+/// Input files are treated as hostile: the header, the metadata and every grid descriptor are
+/// checked against the file length before OpenVDB allocates anything, and the grids are then
+/// parsed from memory by a stream that stops at the first read past the end.
 #include <openvdb/openvdb.h>
 
+#include <stdexcept>
 #include <string>
+#include <vector>
 
 namespace frostvdb {
 
 /// "dir/name.0007.vdb"
 std::string framePath(const std::string& dir, const std::string& name, int64_t frame,
                       const std::string& ext = "vdb");
-/// A unique temporary path beside @a path.
-std::string temporaryPathFor(const std::string& path);
-/// Renames a finished temporary file onto its final path (atomic on one file system).
-void commitTemporary(const std::string& tmp, const std::string& path);
+/// A VDB input that cannot be read: one line, "<file>: not a readable VDB file (<reason>)".
+class VdbFileError : public std::runtime_error {
+public:
+    VdbFileError(const std::string& path, const std::string& reason);
+};
+
+/// One grid as its descriptor states it.
+struct VdbGridSpan {
+    std::string name, type;
+    int64_t gridPos = 0, blockPos = 0, endPos = 0;
+};
+/// What validateVdb found.
+struct VdbLayout {
+    uint32_t fileVersion = 0;
+    bool hasOffsets = false;
+    int32_t gridCount = 0;
+    std::vector<VdbGridSpan> grids;
+};
+
+/// The whole file's bytes; throws VdbFileError naming the OS reason.
+std::string readWholeFile(const std::string& path);
+/// Checks magic, version, metadata and grid descriptors against the byte count without
+/// allocating more than the strings it reads; throws VdbFileError with the byte position.
+VdbLayout validateVdb(const std::string& path, const std::string& bytes);
+
+/// One line of at most @a maxChars characters: control characters replaced, the rest cut with "...".
+std::string shortMessage(std::string s, size_t maxChars = 300);
 
 /// Throws SimulationError naming the grid and voxel if any float/vector value is not finite.
 void checkFinite(const openvdb::GridBase& grid);
@@ -24,8 +53,10 @@ void checkFinite(const openvdb::GridBase& grid);
 void writeVdbAtomic(const std::string& path, const openvdb::GridPtrVec& grids,
                     const openvdb::MetaMap& fileMeta, bool halfFloat = false);
 
-/// Reads every grid of a file (and its file metadata, if @a fileMeta is given).
-openvdb::GridPtrVecPtr readVdb(const std::string& path, openvdb::MetaMap::Ptr* fileMeta = nullptr);
+/// Reads every grid of a file (and its file metadata, if @a fileMeta is given) after
+/// validateVdb. @a requireGrids: a file without grids is an error. Throws VdbFileError.
+openvdb::GridPtrVecPtr readVdb(const std::string& path, openvdb::MetaMap::Ptr* fileMeta = nullptr,
+                               bool requireGrids = true);
 
 /// Creates a directory and its parents.
 void makeDirectories(const std::string& dir);

@@ -1,0 +1,202 @@
+#include <frostvdb/io/AtomicFile.h>
+
+#include <atomic>
+#include <cerrno>
+#include <climits>
+#include <csignal>
+#include <cstring>
+#include <filesystem>
+#include <mutex>
+
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+namespace frostvdb {
+
+namespace {
+
+// ---------------------------------------------------------------------------------------------
+// Open temporaries, readable from a signal handler: fixed slots, a path is published before its
+// flag is raised, and the handler only calls unlink(2) (async-signal-safe).
+
+constexpr int kSlots = 256;
+struct TempSlot {
+    std::atomic<int> state{0}; // 0 free, 1 being filled, 2 live
+    char path[PATH_MAX];
+};
+TempSlot gSlots[kSlots];
+
+int registerTemp(const std::string& path)
+{
+    if (path.size() >= PATH_MAX) return -1;
+    for (int i = 0; i < kSlots; ++i) {
+        int expected = 0;
+        if (gSlots[i].state.compare_exchange_strong(expected, 1)) {
+            std::memcpy(gSlots[i].path, path.c_str(), path.size() + 1);
+            gSlots[i].state.store(2);
+            return i;
+        }
+    }
+    return -1; // still written and removed normally; only the signal cleanup misses it
+}
+
+void unregisterTemp(int slot)
+{
+    if (slot >= 0) gSlots[slot].state.store(0);
+}
+
+extern "C" void cleanupOnSignal(int sig)
+{
+    for (auto& s : gSlots)
+        if (s.state.load() == 2) ::unlink(s.path);
+    std::signal(sig, SIG_DFL);
+    std::raise(sig);
+}
+
+std::mutex gHookMutex;
+WriteFaultHook gHook;
+
+int injectedFault(const std::string& path, size_t written)
+{
+    std::lock_guard<std::mutex> lock(gHookMutex);
+    return gHook ? gHook(path, written) : 0;
+}
+
+std::string temporaryName(const std::string& path)
+{
+    static std::atomic<int> counter{0};
+    std::filesystem::path p(path);
+    return (p.parent_path() / ("." + p.filename().string() + ".tmp" + std::to_string(::getpid()) + "_" +
+                               std::to_string(counter++)))
+        .string();
+}
+
+std::string folderOf(const std::string& path)
+{
+    const std::string d = std::filesystem::path(path).parent_path().string();
+    return d.empty() ? "." : d;
+}
+
+} // namespace
+
+AtomicFile::AtomicFile(std::string path) : mPath(std::move(path)), mTmp(temporaryName(mPath))
+{
+    mSlot = registerTemp(mTmp);
+    mFd = ::open(mTmp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
+    if (mFd < 0) {
+        const int err = errno;
+        unregisterTemp(mSlot);
+        mSlot = -1;
+        throw WriteError(mPath, std::string("cannot create a temporary file in ") + folderOf(mPath) + ": " +
+                                    std::strerror(err));
+    }
+}
+
+AtomicFile::~AtomicFile()
+{
+    if (mFd >= 0) ::close(mFd);
+    if (!mCommitted) ::unlink(mTmp.c_str());
+    unregisterTemp(mSlot);
+}
+
+void AtomicFile::fail(const std::string& what, int err)
+{
+    if (mFd >= 0) ::close(mFd);
+    mFd = -1;
+    ::unlink(mTmp.c_str());
+    throw WriteError(mPath, what + std::strerror(err));
+}
+
+void AtomicFile::write(const void* data, size_t bytes)
+{
+    if (mFd < 0) throw WriteError(mPath, "file already closed");
+    const char* p = static_cast<const char*>(data);
+    while (bytes > 0) {
+        if (int err = injectedFault(mPath, mWritten)) fail("", err);
+        const ssize_t n = ::write(mFd, p, std::min<size_t>(bytes, size_t(1) << 30));
+        if (n < 0) {
+            if (errno == EINTR) continue;
+            fail("", errno);
+        }
+        if (n == 0) fail("", EIO);
+        p += n;
+        bytes -= size_t(n);
+        mWritten += size_t(n);
+    }
+}
+
+void AtomicFile::commit()
+{
+    if (mFd < 0) throw WriteError(mPath, "file already closed");
+    if (int err = injectedFault(mPath, SIZE_MAX)) fail("fsync: ", err);
+    if (::fsync(mFd) != 0) fail("fsync: ", errno);
+    const int fd = mFd;
+    mFd = -1;
+    if (::close(fd) != 0) fail("close: ", errno);
+    if (::rename(mTmp.c_str(), mPath.c_str()) != 0) fail("rename: ", errno);
+    mCommitted = true;
+    // Make the rename itself durable; a folder that cannot be opened or synced (some network
+    // file systems) does not make the file incomplete, so this is best effort.
+    const int dfd = ::open(folderOf(mPath).c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+    if (dfd >= 0) {
+        ::fsync(dfd);
+        ::close(dfd);
+    }
+}
+
+void writeFileAtomic(const std::string& path, std::string_view bytes)
+{
+    AtomicFile f(path);
+    f.write(bytes);
+    f.commit();
+}
+
+void setWriteFaultHook(WriteFaultHook hook)
+{
+    std::lock_guard<std::mutex> lock(gHookMutex);
+    gHook = std::move(hook);
+}
+
+void installTempCleanupHandlers()
+{
+    // Installed at every call (idempotent), so it wins over handlers a host installed since.
+    for (int sig : {SIGINT, SIGTERM, SIGHUP}) {
+        struct sigaction sa {};
+        sa.sa_handler = cleanupOnSignal;
+        sigemptyset(&sa.sa_mask);
+        sa.sa_flags = SA_RESETHAND;
+        ::sigaction(sig, &sa, nullptr);
+    }
+}
+
+bool isTemporaryName(const std::string& name, long* pid)
+{
+    if (name.size() < 8 || name[0] != '.') return false;
+    const auto t = name.rfind(".tmp");
+    if (t == std::string::npos || t < 2) return false;
+    const auto us = name.find('_', t + 4);
+    if (us == std::string::npos || us == t + 4 || us + 1 == name.size()) return false;
+    for (size_t i = t + 4; i < name.size(); ++i)
+        if (i != us && !std::isdigit(static_cast<unsigned char>(name[i]))) return false;
+    if (pid) *pid = std::strtol(name.c_str() + t + 4, nullptr, 10);
+    return true;
+}
+
+std::vector<std::string> removeStaleTemporaries(const std::string& dir)
+{
+    std::vector<std::string> removed;
+    std::error_code ec;
+    for (auto it = std::filesystem::directory_iterator(dir, ec); !ec && it != std::filesystem::directory_iterator();
+         it.increment(ec)) {
+        const std::string name = it->path().filename().string();
+        long pid = 0;
+        if (!isTemporaryName(name, &pid)) continue;
+        const bool alive = pid == ::getpid() || (pid > 0 && (::kill(pid_t(pid), 0) == 0 || errno == EPERM));
+        if (alive) continue;
+        if (::unlink(it->path().c_str()) == 0) removed.push_back(name);
+    }
+    return removed;
+}
+
+} // namespace frostvdb
