@@ -44,6 +44,10 @@ public:
     void addToFrame(World& world, Frame& frame) override;
     bool writePreview(World& world, const Frame& frame, const std::string& pngPath) override;
     std::vector<std::pair<std::string, double>> timings() const override;
+    bool supportsCheckpoint() const override { return true; }
+    /// Every flake's state through HexAutomaton::visitState (generic over the rules' arrays).
+    void saveState(const World& world, StateWriter& out) const override;
+    void loadState(World& world, const StateReader& in) override;
 
     /// The flakes (after initialize); flake 0 uses the scene's parameters unchanged.
     const std::vector<std::unique_ptr<HexAutomaton>>& flakes() const { return mFlakes; }

@@ -9,6 +9,7 @@
 ///   [region] tolerance, dense, front_travel
 ///   [output] vdb, preview, preview_grid, half_float, keep_lattice, displacement_png
 /// Every other section must be a registered effect; effects run in the order of their sections.
+#include <frostvdb/core/Checkpoint.h>
 #include <frostvdb/core/Effect.h>
 #include <frostvdb/core/Scene.h>
 
@@ -25,6 +26,10 @@ struct RunOptions {
     bool writeFiles = true;  ///< false: simulate only (tests, benchmarks)
     int64_t firstFrame = 0;  ///< 0: from frame 1
     int64_t lastFrame = 0;   ///< 0: to the last frame
+    /// Checkpoints into outDir (`--checkpoint-every`); also one after the last frame of the run.
+    CheckpointPolicy checkpoint;
+    /// Continue from the checkpoint in this folder (`--resume`): frames after it are written.
+    std::string resumeDir;
 };
 
 struct OutputSettings {
@@ -49,6 +54,8 @@ struct RunSummary {
     std::vector<std::pair<int64_t, uint64_t>> activeVoxels;             ///< (step, voxels) per frame
     uint64_t peakRssBytes = 0;
     std::vector<std::string> files;
+    int64_t resumedFromStep = -1; ///< -1: a fresh run
+    int64_t checkpoints = 0;      ///< checkpoint files written
     std::string toJson() const;
     std::string toText() const;
 };
@@ -80,7 +87,23 @@ public:
     /// domains; "" when there is nothing to write or output.displacement_png is off).
     std::string writeDisplacement(const Frame& frame, const std::string& dir);
 
+    /// Saves the whole state (every field, the step counter, each effect's own state) atomically
+    /// to @a path. Throws CheckpointError if an effect cannot save its history.
+    void saveCheckpoint(const std::string& path);
+    /// Initialises, then restores a checkpoint written by the same scene and parameters (output
+    /// settings and scene.frames may differ); the next step() continues from it bit for bit.
+    void loadCheckpoint(const std::string& path);
+    /// The parameters a checkpoint must match: every section but [output], without scene.frames
+    /// and scene.description.
+    std::string checkpointParameters();
+
 private:
+    struct CheckpointClock;
+    void refuseUncheckpointable(const char* what) const;
+    int64_t resumeForRun(const RunOptions& opt, const std::string& dir, int64_t first, int64_t last);
+    void checkpointIfDue(const RunOptions& opt, const std::string& dir, CheckpointClock& clock, bool final,
+                         RunSummary& sum);
+
     Scene mScene;
     World mWorld;
     OutputSettings mOutput;

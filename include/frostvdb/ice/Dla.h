@@ -225,6 +225,9 @@ public:
     void addToFrame(World& world, Frame& frame) override;
     double time() const override { return mTime; }
     std::vector<std::pair<std::string, double>> timings() const override;
+    bool supportsCheckpoint() const override { return true; }
+    void saveState(const World& world, StateWriter& out) const override;
+    void loadState(World& world, const StateReader& in) override;
 
     const DlaParams& params() const { return mParams; }
     const DlaStats& stats() const { return mStats; }

@@ -85,6 +85,12 @@ public:
     /// bottom to top along left/right).
     double profile(double s) const;
     const FluidStepStats& stats() const { return mStats; }
+    /// The arrays carried from step to step (face velocities, and the pressure that warm-starts
+    /// the next projection), for checkpoints. Obstacles are rebuilt from p every step.
+    std::vector<std::pair<const char*, std::vector<double>*>> historyArrays()
+    {
+        return {{"u", &mU}, {"v", &mV}, {"pressure", &mPhi}};
+    }
     /// Seconds spent in advection, viscosity and projection since construction.
     double advectSeconds = 0, viscositySeconds = 0, projectSeconds = 0;
 
@@ -120,6 +126,9 @@ public:
     void addToFrame(World& world, Frame& frame) override;
     bool writePreview(World& world, const Frame& frame, const std::string& pngPath) override;
     std::vector<std::pair<std::string, double>> timings() const override;
+    bool supportsCheckpoint() const override { return true; }
+    void saveState(const World& world, StateWriter& out) const override;
+    void loadState(World& world, const StateReader& in) override;
 
     const ice::StableFluid2D& solver() const { return *mFluid; }
     const ice::FluidParams& params() const { return mParams; }
