@@ -346,7 +346,7 @@ void sampleMap(const Domain& dom, const MapSource& src, bool requireUnit,
     std::string names;
     try {
         openvdb::io::File file(src.path);
-        file.open();
+        file.open(/*delayLoad=*/false); // delayed loading of a damaged file crashes on destruction (fuzz)
         std::vector<std::string> floats;
         for (auto it = file.beginName(); it != file.endName(); ++it) {
             names += (names.empty() ? "" : ", ") + it.gridName();
