@@ -1,6 +1,7 @@
 /// frostvdb: grows ice, frost and snowflakes and makes procedural steam as OpenVDB volumes.
 ///   frostvdb run [SCENE] [--out DIR] [--set K=V]... [--threads N] [--seed S] [--frames A-B] [--keep-lattice]
 ///                [--overwrite]
+///                [--checkpoint-every N|Nm] [--resume DIR]
 ///   frostvdb info FILE.vdb
 ///   frostvdb preview FILE.vdb -o FILE.png [--grid NAME]
 ///   frostvdb bench NAME [--threads N] [--quick]
@@ -71,6 +72,18 @@ std::string commandLineText(int argc, char** argv)
 
 std::string gCommandLine;
 
+/// --checkpoint-every and --resume: the run options they set (--resume DIR also means --out DIR
+/// unless --out is given).
+void applyCheckpointOptions(const po::variables_map& vm, RunOptions& ro)
+{
+    if (vm.count("checkpoint-every")) ro.checkpoint = CheckpointPolicy::parse(vm["checkpoint-every"].as<std::string>());
+    if (vm.count("resume")) {
+        ro.resumeDir = vm["resume"].as<std::string>();
+        if (ro.resumeDir.empty()) throw SceneError("--resume", 0, "", "needs the output folder of the interrupted run");
+        if (ro.outDir.empty()) ro.outDir = ro.resumeDir;
+    }
+}
+
 int cmdRun(const std::vector<std::string>& args)
 {
     po::options_description opts("frostvdb run [SCENE] [options]");
@@ -88,6 +101,12 @@ int cmdRun(const std::vector<std::string>& args)
         ("frames", po::value<std::string>(&frames), "write only frame N or frames A-B, within the scene's frames "
                                                     "(procedural effects skip the rest)")
         ("overwrite", "the output folder may hold frames of another run: remove this scene's old frames first")
+        ("checkpoint-every", po::value<std::string>(),
+         "write the whole state to OUT/<scene>.checkpoint every N steps, or every N minutes with Nm "
+         "(e.g. 500 or 30m), and after the last frame")
+        ("resume", po::value<std::string>(),
+         "continue from the checkpoint in this folder (same scene and --set values); frames after it "
+         "come out bit-identical to an uninterrupted run")
         ("keep-lattice", "hexagonal domains: write grids on the sheared lattice transform instead of resampling "
                          "them to square voxels (output.keep_lattice = true)")
         ("quiet,q", "no progress output")
@@ -121,10 +140,11 @@ int cmdRun(const std::vector<std::string>& args)
     ro.overwrite = vm.count("overwrite") > 0;
     ro.commandLine = gCommandLine;
     if (!frames.empty()) parseFrames(frames, ro.firstFrame, ro.lastFrame);
+    applyCheckpointOptions(vm, ro);
     Simulation sim(std::move(scene)); // validates every section and key before anything runs
     const RunSummary sum = sim.run(ro);
     std::cout << sum.toText();
-    const std::string dir = out.empty() ? "out/" + sum.scene : out;
+    const std::string dir = ro.outDir.empty() ? "out/" + sum.scene : ro.outDir;
     std::cout << "  wrote " << sum.files.size() << " files and run.json to " << dir << "/\n";
     return 0;
 }
@@ -278,6 +298,9 @@ int main(int argc, char** argv)
         return 2;
     } catch (const SceneError& e) {
         std::cerr << "frostvdb: error: " << shortMessage(e.what()) << "\n";
+        return 2;
+    } catch (const CheckpointError& e) {
+        std::cerr << "frostvdb: checkpoint: " << e.what() << "\n";
         return 2;
     } catch (const SimulationError& e) {
         std::cerr << "frostvdb: simulation stopped: " << shortMessage(e.what()) << "\n";

@@ -196,6 +196,37 @@ void AutomatonEffect::step(World&, const StepInfo&)
     mStepSeconds += since(t0);
 }
 
+void AutomatonEffect::saveState(const World&, StateWriter& out) const
+{
+    out.putInt("flakes", int64_t(mFlakes.size()));
+    for (size_t k = 0; k < mFlakes.size(); ++k) {
+        StateWriter w = out.scope("flake" + std::to_string(k));
+        mFlakes[k]->visitState([&](const char* name, auto& member) {
+            using M = std::decay_t<decltype(member)>;
+            if constexpr (std::is_same_v<M, int64_t>) w.putInt(name, member);
+            else w.putArray(name, member);
+        });
+    }
+}
+
+void AutomatonEffect::loadState(World&, const StateReader& in)
+{
+    if (in.getInt("flakes") != int64_t(mFlakes.size())) in.fail("flakes", "another number of flakes");
+    for (size_t k = 0; k < mFlakes.size(); ++k) {
+        const StateReader r = in.scope("flake" + std::to_string(k));
+        mFlakes[k]->visitState([&](const char* name, auto& member) {
+            using M = std::decay_t<decltype(member)>;
+            if constexpr (std::is_same_v<M, int64_t>) {
+                member = r.getInt(name);
+            } else {
+                const size_t n = member.size();
+                r.getArray(name, member);
+                if (member.size() != n) r.fail(name, "another lattice size");
+            }
+        });
+    }
+}
+
 std::vector<std::pair<std::string, double>> AutomatonEffect::timings() const
 {
     return {{"automaton step", mStepSeconds}, {"automaton output", mOutputSeconds}};

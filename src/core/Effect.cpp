@@ -12,6 +12,20 @@ std::map<std::string, EffectInfo>& registry()
 }
 } // namespace
 
+void Effect::saveState(const World&, StateWriter&) const
+{
+    if (needsHistory())
+        throw CheckpointError("[" + name() + "] keeps state from step to step but cannot save it yet, so this scene "
+                              "cannot be checkpointed or resumed (run it without --checkpoint-every/--resume)");
+}
+
+void Effect::loadState(World&, const StateReader&)
+{
+    if (needsHistory())
+        throw CheckpointError("[" + name() + "] keeps state from step to step but cannot restore it, so this scene "
+                              "cannot be resumed");
+}
+
 void EffectRegistry::add(EffectInfo info)
 {
     registry()[info.section] = std::move(info);

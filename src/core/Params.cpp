@@ -1,6 +1,7 @@
 #include <frostvdb/core/Params.h>
 #include <frostvdb/core/Error.h>
 
+#include <charconv>
 #include <cmath>
 #include <sstream>
 
@@ -73,6 +74,51 @@ void ParamDict::record(ParamSpec spec)
     for (auto& s : mSpecs)
         if (s.key == spec.key) return;
     mSpecs.push_back(std::move(spec));
+}
+
+std::string ParamDict::canonicalText(const std::vector<std::string>& skip) const
+{
+    std::ostringstream os;
+    auto num = [&](double v) { // shortest text that reads back to the same double
+        char buf[64];
+        const auto r = std::to_chars(buf, buf + sizeof(buf), v);
+        os.write(buf, r.ptr - buf);
+    };
+    auto skipped = [&](const std::string& k) {
+        for (auto& s : skip)
+            if (s == k) return true;
+        return false;
+    };
+    for (const auto& [key, e] : mEntries) {
+        if (skipped(key)) continue;
+        os << qualified(key) << " = ";
+        std::visit([&](const auto& v) {
+            using V = std::decay_t<decltype(v)>;
+            if constexpr (std::is_same_v<V, std::vector<double>>) {
+                os << "[";
+                for (size_t i = 0; i < v.size(); ++i) {
+                    if (i) os << ", ";
+                    num(v[i]);
+                }
+                os << "]";
+            } else if constexpr (std::is_same_v<V, std::string>) {
+                os << '"' << v << '"';
+            } else if constexpr (std::is_same_v<V, bool>) {
+                os << (v ? "true" : "false");
+            } else if constexpr (std::is_same_v<V, double>) {
+                num(v);
+            } else {
+                os << v;
+            }
+        }, e.value);
+        os << "\n";
+    }
+    for (const auto& [key, t] : mTables) {
+        if (skipped(key)) continue;
+        for (size_t i = 0; i < t.tables.size(); ++i) // a marker line: an empty table counts too
+            os << qualified(key) << "#" << (i + 1) << "\n" << t.tables[i].canonicalText();
+    }
+    return os.str();
 }
 
 void ParamDict::fail(const std::string& key, const std::string& what) const

@@ -365,6 +365,129 @@ std::vector<std::string> Simulation::writeDisplacement(const Frame& frame, const
     return {};
 }
 
+// ---------------------------------------------------------------------------------------------
+// Checkpoints: the fields and step counter here, each effect's own state through Effect::saveState.
+
+struct Simulation::CheckpointClock {
+    int64_t lastStep = -1;
+    Clock::time_point last = Clock::now();
+};
+
+std::string Simulation::checkpointParameters()
+{
+    std::string text;
+    for (const auto& name : mScene.sectionNames()) {
+        if (name == "output") continue; // what is written, not what is simulated
+        text += "[" + name + "]\n";
+        text += mScene.section(name).canonicalText(name == "scene" ? std::vector<std::string>{"frames", "description"}
+                                                                   : std::vector<std::string>{});
+    }
+    return text;
+}
+
+void Simulation::refuseUncheckpointable(const char* what) const
+{
+    std::string names;
+    for (auto& e : mEffects)
+        if (!e->supportsCheckpoint()) names += (names.empty() ? "[" : ", [") + e->name() + "]";
+    if (!names.empty())
+        throw CheckpointError("this scene cannot be " + std::string(what) + ": " + names +
+                              " keep state from step to step that they cannot save yet");
+}
+
+void Simulation::saveCheckpoint(const std::string& path)
+{
+    initialize();
+    refuseUncheckpointable("checkpointed");
+    StateArchive archive;
+    StateWriter w(archive);
+    w.putString("sim/version", FROSTVDB_VERSION);
+    w.putString("sim/parameters", checkpointParameters());
+    w.putString("sim/scene_text", mWorld.sceneText);
+    w.putInt("sim/step", mStep);
+    std::string names;
+    for (const auto& n : mWorld.fields.names()) {
+        names += n + "\n";
+        w.putGrid("field/" + n, mWorld.fields.grid(n));
+    }
+    w.putString("sim/fields", names);
+    StateWriter effects = w.scope("effect");
+    for (auto& e : mEffects) {
+        StateWriter scoped = effects.scope(e->name());
+        e->saveState(mWorld, scoped);
+    }
+    writeCheckpointFile(path, archive);
+}
+
+void Simulation::loadCheckpoint(const std::string& path)
+{
+    const StateArchive archive = readCheckpointFile(path);
+    const StateReader r(archive, "", path);
+    const std::string theirs = r.getString("sim/parameters"), mine = checkpointParameters();
+    if (theirs != mine) {
+        // name the first line that differs
+        std::istringstream a(theirs), b(mine);
+        std::string la, lb;
+        while (true) {
+            const bool ga = bool(std::getline(a, la)), gb = bool(std::getline(b, lb));
+            if (!ga) la = "(nothing)";
+            if (!gb) lb = "(nothing)";
+            if (la != lb || (!ga && !gb)) break;
+        }
+        throw CheckpointError(path + ": written by another scene or with other parameters (checkpoint: '" + la +
+                              "', this run: '" + lb + "'); resume with the scene and --set values of the first run");
+    }
+    initialize();
+    refuseUncheckpointable("resumed");
+    std::istringstream names(r.getString("sim/fields"));
+    for (std::string n; std::getline(names, n);) {
+        auto g = r.getGridBase("field/" + n);
+        if (!g) r.fail("field/" + n, "missing grid");
+        mWorld.fields.replace(n, g);
+    }
+    const StateReader effects = r.scope("effect");
+    for (auto& e : mEffects) e->loadState(mWorld, effects.scope(e->name()));
+    mStep = r.getInt("sim/step");
+}
+
+int64_t Simulation::resumeForRun(const RunOptions& opt, const std::string& dir, int64_t first, int64_t last)
+{
+    if (opt.checkpoint.enabled()) refuseUncheckpointable("checkpointed");
+    if (opt.resumeDir.empty()) return -1;
+    loadCheckpoint(checkpointPath(opt.resumeDir, mWorld.sceneName));
+    removeStaleTemporaries(opt.resumeDir);
+    if (dir != opt.resumeDir) removeStaleTemporaries(dir);
+    // frames the checkpoint has passed are not written again: they must be there already
+    const int64_t passed = std::min(last, mStep / mWorld.stepsPerFrame);
+    std::string missing;
+    if (opt.writeFiles && mOutput.vdb)
+        for (int64_t f = first; f <= passed; ++f)
+            if (!std::filesystem::exists(framePath(dir, mWorld.sceneName, f)))
+                missing += (missing.empty() ? "" : ", ") + std::to_string(f);
+    if (!missing.empty())
+        throw CheckpointError("the checkpoint is at step " + std::to_string(mStep) + " (after frame " +
+                              std::to_string(mStep / mWorld.stepsPerFrame) + "), but frame(s) " + missing +
+                              " are not in " + dir + "; run them without --resume");
+    return mStep;
+}
+
+void Simulation::checkpointIfDue(const RunOptions& opt, const std::string& dir, CheckpointClock& clock, bool final,
+                                 RunSummary& sum)
+{
+    if (!opt.checkpoint.enabled() || !opt.writeFiles || mStep == clock.lastStep || mStep == 0) return;
+    bool stateless = true;
+    for (auto& e : mEffects) stateless = stateless && !e->needsHistory();
+    if (stateless) return; // frames are independent: chunk them with --frames instead
+    const auto now = Clock::now();
+    const bool due = final || (opt.checkpoint.everySteps > 0 && mStep % opt.checkpoint.everySteps == 0) ||
+                     (opt.checkpoint.everyMinutes > 0 && seconds(clock.last, now) >= 60.0 * opt.checkpoint.everyMinutes);
+    if (!due) return;
+    saveCheckpoint(checkpointPath(dir, mWorld.sceneName));
+    clock.lastStep = mStep;
+    clock.last = Clock::now();
+    ++sum.checkpoints;
+}
+
 void Simulation::checkFrameRange(int64_t first, int64_t last) const
 {
     const std::string range = std::to_string(first) + "-" + std::to_string(last);
@@ -459,12 +582,18 @@ void Simulation::simulateFrames(int64_t first, int64_t last, const RunOptions& o
     bool stateless = true;
     for (auto& e : mEffects) stateless = stateless && !e->needsHistory();
     initialize();
-    const int64_t stepsToRun = (stateless ? (last - first + 1) : last) * mWorld.stepsPerFrame;
+    sum.resumedFromStep = resumeForRun(opt, dir, first, last);
+    CheckpointClock checkpointClock;
+    checkpointClock.lastStep = mStep;
+    const int64_t startFrame = std::max(stateless ? first : int64_t(1), mStep / mWorld.stepsPerFrame + 1);
+    const int64_t stepsToRun = stateless ? std::max<int64_t>(0, last - startFrame + 1) * mWorld.stepsPerFrame
+                                         : std::max<int64_t>(0, last * mWorld.stepsPerFrame - mStep);
     Progress progress(mWorld.sceneName, stepsToRun, "steps", opt.progress);
     int64_t done = 0;
-    for (int64_t f = stateless ? first : 1; f <= last; ++f) {
+    for (int64_t f = startFrame; f <= last; ++f) {
         if (stateless) mStep = (f - 1) * mWorld.stepsPerFrame;
-        for (int64_t s = 0; s < mWorld.stepsPerFrame; ++s) {
+        while (mStep < f * mWorld.stepsPerFrame) {
+            checkpointIfDue(opt, dir, checkpointClock, false, sum); // mid-frame, or after the last frame's output
             step();
             progress.update(++done);
         }
@@ -474,6 +603,7 @@ void Simulation::simulateFrames(int64_t first, int64_t last, const RunOptions& o
         writeFrameOutputs(f, last, dir, sum);
         sum.outputSeconds += seconds(t0, Clock::now());
     }
+    checkpointIfDue(opt, dir, checkpointClock, true, sum); // the next chained task starts here
     progress.finish();
 }
 
@@ -554,7 +684,8 @@ std::string RunSummary::toJson() const
     os << "},\n  \"active_voxels\": [";
     for (size_t i = 0; i < activeVoxels.size(); ++i)
         os << (i ? ", " : "") << "[" << activeVoxels[i].first << ", " << activeVoxels[i].second << "]";
-    os << "],\n  \"peak_memory_bytes\": " << peakRssBytes << ",\n  \"files\": [";
+    os << "],\n  \"resumed_from_step\": " << resumedFromStep << ",\n  \"checkpoints\": " << checkpoints;
+    os << ",\n  \"peak_memory_bytes\": " << peakRssBytes << ",\n  \"files\": [";
     for (size_t i = 0; i < files.size(); ++i) os << (i ? ",\n    " : "\n    ") << "\"" << jsonEscape(files[i]) << "\"";
     os << "\n  ]\n}\n";
     return os.str();
@@ -574,6 +705,8 @@ std::string RunSummary::toText() const
     for (auto& [k, v] : effectSeconds) os << "  " << k << ": " << v << " s\n";
     for (auto& [k, v] : detailSeconds) os << "    " << k << ": " << v << " s\n";
     os << "  output: " << outputSeconds << " s\n";
+    if (resumedFromStep >= 0) os << "  resumed from the checkpoint at step " << resumedFromStep << "\n";
+    if (checkpoints > 0) os << "  checkpoints written: " << checkpoints << "\n";
     if (!activeVoxels.empty())
         os << "  active voxels (all fields): " << activeVoxels.front().second << " at step " << activeVoxels.front().first
            << " -> " << activeVoxels.back().second << " at step " << activeVoxels.back().first << "\n";

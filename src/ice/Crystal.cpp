@@ -3,6 +3,7 @@
 #include <frostvdb/core/Error.h>
 #include <frostvdb/ice/IceState.h>
 #include <frostvdb/io/Png.h>
+#include <frostvdb/io/VdbCheck.h>
 
 #include <openvdb/io/File.h>
 #include <openvdb/tools/Interpolation.h>
@@ -339,6 +340,9 @@ void sampleMap(const Domain& dom, const MapSource& src, bool requireUnit,
         return;
     }
     if (!endsWith(src.path, ".vdb")) mapFail(src, "'" + src.path + "': expected a .png or .vdb file");
+    // OpenVDB allocates the lengths a damaged file states before reading them: check them first
+    if (const std::string why = vdbLengthProblem(src.path); !why.empty())
+        mapFail(src, "'" + src.path + "' is damaged: " + why);
     openvdb::GridBase::Ptr base;
     std::string names;
     try {

@@ -329,6 +329,40 @@ void DlaEffect::step(World& world, const StepInfo& info)
 
 void DlaEffect::addToFrame(World& world, Frame& frame) { addIceOutputs(world, frame); }
 
+// Walkers live within one step and draw from streams keyed by (seed, step, walker), so the step
+// counter (saved by the driver) is their whole random state. The engine's distance maps are a
+// pure function of the ice (p > 1/2: the capped BFS minimum), the hit counts are the field
+// dla_hits and the steam map is rebuilt from the field density: all come back from the fields.
+void DlaEffect::saveState(const World&, StateWriter& out) const
+{
+    out.putDouble("time", mTime);
+    const uint64_t counters[] = {mStats.released, mStats.stuck,     mStats.frozen, mStats.killed,
+                                 mStats.exhausted, mStats.conflicts, mStats.moves,  mStats.jumps};
+    out.putArray("stats", std::vector<uint64_t>(std::begin(counters), std::end(counters)));
+    out.putDouble("lattice_steps", mStats.latticeSteps);
+    out.putDouble("dp_dla", mStats.dpDla);
+}
+
+void DlaEffect::loadState(World& world, const StateReader& in)
+{
+    mTime = in.getDouble("time");
+    std::vector<uint64_t> c;
+    in.getArray("stats", c);
+    if (c.size() != 8) in.fail("stats", "expected 8 counters");
+    mStats.released = c[0], mStats.stuck = c[1], mStats.frozen = c[2], mStats.killed = c[3];
+    mStats.exhausted = c[4], mStats.conflicts = c[5], mStats.moves = c[6], mStats.jumps = c[7];
+    mStats.latticeSteps = in.getDouble("lattice_steps");
+    mStats.dpDla = in.getDouble("dp_dla");
+    mEngine->sync(*world.fields.get<openvdb::FloatGrid>(kPhase));
+    if (mParams.hits > 1) {
+        std::fill(mHitCount.begin(), mHitCount.end(), 0);
+        if (auto g = world.fields.get<openvdb::Int32Grid>(kDlaHits))
+            for (auto it = g->cbeginValueOn(); it; ++it)
+                if (world.domain.contains(it.getCoord())) mHitCount[size_t(mEngine->index(it.getCoord()))] = *it;
+    }
+    mSteamSource.reset(); // rebuilt from the restored density at the next step
+}
+
 std::vector<std::pair<std::string, double>> DlaEffect::timings() const
 {
     return {{"walkers", mStats.walkSeconds},

@@ -213,6 +213,20 @@ void FluidEffect::step(World& world, const StepInfo& info)
     advectTemperature(world, dt);
 }
 
+void FluidEffect::saveState(const World&, StateWriter& out) const
+{
+    for (auto& [name, a] : mFluid->historyArrays()) out.putArray(name, *a);
+}
+
+void FluidEffect::loadState(World&, const StateReader& in)
+{
+    for (auto& [name, a] : mFluid->historyArrays()) {
+        const size_t n = a->size();
+        in.getArray(name, *a);
+        if (a->size() != n) in.fail(name, "holds " + std::to_string(a->size()) + " values, this grid needs " + std::to_string(n));
+    }
+}
+
 void FluidEffect::addToFrame(World& world, Frame& frame)
 {
     ice::addIceOutputs(world, frame);

@@ -107,6 +107,20 @@ void PhaseFieldEffect::step(World& world, const StepInfo& info)
 
 void PhaseFieldEffect::addToFrame(World& world, Frame& frame) { ice::addIceOutputs(world, frame); }
 
+// p, T, growth_acc and freeze_time are World fields (saved by the driver); the clock and the
+// scheme's history grids are ours. The noise is keyed by the step index: no stream to save.
+void PhaseFieldEffect::saveState(const World&, StateWriter& out) const
+{
+    out.putDouble("time", mTime);
+    for (auto& [name, grid] : mSolver->historyGrids()) out.putGrid(name, *grid);
+}
+
+void PhaseFieldEffect::loadState(World&, const StateReader& in)
+{
+    mTime = in.getDouble("time");
+    for (auto& [name, grid] : mSolver->historyGrids()) *grid = in.getGrid<openvdb::FloatGrid>(name);
+}
+
 std::vector<std::pair<std::string, double>> PhaseFieldEffect::timings() const
 {
     std::vector<std::pair<std::string, double>> t{

@@ -144,6 +144,24 @@ public:
     /// Compares every cell with its 11 images: true if the state is exactly D6-symmetric.
     bool isD6Symmetric() const;
 
+    /// Checkpoints: calls @a fn(name, member) for the step counter (int64_t&) and every per-cell
+    /// array (std::vector<double|uint8_t|int32_t>&) the automaton carries from step to step. A new
+    /// state member must be listed here; the resume tests compare every rule bit for bit.
+    template <typename Fn>
+    void visitState(Fn&& fn)
+    {
+        fn("step", mStep);
+        fn("v", mV);
+        fn("v2", mV2);
+        fn("b", mB);
+        fn("c", mC);
+        fn("a", mA);
+        fn("a2", mA2);
+        fn("wall", mWall);
+        fn("freeze", mFreeze);
+        fn("thick", mThick);
+    }
+
 private:
     void initialise();
     void syncGhosts(std::vector<double>& a);

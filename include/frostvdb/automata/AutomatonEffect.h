@@ -47,6 +47,10 @@ public:
     /// batch flakes x (lattice cells + the output grids of one flake, whose `ice` voxel count
     /// grows with voxels_per_cell^2 (3D: ^3)).
     MemoryEstimate memoryEstimate(const World& world) const override;
+    bool supportsCheckpoint() const override { return true; }
+    /// Every flake's state through HexAutomaton::visitState (generic over the rules' arrays).
+    void saveState(const World& world, StateWriter& out) const override;
+    void loadState(World& world, const StateReader& in) override;
 
     /// The flakes (after initialize); flake 0 uses the scene's parameters unchanged.
     const std::vector<std::unique_ptr<HexAutomaton>>& flakes() const { return mFlakes; }

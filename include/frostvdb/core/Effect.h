@@ -14,9 +14,15 @@
 /// A factory must not allocate fields or do heavy work: `frostvdb keys` builds every effect with
 /// empty parameters to list its keys.
 #include <frostvdb/core/Budget.h>
+///
+/// Checkpoints (`run --checkpoint-every`, `--resume`): the driver saves every field of World and
+/// the step counter itself; an effect saves only what it keeps beyond the fields (clocks, solver
+/// buffers, private arrays). Resume runs initialize() as usual, puts the saved fields back, then
+/// calls loadState(), so state derived from the parameters needs no saving.
 #include <frostvdb/core/Domain.h>
 #include <frostvdb/core/Fields.h>
 #include <frostvdb/core/Params.h>
+#include <frostvdb/core/State.h>
 
 #include <openvdb/openvdb.h>
 
@@ -110,6 +116,16 @@ public:
     virtual MemoryEstimate memoryEstimate(const World& world) const { return {}; }
     /// Named sub-timings (seconds) for the run summary, e.g. {"kernel", 1.2}.
     virtual std::vector<std::pair<std::string, double>> timings() const { return {}; }
+
+    /// True when saveState/loadState capture everything this effect carries from step to step
+    /// beyond World's fields. Default: only effects without history (their frames are pure
+    /// functions of the frame number). The driver refuses --checkpoint-every/--resume otherwise.
+    virtual bool supportsCheckpoint() const { return !needsHistory(); }
+    /// Saves the effect's own state (keys are scoped to its section). Default: nothing for effects
+    /// without history; refuses (CheckpointError) for effects with history.
+    virtual void saveState(const World& world, StateWriter& out) const;
+    /// Restores what saveState wrote; called after initialize() and after World's fields are back.
+    virtual void loadState(World& world, const StateReader& in);
 };
 
 using EffectFactory = std::function<std::unique_ptr<Effect>(ParamDict&, const World&)>;

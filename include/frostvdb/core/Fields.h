@@ -51,6 +51,13 @@ public:
         mGrids[name] = std::move(grid);
     }
 
+    /// The field of any type if allocated, else nullptr.
+    openvdb::GridBase::Ptr grid(const std::string& name) const
+    {
+        auto it = mGrids.find(name);
+        return it == mGrids.end() ? nullptr : it->second;
+    }
+
     bool has(const std::string& name) const { return mGrids.count(name) > 0; }
     const std::vector<std::string>& names() const { return mOrder; }
     openvdb::math::Transform::Ptr transform() const { return mTransform; }

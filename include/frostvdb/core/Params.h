@@ -76,6 +76,11 @@ public:
 
     const std::vector<ParamSpec>& specs() const { return mSpecs; }
 
+    /// Every value given (file and --set), one "key = value" line each in key order, numbers
+    /// with all their digits: two dicts with the same text hold the same parameters (checkpoints
+    /// compare it to refuse resuming another scene). Keys in @a skip are left out.
+    std::string canonicalText(const std::vector<std::string>& skip = {}) const;
+
 private:
     struct Entry {
         ParamValue value;

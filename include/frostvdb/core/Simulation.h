@@ -10,6 +10,7 @@
 ///   [output] vdb, preview, preview_grid, half_float, keep_lattice, displacement_png
 ///   [run]    memory_limit
 /// Every other section must be a registered effect; effects run in the order of their sections.
+#include <frostvdb/core/Checkpoint.h>
 #include <frostvdb/core/Effect.h>
 #include <frostvdb/core/Scene.h>
 
@@ -28,6 +29,10 @@ struct RunOptions {
     int64_t lastFrame = 0;   ///< 0: to the last frame
     bool overwrite = false;  ///< replace this scene's frames of another run in outDir (--overwrite)
     std::string commandLine; ///< recorded in run.json and every frame's metadata
+    /// Checkpoints into outDir (`--checkpoint-every`); also one after the last frame of the run.
+    CheckpointPolicy checkpoint;
+    /// Continue from the checkpoint in this folder (`--resume`): frames after it are written.
+    std::string resumeDir;
 };
 
 struct OutputSettings {
@@ -60,6 +65,8 @@ struct RunSummary {
     std::vector<std::pair<int64_t, uint64_t>> activeVoxels;             ///< (step, voxels) per frame
     uint64_t peakRssBytes = 0;
     std::vector<std::string> files;      ///< complete files only (each listed after its rename)
+    int64_t resumedFromStep = -1; ///< -1: a fresh run
+    int64_t checkpoints = 0;      ///< checkpoint files written
     std::string toJson() const;
     std::string toText() const;
 };
@@ -92,6 +99,16 @@ public:
     /// (flat domains; none when there is nothing to write or output.displacement_png is off).
     std::vector<std::string> writeDisplacement(const Frame& frame, const std::string& dir);
 
+    /// Saves the whole state (every field, the step counter, each effect's own state) atomically
+    /// to @a path. Throws CheckpointError if an effect cannot save its history.
+    void saveCheckpoint(const std::string& path);
+    /// Initialises, then restores a checkpoint written by the same scene and parameters (output
+    /// settings and scene.frames may differ); the next step() continues from it bit for bit.
+    void loadCheckpoint(const std::string& path);
+    /// The parameters a checkpoint must match: every section but [output], without scene.frames
+    /// and scene.description.
+    std::string checkpointParameters();
+
 private:
     // Pieces of run(), kept small so other drivers (checkpoint/resume) can reuse them.
     template <typename F>
@@ -106,6 +123,11 @@ private:
     std::string writeFramePreview(const Frame& frame, int64_t f, const std::string& dir);
     void finishSummary(RunSummary& sum) const;
     static void writeRunJson(const std::string& dir, const RunSummary& sum);
+    struct CheckpointClock;
+    void refuseUncheckpointable(const char* what) const;
+    int64_t resumeForRun(const RunOptions& opt, const std::string& dir, int64_t first, int64_t last);
+    void checkpointIfDue(const RunOptions& opt, const std::string& dir, CheckpointClock& clock, bool final,
+                         RunSummary& sum);
 
     Scene mScene;
     std::string mCommandLine;

@@ -100,6 +100,10 @@ public:
     void initialize(World& world) override;
     void step(World&, const StepInfo&) override {}
     void addToFrame(World&, Frame&) override {}
+    /// Seeds and melt map live in the fields p and melt: nothing of its own to save.
+    bool supportsCheckpoint() const override { return true; }
+    void saveState(const World&, StateWriter&) const override {}
+    void loadState(World&, const StateReader&) override {}
 
     bool hasSeeds() const { return !mSeeds.empty() || mSeedMap.has; }
     bool hasMelt() const { return !mMelt.empty() || mMeltMap.has || mMeltValue != 1.0; }

@@ -244,11 +244,9 @@ public:
     void addToFrame(World& world, Frame& frame) override;
     double time() const override { return mTime; }
     std::vector<std::pair<std::string, double>> timings() const override;
-    /// The walker engine's dense cell map, hit counts and steam tables over the domain.
-    MemoryEstimate memoryEstimate(const World& world) const override
-    {
-        return perVoxelEstimate(double(world.domain.bbox().volume()), 32.0, "domain.size", "DLA cell maps");
-    }
+    bool supportsCheckpoint() const override { return true; }
+    void saveState(const World& world, StateWriter& out) const override;
+    void loadState(World& world, const StateReader& in) override;
 
     const DlaParams& params() const { return mParams; }
     const DlaStats& stats() const { return mStats; }

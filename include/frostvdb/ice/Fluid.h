@@ -85,6 +85,12 @@ public:
     /// bottom to top along left/right).
     double profile(double s) const;
     const FluidStepStats& stats() const { return mStats; }
+    /// The arrays carried from step to step (face velocities, and the pressure that warm-starts
+    /// the next projection), for checkpoints. Obstacles are rebuilt from p every step.
+    std::vector<std::pair<const char*, std::vector<double>*>> historyArrays()
+    {
+        return {{"u", &mU}, {"v", &mV}, {"pressure", &mPhi}};
+    }
     /// Seconds spent in advection, viscosity and projection since construction.
     double advectSeconds = 0, viscositySeconds = 0, projectSeconds = 0;
 
@@ -125,6 +131,9 @@ public:
     {
         return perVoxelEstimate(double(world.domain.bbox().volume()), 64.0, "domain.size", "fluid arrays");
     }
+    bool supportsCheckpoint() const override { return true; }
+    void saveState(const World& world, StateWriter& out) const override;
+    void loadState(World& world, const StateReader& in) override;
 
     const ice::StableFluid2D& solver() const { return *mFluid; }
     const ice::FluidParams& params() const { return mParams; }

@@ -31,6 +31,9 @@ public:
         if (!world.region.dense) return {};
         return perVoxelEstimate(double(world.domain.bbox().volume()), 96.0, "domain.size", "dense phase-field arrays");
     }
+    bool supportsCheckpoint() const override { return true; }
+    void saveState(const World& world, StateWriter& out) const override;
+    void loadState(World& world, const StateReader& in) override;
 
     const KobayashiParams& params() const { return mParams; }
 

@@ -63,6 +63,14 @@ public:
     /// The melt map (field `melt`, values in [0,1]); null for none. Not owned.
     void setMeltMap(const openvdb::FloatGrid* melt) { mMelt = melt; }
 
+    /// Every grid the scheme carries from one step to the next, by name (checkpoints save and
+    /// restore them through these pointers; a null grid means "not started yet"). A new history
+    /// member must be listed here: the resume tests compare resumed runs bit for bit.
+    std::vector<std::pair<const char*, openvdb::FloatGrid::Ptr*>> historyGrids()
+    {
+        return {{"last_dp", &mLastDp}, {"last_dt", &mLastDt}};
+    }
+
     struct Failure;
     struct Accumulators;
 
