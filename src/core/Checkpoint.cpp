@@ -1,5 +1,6 @@
 #include <frostvdb/core/Checkpoint.h>
 #include <frostvdb/core/Error.h>
+#include <frostvdb/io/AtomicFile.h>
 #include <frostvdb/io/VdbIO.h>
 
 #include <cerrno>
@@ -50,42 +51,15 @@ std::string checkpointPath(const std::string& dir, const std::string& sceneName)
     return dir + (dir.empty() || dir.back() == '/' ? "" : "/") + sceneName + ".checkpoint";
 }
 
-namespace {
-void writeAll(int fd, const std::string& bytes, const std::string& path)
-{
-    size_t done = 0;
-    while (done < bytes.size()) {
-        const ssize_t n = ::write(fd, bytes.data() + done, bytes.size() - done);
-        if (n < 0 && errno == EINTR) continue;
-        if (n <= 0) throw CheckpointError(path + ": cannot write checkpoint (" + std::strerror(errno) + ")");
-        done += size_t(n);
-    }
-}
-} // namespace
-
 void writeCheckpointFile(const std::string& path, const StateArchive& archive)
 {
-    const std::string bytes = archive.serialise();
+    // io/AtomicFile: temporary, every return checked, fsync, rename, fsync of the folder
     const std::string dir = std::filesystem::path(path).parent_path().string();
-    makeDirectories(dir);
-    const std::string tmp = temporaryPathFor(path);
-    const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-    if (fd < 0) throw CheckpointError(tmp + ": cannot create checkpoint (" + std::strerror(errno) + ")");
+    if (!dir.empty()) makeDirectories(dir);
     try {
-        writeAll(fd, bytes, tmp);
-        if (::fsync(fd) != 0) throw CheckpointError(tmp + ": fsync failed (" + std::strerror(errno) + ")");
-    } catch (...) {
-        ::close(fd);
-        std::remove(tmp.c_str());
-        throw;
-    }
-    ::close(fd);
-    commitTemporary(tmp, path);
-    // the rename itself reaches the disk with the folder's entry
-    const int dfd = ::open(dir.empty() ? "." : dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-    if (dfd >= 0) {
-        ::fsync(dfd);
-        ::close(dfd);
+        writeFileAtomic(path, archive.serialise());
+    } catch (const WriteError& e) {
+        throw CheckpointError(std::string("cannot write checkpoint: ") + e.what());
     }
 }
 
@@ -96,24 +70,6 @@ StateArchive readCheckpointFile(const std::string& path)
     std::stringstream ss;
     ss << in.rdbuf();
     return StateArchive::deserialise(ss.str(), path);
-}
-
-int removeStaleTemporaries(const std::string& dir)
-{
-    namespace fs = std::filesystem;
-    static const std::regex pattern(R"(^\..+\.tmp([0-9]+)_[0-9]+$)");
-    int removed = 0;
-    std::error_code ec;
-    for (const auto& e : fs::directory_iterator(dir, ec)) {
-        std::smatch m;
-        const std::string name = e.path().filename().string();
-        if (!std::regex_match(name, m, pattern)) continue;
-        const long pid = std::stol(m[1].str());
-        if (pid == long(::getpid())) continue;
-        if (::kill(pid_t(pid), 0) == 0 || errno != ESRCH) continue; // alive (or not ours to judge)
-        if (fs::remove(e.path(), ec)) ++removed;
-    }
-    return removed;
 }
 
 } // namespace frostvdb

@@ -370,6 +370,7 @@ std::vector<std::string> Simulation::writeDisplacement(const Frame& frame, const
 
 struct Simulation::CheckpointClock {
     int64_t lastStep = -1;
+    bool pending = false; ///< due, but deferred to the next step where every effect is at a boundary
     Clock::time_point last = Clock::now();
 };
 
@@ -393,6 +394,13 @@ void Simulation::refuseUncheckpointable(const char* what) const
     if (!names.empty())
         throw CheckpointError("this scene cannot be " + std::string(what) + ": " + names +
                               " keep state from step to step that they cannot save yet");
+}
+
+bool Simulation::atCheckpointBoundary() const
+{
+    for (auto& e : mEffects)
+        if (!e->atCheckpointBoundary()) return false;
+    return true;
 }
 
 void Simulation::saveCheckpoint(const std::string& path)
@@ -479,9 +487,16 @@ void Simulation::checkpointIfDue(const RunOptions& opt, const std::string& dir, 
     for (auto& e : mEffects) stateless = stateless && !e->needsHistory();
     if (stateless) return; // frames are independent: chunk them with --frames instead
     const auto now = Clock::now();
-    const bool due = final || (opt.checkpoint.everySteps > 0 && mStep % opt.checkpoint.everySteps == 0) ||
+    const bool due = final || clock.pending || (opt.checkpoint.everySteps > 0 && mStep % opt.checkpoint.everySteps == 0) ||
                      (opt.checkpoint.everyMinutes > 0 && seconds(clock.last, now) >= 60.0 * opt.checkpoint.everyMinutes);
     if (!due) return;
+    if (!atCheckpointBoundary()) {
+        // a final checkpoint off a boundary is skipped: the chain resumes from the last one,
+        // whose later frames are on disk and come out the same again
+        clock.pending = !final;
+        return;
+    }
+    clock.pending = false;
     saveCheckpoint(checkpointPath(dir, mWorld.sceneName));
     clock.lastStep = mStep;
     clock.last = Clock::now();

@@ -355,10 +355,11 @@ void DlaEffect::loadState(World& world, const StateReader& in)
     mStats.dpDla = in.getDouble("dp_dla");
     mEngine->sync(*world.fields.get<openvdb::FloatGrid>(kPhase));
     if (mParams.hits > 1) {
-        std::fill(mHitCount.begin(), mHitCount.end(), 0);
+        mHitCount.clear();
         if (auto g = world.fields.get<openvdb::Int32Grid>(kDlaHits))
             for (auto it = g->cbeginValueOn(); it; ++it)
-                if (world.domain.contains(it.getCoord())) mHitCount[size_t(mEngine->index(it.getCoord()))] = *it;
+                if (world.domain.contains(it.getCoord()))
+                    *mHitCount.insert(uint64_t(mEngine->index(it.getCoord()))).first = *it;
     }
     mSteamSource.reset(); // rebuilt from the restored density at the next step
 }

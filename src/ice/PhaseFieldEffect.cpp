@@ -109,16 +109,34 @@ void PhaseFieldEffect::addToFrame(World& world, Frame& frame) { ice::addIceOutpu
 
 // p, T, growth_acc and freeze_time are World fields (saved by the driver); the clock and the
 // scheme's history grids are ours. The noise is keyed by the step index: no stream to save.
-void PhaseFieldEffect::saveState(const World&, StateWriter& out) const
+void PhaseFieldEffect::saveState(const World& world, StateWriter& out) const
 {
     out.putDouble("time", mTime);
     for (auto& [name, grid] : mSolver->historyGrids()) out.putGrid(name, *grid);
+    const auto cadence = mSolver->cadenceState(*world.fields.get<openvdb::FloatGrid>(ice::kPhase),
+                                               *world.fields.get<openvdb::FloatGrid>(ice::kTemperature));
+    out.putGrid("region", cadence.region);
+    out.putInt("region_steps_left", cadence.stepsLeft);
+    out.putInt("region_inputs_truncated", cadence.inputsTruncated ? 1 : 0);
+    out.putInt("region_inputs_ours", cadence.inputsOurs ? 1 : 0);
 }
 
-void PhaseFieldEffect::loadState(World&, const StateReader& in)
+bool PhaseFieldEffect::atCheckpointBoundary() const
+{
+    return !mSolver || mSolver->cadenceStepsLeft() <= 0;
+}
+
+void PhaseFieldEffect::loadState(World& world, const StateReader& in)
 {
     mTime = in.getDouble("time");
     for (auto& [name, grid] : mSolver->historyGrids()) *grid = in.getGrid<openvdb::FloatGrid>(name);
+    PhaseFieldSolver::CadenceState cadence;
+    cadence.region = in.getGrid<openvdb::MaskGrid>("region");
+    cadence.stepsLeft = int(in.getInt("region_steps_left"));
+    cadence.inputsTruncated = in.getInt("region_inputs_truncated") != 0;
+    cadence.inputsOurs = in.getInt("region_inputs_ours") != 0;
+    mSolver->restoreCadence(cadence, *world.fields.get<openvdb::FloatGrid>(ice::kPhase),
+                            *world.fields.get<openvdb::FloatGrid>(ice::kTemperature));
 }
 
 std::vector<std::pair<std::string, double>> PhaseFieldEffect::timings() const

@@ -407,6 +407,24 @@ bool PhaseFieldSolver::inputsAreOurs(const openvdb::FloatGrid& p, const openvdb:
     return gridFingerprint(p) == mPrintP && gridFingerprint(T) == mPrintT; // T only when p matched
 }
 
+void PhaseFieldSolver::restoreCadence(const CadenceState& state, const openvdb::FloatGrid& p,
+                                      const openvdb::FloatGrid& T)
+{
+    mRegionMask = state.region;
+    mRegionVoxels = mRegionMask ? mRegionMask->tree().activeVoxelCount() : 0;
+    ++mGeneration; // the restored topology is new to every cache
+    mCadence.setStepsLeft(state.stepsLeft);
+    mInputsTruncated = state.inputsTruncated;
+    mOutP = state.inputsOurs ? &p : nullptr;
+    mOutT = state.inputsOurs ? &T : nullptr;
+    mPrintP = gridFingerprint(p);
+    mPrintT = gridFingerprint(T);
+    mOutGeneration = 0; // their topology is not known to match the region
+    mSpareP.reset();
+    mSpareT.reset();
+    mSpareGeneration = 0;
+}
+
 openvdb::FloatGrid::Ptr PhaseFieldSolver::outputGrid(openvdb::FloatGrid::Ptr& spare, uint64_t spareGeneration,
                                                      openvdb::FloatGrid& like)
 {

@@ -52,6 +52,9 @@ public:
     void filledDomain();
     /// One step taken on the current region; true when the next step rebuilds (truncate now).
     bool stepTaken() { return --mLeft <= 0; }
+    /// Steps the current region still serves (checkpoints save and restore it).
+    int stepsLeft() const { return mLeft; }
+    void setStepsLeft(int left) { mLeft = left; }
 
     /// The automatic k: the widened dilation stays within one leaf (8 cells), the granularity at
     /// which the kernels pay; 1 while others write the fields (their writes force rebuilds).

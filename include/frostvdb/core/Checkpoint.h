@@ -27,8 +27,4 @@ void writeCheckpointFile(const std::string& path, const StateArchive& archive);
 /// Reads and verifies (magic, version, checksum) a checkpoint; throws CheckpointError.
 StateArchive readCheckpointFile(const std::string& path);
 
-/// Removes the hidden temporaries (".<file>.tmp<pid>_<n>") that a killed run of this host left
-/// in @a dir: those whose process no longer exists. Returns how many were removed.
-int removeStaleTemporaries(const std::string& dir);
-
 } // namespace frostvdb

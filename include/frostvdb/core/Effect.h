@@ -126,6 +126,10 @@ public:
     virtual void saveState(const World& world, StateWriter& out) const;
     /// Restores what saveState wrote; called after initialize() and after World's fields are back.
     virtual void loadState(World& world, const StateReader& in);
+    /// False while the effect holds transient state that saveState does not capture (the phase
+    /// field's region between two cadence rebuilds): the driver then defers a due checkpoint to
+    /// the next step where every effect is at a boundary.
+    virtual bool atCheckpointBoundary() const { return true; }
 };
 
 using EffectFactory = std::function<std::unique_ptr<Effect>(ParamDict&, const World&)>;

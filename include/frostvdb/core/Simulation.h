@@ -102,6 +102,8 @@ public:
     /// Saves the whole state (every field, the step counter, each effect's own state) atomically
     /// to @a path. Throws CheckpointError if an effect cannot save its history.
     void saveCheckpoint(const std::string& path);
+    /// True when every effect can be checkpointed exactly now (Effect::atCheckpointBoundary).
+    bool atCheckpointBoundary() const;
     /// Initialises, then restores a checkpoint written by the same scene and parameters (output
     /// settings and scene.frames may differ); the next step() continues from it bit for bit.
     void loadCheckpoint(const std::string& path);

@@ -32,6 +32,8 @@ public:
         return perVoxelEstimate(double(world.domain.bbox().volume()), 96.0, "domain.size", "dense phase-field arrays");
     }
     bool supportsCheckpoint() const override { return true; }
+    /// Checkpoints fall where the region cadence rebuilds (see PhaseFieldSolver::CadenceState).
+    bool atCheckpointBoundary() const override;
     void saveState(const World& world, StateWriter& out) const override;
     void loadState(World& world, const StateReader& in) override;
 

@@ -71,6 +71,24 @@ public:
         return {{"last_dp", &mLastDp}, {"last_dt", &mLastDt}};
     }
 
+    /// The region cadence's state (region topology, steps left, truncation flag): a resumed run
+    /// must keep the region an uninterrupted run would keep, or the bits differ.
+    struct CadenceState {
+        openvdb::MaskGrid::Ptr region; ///< null: no region built yet
+        int stepsLeft = 0;
+        bool inputsTruncated = true;
+        /// p and T are still what the solver returned (nobody wrote them since): a frame
+        /// written in between may prune them, which makes the next step rebuild out of turn.
+        bool inputsOurs = false;
+    };
+    int cadenceStepsLeft() const { return mCadence.stepsLeft(); }
+    CadenceState cadenceState(const openvdb::FloatGrid& p, const openvdb::FloatGrid& T) const
+    {
+        return {mRegionMask, mCadence.stepsLeft(), mInputsTruncated, mRegionMask && inputsAreOurs(p, T)};
+    }
+    /// Restores @a state and adopts @a p and @a T (the restored fields) as this solver's last output.
+    void restoreCadence(const CadenceState& state, const openvdb::FloatGrid& p, const openvdb::FloatGrid& T);
+
     struct Failure;
     struct Accumulators;
 
