@@ -229,7 +229,7 @@ TEST_CASE("Empty-space jumps keep the hitting statistics of the plain walk", "[f
     // they stick (angle and distance from the centre) plus those that leave the domain, for the
     // plain walk and the jumping walk (independent seeds); chi-square test of homogeneity.
     for (auto kind : {LatticeKind::Hexagonal, LatticeKind::Square}) {
-        Domain dom(DomainKind::Plane, Lattice(kind), openvdb::Coord(64, 64, 1), 1e-4);
+        const Domain dom = makePlaneDomain(Lattice(kind), openvdb::Coord(64, 64, 1), 1e-4);
         auto p = openvdb::FloatGrid::create(0.f);
         for (int j = 28; j <= 35; ++j)
             for (int i = 28; i <= 35; ++i)
@@ -289,7 +289,7 @@ TEST_CASE("Empty-space jumps keep the hitting statistics of the plain walk", "[f
 TEST_CASE("Shell tables are normalised and lattice symmetric", "[fast][dla][jumps]")
 {
     for (auto kind : {LatticeKind::Hexagonal, LatticeKind::Square}) {
-        Domain dom(DomainKind::Plane, Lattice(kind), openvdb::Coord(64, 64, 1), 1e-4);
+        const Domain dom = makePlaneDomain(Lattice(kind), openvdb::Coord(64, 64, 1), 1e-4);
         for (int r : {2, 5, 16}) {
             auto t = ice::shellTable(ice::walkerNeighbours(dom), r);
             CHECK(t->exits.size() == size_t(kind == LatticeKind::Hexagonal ? 6 * r : 4 * r));
@@ -308,7 +308,7 @@ TEST_CASE("Shell tables are normalised and lattice symmetric", "[fast][dla][jump
             CHECK(t->meanSteps < 1.0 * r * r);
         }
     }
-    Domain box(DomainKind::Box, Lattice(LatticeKind::Square), openvdb::Coord(32, 32, 32), 1e-4);
+    const Domain box = makeBoxDomain(Lattice(LatticeKind::Square), openvdb::Coord(32, 32, 32), 1e-4);
     auto t = ice::shellTable(ice::walkerNeighbours(box), 6);
     CHECK(t->exits.size() == size_t(4 * 36 + 2));
 }

@@ -157,7 +157,7 @@ void AutomatonEffect::initialize(World& world)
     const openvdb::Coord dim = world.domain.bbox().dim();
     if (base.radius <= 0) base.radius = std::max(2, (std::min(dim.x(), dim.y()) - 1) / 2);
     if (base.rule == Rule::GravnerGriffeath3D && base.layers <= 0)
-        base.layers = world.domain.isPlane() ? 31 : dim.z();
+        base.layers = world.domain.flat() ? 31 : dim.z();
     base.seed = hashCounters(world.seed, 0x4155544full); // "AUTO"
     mFlakes.clear();
     for (int k = 0; k < mOut.batch; ++k)

@@ -73,23 +73,6 @@ void dilatePlane(openvdb::MaskTree& tree, bool eightNeighbours)
     }
 }
 
-/// Clips a mask to a box: leaves inside are kept, leaves outside dropped, straddling leaves
-/// masked voxel by voxel (cheaper than Tree::clip for a handful of boundary leaves).
-void clipToBox(openvdb::MaskTree& tree, const openvdb::CoordBBox& box)
-{
-    std::vector<openvdb::Coord> outside;
-    for (auto it = tree.cbeginLeaf(); it; ++it)
-        if (!box.hasOverlap(it->getNodeBoundingBox())) outside.push_back(it->origin());
-    for (const auto& o : outside) delete tree.stealNode<MaskLeaf>(o, false, false);
-    openvdb::tree::LeafManager<openvdb::MaskTree> leaves(tree);
-    leaves.foreach([&](MaskLeaf& leaf, size_t) {
-        if (box.isInside(leaf.getNodeBoundingBox())) return;
-        auto& mask = leaf.getValueMask();
-        for (auto it = leaf.cbeginValueOn(); it; ++it)
-            if (!box.isInside(it.getCoord())) mask.setOff(it.pos());
-    });
-}
-
 } // namespace
 
 openvdb::MaskGrid::Ptr buildActiveRegion(const std::vector<const openvdb::FloatGrid*>& fields,
@@ -98,7 +81,7 @@ openvdb::MaskGrid::Ptr buildActiveRegion(const std::vector<const openvdb::FloatG
     auto region = openvdb::MaskGrid::create(false);
     region->setTransform(domain.transform()->copy());
     if (settings.dense) {
-        region->tree().fill(domain.bbox(), true, true);
+        domain.fillSupport(region->tree());
         region->tree().voxelizeActiveTiles(); // leaves, so kernels can iterate leaf by leaf
         return region;
     }
@@ -110,14 +93,14 @@ openvdb::MaskGrid::Ptr buildActiveRegion(const std::vector<const openvdb::FloatG
     // Hexagonal lattices reach (1,-1) and (-1,1): edge neighbours in index space.
     const bool hex = domain.lattice().kind() == LatticeKind::Hexagonal;
     if (iterations > 0 && !region->tree().empty()) {
-        if (domain.isPlane()) {
+        if (domain.flat()) { // support and stencil in one z layer: planar dilation
             for (int i = 0; i < iterations; ++i) dilatePlane(region->tree(), hex);
         } else {
             openvdb::tools::dilateActiveValues(region->tree(), iterations, openvdb::tools::NN_FACE,
                                                openvdb::tools::IGNORE_TILES);
         }
     }
-    clipToBox(region->tree(), domain.bbox());
+    domain.clipToSupport(region->tree());
     return region;
 }
 

@@ -196,7 +196,7 @@ std::string Simulation::writeFrame(const Frame& frame, const std::string& dir)
 
 std::string Simulation::writeDisplacement(const Frame& frame, const std::string& dir)
 {
-    if (!mOutput.displacementPng || !mWorld.domain.isPlane()) return {};
+    if (!mOutput.displacementPng || !mWorld.domain.flat()) return {};
     for (auto& g : frame.grids) {
         auto growth = openvdb::gridPtrCast<openvdb::FloatGrid>(g);
         if (!growth || g->getName() != "growth") continue;
@@ -343,10 +343,13 @@ std::string sceneReferenceMarkdown()
           "always in step with the program. Every key can be overridden on the command line with "
           "`--set section.key=value`. Unknown sections and keys, wrong types and out-of-range values are errors "
           "that name the file, line and key.\n\n";
-    auto table = [&](const std::string& section, const std::string& summary, const ParamDict& d) {
+    auto table = [&](const std::string& section, const std::string& summary, const ParamDict& d,
+                     const std::vector<ParamSpec>& more = {}) {
         os << "## [" << section << "]\n\n" << summary << "\n\n| key | type | default | range | unit | meaning |\n"
            << "|---|---|---|---|---|---|\n";
-        for (auto& s : d.specs())
+        std::vector<ParamSpec> specs = d.specs();
+        specs.insert(specs.end(), more.begin(), more.end());
+        for (auto& s : specs)
             os << "| `" << s.key << "` | " << s.type << " | `" << s.defaultText << "` | " << s.range << " | "
                << (s.unit.empty() ? "-" : s.unit) << " | " << s.doc << " |\n";
         os << "\n";
@@ -359,7 +362,20 @@ std::string sceneReferenceMarkdown()
     OutputSettings o;
     readOutputSection(output, o);
     table("scene", "Run-wide settings.", scene);
-    table("domain", "Where effects live: a plane one voxel thick or a 3D box, on a square or hexagonal lattice.", domain);
+    std::vector<ParamSpec> kindKeys; // keys of the other domain kinds (src/core/domains/)
+    for (const auto* k : DomainRegistry::all()) {
+        ParamDict other("domain");
+        other.set("kind", k->kind, {"", 0});
+        try { Domain::fromParams(other); } catch (const std::exception&) {} // specs are recorded before any refusal
+        for (const auto& s : other.specs()) {
+            bool known = false;
+            for (const auto& t : domain.specs()) known = known || t.key == s.key;
+            for (const auto& t : kindKeys) known = known || t.key == s.key;
+            if (!known) kindKeys.push_back(s);
+        }
+    }
+    table("domain", "Where effects live: a plane one voxel thick or a 3D box, on a square or hexagonal lattice.", domain,
+          kindKeys);
     table("region", "The sparse active region of the PDE effects.", region);
     table("output", "What is written.", output);
     for (auto* info : EffectRegistry::all()) {

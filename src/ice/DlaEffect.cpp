@@ -79,7 +79,9 @@ std::unique_ptr<Effect> DlaEffect::create(ParamDict& d, const World& world)
                               "(column maximum); 0: the plane's own height only");
     if (p.jumpMaxRadius > 0 && p.jumpMaxRadius < p.jumpMinRadius)
         d.fail("jump_max_radius", "must be 0 or >= jump_min_radius");
-    (void)world;
+    if (world.domain && world.domain.bbox().min() != openvdb::Coord(0)) // the dense walker arrays index from 0
+        throw SceneError(world.sceneLabel, 0, "domain.origin",
+                         "[dla] needs a domain whose first cell is at the world origin (origin = [0, 0, 0])");
     return fx;
 }
 
@@ -131,8 +133,9 @@ void DlaEffect::updateSteam(World& world)
     const Domain& dom = world.domain;
     const auto xf = dom.transform();
     const auto& dxf = density->transform();
-    const bool plane = dom.isPlane();
-    const double reach = plane ? mParams.steamReach : 0.0;
+    const bool surface = dom.hasFrame(); // steam above the surface along its normal counts
+    const bool plane = dom.flat();       // a flat surface: project the gas's bounds onto its layer
+    const double reach = surface ? mParams.steamReach : 0.0;
     const double dz = dxf.voxelSize()[2];
     const int samples = reach > 0 ? std::max(1, int(std::ceil(reach / dz))) : 0;
     // the domain cells under the density's world bounding box
@@ -145,7 +148,8 @@ void DlaEffect::updateSteam(World& world)
                                             cy ? ib.max().y() + 0.5 : ib.min().y() - 0.5,
                                             cz ? ib.max().z() + 0.5 : ib.min().z() - 0.5);
                 const openvdb::Vec3d w = dxf.indexToWorld(corner);
-                const openvdb::Vec3d q = xf->worldToIndex(plane ? openvdb::Vec3d(w.x(), w.y(), 0.0) : w);
+                openvdb::Vec3d q = xf->worldToIndex(w);
+                if (plane) q.z() = dom.bbox().min().z();
                 cells.expand(openvdb::Coord::floor(q));
                 cells.expand(openvdb::Coord::floor(q) + openvdb::Coord(1));
             }
@@ -159,12 +163,13 @@ void DlaEffect::updateSteam(World& world)
             const int j = lo.y() + row % dim.y(), k = lo.z() + row / dim.y();
             for (int i = lo.x(); i < lo.x() + dim.x(); ++i) {
                 const openvdb::Vec3d p = xf->indexToWorld(openvdb::Vec3d(i, j, k));
+                const openvdb::Vec3d up = surface ? dom.frame(openvdb::Coord(i, j, k)).normal : openvdb::Vec3d(0, 0, 1);
                 float best = 0.f;
                 for (int s = 0; s <= samples; ++s) {
                     const double h = s * dz;
                     if (reach > 0 && h > reach) break;
                     const float wgt = reach > 0 ? float(1.0 - h / reach) : 1.f;
-                    const float v = acc.getValue(dxf.worldToIndexNodeCentered(p + openvdb::Vec3d(0, 0, h)));
+                    const float v = acc.getValue(dxf.worldToIndexNodeCentered(p + up * h));
                     best = std::max(best, v * wgt);
                 }
                 w[size_t(i - lo.x()) + size_t(dim.x()) * size_t(row)] = best;

@@ -29,12 +29,7 @@ int64_t DlaParams::humidityAt(int64_t step) const
 
 std::vector<openvdb::Coord> walkerNeighbours(const Domain& domain)
 {
-    auto n = domain.lattice().planeNeighbours();
-    if (!domain.isPlane()) {
-        n.push_back(openvdb::Coord(0, 0, 1));
-        n.push_back(openvdb::Coord(0, 0, -1));
-    }
-    return n;
+    return domain.walkerNeighbours();
 }
 
 namespace {
@@ -63,7 +58,7 @@ DlaEngine::DlaEngine(const Domain& domain, const DlaParams& params, uint64_t see
 
     // jump tables: every radius up to 16, then ~20% apart, up to the largest useful one
     if (params.jumps) {
-        int rmax = params.jumpMaxRadius > 0 ? params.jumpMaxRadius : (domain.isPlane() ? 128 : 32);
+        int rmax = params.jumpMaxRadius > 0 ? params.jumpMaxRadius : (domain.flat() ? 128 : 32);
         int64_t half = std::max(mNx, mNy);
         if (mDim == 3) half = std::max(half, mNz);
         rmax = int(std::min<int64_t>(rmax, (half + 1) / 2));

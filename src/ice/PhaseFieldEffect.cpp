@@ -54,7 +54,7 @@ std::unique_ptr<Effect> PhaseFieldEffect::create(ParamDict& d, const World& worl
     k.farTemperature = d.getFloat("far_temperature", 0.0, -10.0, 10.0, "",
                                   "initial and far-field temperature T_inf (undercooling is T_e - T_inf)");
     k.noise = d.getFloat("noise", 0.0, 0.0, 0.1, "", "amplitude a of Kobayashi's interface noise (0: none)");
-    const double limit = k.stabilityLimit(world.domain.stencil(), !world.domain.isPlane());
+    const double limit = k.stabilityLimit(world.domain.stencil(), !world.domain.flat());
     fx->mStabilityLimit = limit;
     fx->mSubsteps = 1;
     if (k.dt > limit) {

@@ -35,8 +35,8 @@ struct Block {
     bool plane;
     std::vector<float> p, T, a, cx, cy, gx, gy, gz;
     std::vector<float> melt, pe, te; ///< melt map; midpoint estimates (second-order scheme)
-    explicit Block(bool isPlane)
-        : bx(kDim + 2 * kHalo), by(kDim + 2 * kHalo), bz(isPlane ? 1 : kDim + 2 * kHalo), plane(isPlane)
+    explicit Block(bool flat)
+        : bx(kDim + 2 * kHalo), by(kDim + 2 * kHalo), bz(flat ? 1 : kDim + 2 * kHalo), plane(flat)
     {
         const size_t n = size_t(bx) * by * bz;
         for (auto* v : {&p, &T, &a, &cx, &cy, &gx, &gy, &gz, &melt, &pe, &te}) v->assign(n, 0.f);
@@ -145,7 +145,7 @@ struct LeafKernel {
     void run(openvdb::tree::LeafManager<openvdb::FloatTree>& pLeaves,
              openvdb::tree::LeafManager<openvdb::FloatTree>& tLeaves) const
     {
-        const bool plane = domain.isPlane();
+        const bool plane = domain.flat();
         const Block proto(plane);
         const FlatStencil st(domain.stencil(), proto.bx, std::ptrdiff_t(proto.bx) * proto.by);
         const Anisotropy an(k);
@@ -241,7 +241,7 @@ void PhaseFieldSolver::step(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::Ptr&
         std::ostringstream os;
         os << "phase field left its bounds: " << failure.field << " = " << failure.value << " at voxel "
            << failure.where << " in step " << stepIndex + 1 << " (t = " << tNext << "); dt = " << k.dt
-           << ", stability limit " << k.stabilityLimit(mDomain.stencil(), !mDomain.isPlane())
+           << ", stability limit " << k.stabilityLimit(mDomain.stencil(), !mDomain.flat())
            << ". Lower phase_field.dt or the anisotropy/latent heat; nothing of this step was written.";
         throw SimulationError(os.str());
     }
@@ -266,7 +266,7 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
                                        PhaseFieldStepStats* stats)
 {
     const KobayashiParams& k = mParams;
-    const bool plane = mDomain.isPlane();
+    const bool plane = mDomain.flat();
     const Stencil stencil = mDomain.stencil();
     const SlotLayout layout(pLeaves, stencil, plane);
     ImplicitSystem ps(layout), ts(layout);

@@ -49,7 +49,7 @@ int benchSparse(const BenchArgs& args)
     const int steps = args.quick ? 3 : 5;
     KobayashiParams k;
     const Lattice lat(LatticeKind::Square, 3.0 / 64.0);
-    const Domain dom(DomainKind::Plane, lat, openvdb::Coord(n, n, 1), 1e-4);
+    const Domain dom = makePlaneDomain(lat, openvdb::Coord(n, n, 1), 1e-4);
     RegionSettings sparse, dense;
     dense.dense = true;
 

@@ -135,6 +135,7 @@ private:
     std::unique_ptr<ice::StableFluid2D> mFluid;
     double mOffsetX = 0, mOffsetY = 0; ///< aux cell (0,0) sits at plane position (offset)
     bool mHex = false;
+    openvdb::Coord mOrigin{0, 0, 0}; ///< the domain's first cell (aux cell (0, 0))
     double mObstacleSeconds = 0, mVelOutSeconds = 0, mAdvectTSeconds = 0;
 };
 
