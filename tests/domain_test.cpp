@@ -117,10 +117,12 @@ TEST_CASE("A plane placed away from index 0 grows the same ice, shifted", "[fast
         return std::make_pair(sim.world().fields.get<openvdb::FloatGrid>(ice::kPhase),
                               sim.world().fields.get<openvdb::FloatGrid>(ice::kTemperature));
     };
-    const Coord shift(-37, 21, 5);
+    const Coord shift(-37, 21, 0); // a plane keeps index z = 0; its height is in the transform
     auto [p0, t0] = runNoDla("");
     auto [p1, t1] = runNoDla("origin = [-0.037, 0.021, 0.005]");
     REQUIRE(p0->activeVoxelCount() > 20);
+    CHECK(p1->transform().indexToWorld(Coord(-37, 21, 0)).z() == Approx(0.005));
+    CHECK(p1->transform().indexToWorld(Coord(-37, 21, 0)).x() == Approx(-0.037));
     CHECK(p0->activeVoxelCount() == p1->activeVoxelCount());
     CHECK(t0->activeVoxelCount() == t1->activeVoxelCount());
     size_t differ = 0;

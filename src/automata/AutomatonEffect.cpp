@@ -97,11 +97,13 @@ AutomatonEffect::AutomatonEffect(std::string section, AutomatonConfig cfg, Outpu
 {
 }
 
-std::vector<std::string> AutomatonEffect::fieldsWritten() const
+FieldDeclaration AutomatonEffect::declaration() const
 {
-    std::vector<std::string> f{"cells", "ice", "freeze_time"};
-    if (mOut.writeVapour) f.push_back("vapour");
-    return f;
+    FieldDeclaration d; // its own lattice and clock: no fields shared with other effects
+    d.stage = Stage::Sources;
+    d.output(out::kCells).output(out::kAutomatonIce).output(out::kFreezeStep);
+    if (mOut.writeVapour) d.output(out::kVapour);
+    return d;
 }
 
 AutomatonConfig AutomatonEffect::flakeConfig(const AutomatonConfig& base, const OutputOptions& out, int k)
@@ -279,7 +281,7 @@ void AutomatonEffect::addToFrame(World& world, Frame& frame)
         ice->setGridClass(openvdb::GRID_FOG_VOLUME);
         ice->setTransform(iceXform->copy());
         auto freeze = openvdb::FloatGrid::create(-1.0f);
-        freeze->setName("freeze_time" + suffix);
+        freeze->setName(out::kFreezeStep.name + suffix); // a step count, not the ice clock's freeze_time
         freeze->setTransform(cellXform->copy());
         freeze->insertMeta("unit", openvdb::StringMetadata("steps"));
         cells->insertMeta("rule", openvdb::StringMetadata(ruleName(mCfg.rule)));

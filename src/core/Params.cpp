@@ -75,6 +75,11 @@ void ParamDict::record(ParamSpec spec)
     mSpecs.push_back(std::move(spec));
 }
 
+void ParamDict::onlyWhen(bool applies, const std::string& key, const std::string& option) const
+{
+    if (!applies && has(key)) fail(key, "does not apply with " + option + " (remove the key or change that option)");
+}
+
 void ParamDict::fail(const std::string& key, const std::string& what) const
 {
     const ParamOrigin* o = origin(key);

@@ -70,6 +70,8 @@ void readRegionSection(ParamDict& d, RegionSettings& r)
     r.dense = d.getBool("dense", false, "reference mode: every domain voxel is active every step");
     r.frontTravel = int(d.getInt("front_travel", 1, 0, 16, "cells",
         "extra dilation of the active region for the distance the front moves in one step"));
+    d.onlyWhen(!r.dense, "tolerance", "dense = true");
+    d.onlyWhen(!r.dense, "front_travel", "dense = true");
 }
 
 void readOutputSection(ParamDict& d, OutputSettings& o)
@@ -80,6 +82,7 @@ void readOutputSection(ParamDict& d, OutputSettings& o)
     o.preview = p != "none";
     o.previewEvery = p == "every";
     o.previewGrid = d.getString("preview_grid", "", {}, "grid drawn in previews (default: ice, density or cells)");
+    d.onlyWhen(o.preview, "preview_grid", "preview = \"none\"");
     o.halfFloat = d.getBool("half_float", false, "store float grids as 16-bit half floats");
     o.keepLattice = d.getBool("keep_lattice", false,
         "hexagonal domains: write grids on the sheared lattice transform instead of resampling them to square voxels "
@@ -121,6 +124,14 @@ Simulation::Simulation(Scene scene) : mScene(std::move(scene))
     }
     if (mEffects.empty())
         throw SceneError(mScene.label(), 0, "", "the scene names no effect section, so there is nothing to simulate");
+    std::vector<DeclaredEffect> declared;
+    for (auto& e : mEffects) declared.push_back({e->name(), e->declaration()});
+    mOrder = deriveEffectOrder(declared, mScene.label());
+    for (const auto& d : declared)
+        for (const auto& u : d.declaration.uses)
+            if (u.key->role == FieldRole::Field && (u.access & kWrites) &&
+                std::find(mWrittenFields.begin(), mWrittenFields.end(), u.key->name) == mWrittenFields.end())
+                mWrittenFields.push_back(u.key->name);
     mEffectSeconds.assign(mEffects.size(), 0.0);
 }
 
@@ -136,12 +147,7 @@ Effect* Simulation::effect(const std::string& section) const
 void Simulation::initialize()
 {
     if (mInitialized) return;
-    std::vector<Effect*> order;
-    for (auto& e : mEffects) order.push_back(e.get());
-    std::stable_sort(order.begin(), order.end(), [](const Effect* a, const Effect* b) {
-        return a->initializationOrder() < b->initializationOrder();
-    });
-    for (Effect* e : order) e->initialize(mWorld);
+    for (size_t i : mOrder.initialize) mEffects[i]->initialize(mWorld);
     mInitialized = true;
 }
 
@@ -151,11 +157,14 @@ void Simulation::step()
     StepInfo info;
     info.step = mStep;
     info.frame = mStep / mWorld.stepsPerFrame + 1;
-    for (size_t i = 0; i < mEffects.size(); ++i) {
+    for (size_t i : mOrder.step) {
         const auto t0 = Clock::now();
         mEffects[i]->step(mWorld, info);
         mEffectSeconds[i] += seconds(t0, Clock::now());
     }
+    if (mWorld.domain.hasPostStep()) // e.g. a shell's closest-point re-extension
+        for (const auto& name : mWrittenFields)
+            if (auto g = mWorld.fields.base(name)) mWorld.domain.postStep(*g);
     ++mStep;
 }
 

@@ -435,6 +435,7 @@ std::unique_ptr<Effect> CrystalEffect::create(ParamDict& d, const World& world)
     readMap("seed", fx->mSeedMap, "seed crystal map: ice where the map >= seed_map_threshold (a VDB level set: inside)");
     fx->mSeedThreshold = d.getFloat("seed_map_threshold", 0.5, 0.0, 1.0, "",
                                     "seed map value from which a cell starts as ice");
+    d.onlyWhen(fx->mSeedMap.has, "seed_map_threshold", "no seed_map");
     readMap("melt", fx->mMeltMap, "melting temperature map in [0,1]: 1 promotes growth, 0 suppresses it");
     fx->mMeltValue = d.getFloat("melt_value", 1.0, 0.0, 1.0, "",
                                 "melt value wherever no melt map or melt shape says otherwise");
@@ -444,12 +445,13 @@ std::unique_ptr<Effect> CrystalEffect::create(ParamDict& d, const World& world)
     return fx;
 }
 
-std::vector<std::string> CrystalEffect::fieldsWritten() const
+FieldDeclaration CrystalEffect::declaration() const
 {
-    std::vector<std::string> f;
-    if (hasSeeds()) f.push_back(kPhase);
-    if (hasMelt()) f.push_back(kMelt);
-    return f;
+    FieldDeclaration d;
+    d.stage = Stage::Sources;
+    if (hasSeeds()) d.use(kPhase, kInitialises);
+    if (hasMelt()) d.use(kMelt, kInitialises);
+    return d;
 }
 
 void CrystalEffect::initialize(World& world)

@@ -57,7 +57,7 @@ std::unique_ptr<Effect> DlaEffect::create(ParamDict& d, const World& world)
                       "time step of the ice clock when no [phase_field] runs (freeze_time = step * dt, drift vel*dt)");
     p.flowDrift = d.getFloat("flow_drift", 1.0, 0.0, 1e6, "",
                              "scale of the flow drift: each walker step adds flow_drift * vel * dt (in cells) "
-                             "where the field vel exists (paper 4.3)");
+                             "where the field flow_vel ([fluid]) exists (paper 4.3)");
     p.maxSteps = d.getInt("max_steps", 0, 0, int64_t(1) << 50, "steps",
                           "walker lifetime in lattice steps (a jump counts its mean duration); 0: until it "
                           "sticks or leaves the domain");
@@ -77,6 +77,8 @@ std::unique_ptr<Effect> DlaEffect::create(ParamDict& d, const World& world)
     p.steamReach = d.getFloat("steam_reach", 0.05, 0.0, 1e3, "m",
                               "on a plane: steam up to this height above it counts, weighted 1 - height/reach "
                               "(column maximum); 0: the plane's own height only");
+    d.onlyWhen(p.jumps, "jump_min_radius", "jumps = false");
+    d.onlyWhen(p.jumps, "jump_max_radius", "jumps = false");
     if (p.jumpMaxRadius > 0 && p.jumpMaxRadius < p.jumpMinRadius)
         d.fail("jump_max_radius", "must be 0 or >= jump_min_radius");
     if (world.domain && world.domain.bbox().min() != openvdb::Coord(0)) // the dense walker arrays index from 0
@@ -85,11 +87,21 @@ std::unique_ptr<Effect> DlaEffect::create(ParamDict& d, const World& world)
     return fx;
 }
 
-std::vector<std::string> DlaEffect::fieldsWritten() const
+FieldDeclaration DlaEffect::declaration() const
 {
-    std::vector<std::string> f{kPhase, kTemperature, kGrowth, kFreezeTime};
-    if (mParams.hits > 1) f.push_back(kDlaHits);
-    return f;
+    FieldDeclaration d;
+    d.stage = Stage::Walkers;
+    d.use(kClock, kReadsAtInit | kReads) // falls back to its own dt without [phase_field]
+        .use(kPhase, kReadsAtInit | kReads | kWrites)
+        .use(kTemperature, kInitialises | kWrites)
+        .use(kGrowth, kInitialises | kWrites)
+        .use(kFreezeTime, kInitialises | kWrites)
+        .use(kMelt, kReads)
+        .use(kVelocity, kReads)
+        .use(gas::kDensity, kReads);
+    if (mParams.hits > 1) d.use(kDlaHits, kInitialises | kReads | kWrites);
+    d.output(out::kIce).output(out::kIceTemperature).output(out::kGrowth).output(out::kFreezeTime);
+    return d;
 }
 
 void DlaEffect::initialize(World& world)
@@ -116,7 +128,7 @@ void DlaEffect::initialize(World& world)
 
 void DlaEffect::updateSteam(World& world)
 {
-    auto density = world.fields.get<openvdb::FloatGrid>("density");
+    auto density = world.fields.get<openvdb::FloatGrid>(gas::kDensity);
     if (!density) {
         mSteamSource.reset();
         mSteamCdf.clear();

@@ -80,6 +80,20 @@ openvdb::Vec2d FluidEffect::auxPosition(double i, double j) const
     return {i + 0.5 * j, j * kSqrt3Over2};
 }
 
+FieldDeclaration FluidEffect::declaration() const
+{
+    FieldDeclaration d;
+    d.stage = Stage::ObstacleCopy; // then its fluid step and the heat advection (the paper's last three stages)
+    d.use(ice::kClock, kReadsAtInit | kReads)
+        .use(ice::kPhase, kReadsAtInit | kReads)
+        .use(ice::kTemperature, kInitialises | kReads | kWrites)
+        .use(ice::kGrowth, kInitialises)
+        .use(ice::kFreezeTime, kInitialises)
+        .use(ice::kVelocity, kInitialises | kWrites);
+    d.output(out::kIce).output(out::kIceTemperature).output(out::kGrowth).output(out::kFreezeTime).output(out::kFlowVel);
+    return d;
+}
+
 void FluidEffect::initialize(World& world)
 {
     ice::requireIceFields(world);
@@ -221,7 +235,7 @@ void FluidEffect::addToFrame(World& world, Frame& frame)
     auto vel = world.fields.get<openvdb::Vec3SGrid>(ice::kVelocity);
     if (!vel) return;
     auto out = vel->deepCopy(); // already in world units
-    out->setName("vel");
+    out->setName(out::kFlowVel.name); // not `vel`: that is the gas's m/s
     out->setVectorType(openvdb::VEC_CONTRAVARIANT_RELATIVE);
     out->insertMeta("units", openvdb::StringMetadata("m per unit simulation time"));
     frame.add(out);

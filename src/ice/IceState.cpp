@@ -51,7 +51,7 @@ void recordPhaseChange(openvdb::FloatGrid::Accessor& growth, openvdb::FloatGrid:
 void addIceOutputs(World& world, Frame& frame)
 {
     for (const auto& g : frame.grids)
-        if (g->getName() == "ice") return;
+        if (g->getName() == out::kIce.name) return;
     auto p = world.fields.get<openvdb::FloatGrid>(kPhase);
     if (!p) return;
     auto ice = p->deepCopy();
@@ -68,7 +68,7 @@ void addIceOutputs(World& world, Frame& frame)
 
     if (auto T = world.fields.get<openvdb::FloatGrid>(kTemperature)) {
         auto temperature = T->deepCopy();
-        temperature->setName("temperature");
+        temperature->setName(out::kIceTemperature.name); // dimensionless: not the gas's Kelvin
         temperature->setGridClass(openvdb::GRID_UNKNOWN);
         frame.add(temperature);
     }

@@ -1,8 +1,8 @@
 #pragma once
 /// @file Crystal.h
 /// @brief The ice paper's user controls (section 4.4, after Kim and Lin): the seed crystal map
-/// and the melting temperature map, as the scene section [crystal]. It runs before every other
-/// effect (initializationOrder 0), writes the initial phase p = 1 where the user seeds ice and
+/// and the melting temperature map, as the scene section [crystal]. It initialises p and melt, so
+/// the driver initialises it before the effects that read them (core/StepOrder.h); it writes the initial phase p = 1 where the user seeds ice and
 /// the field `melt` in [0,1], and does nothing during steps.
 ///
 /// Sources, combined in this order (later wins for `melt`, seeds are a union):
@@ -96,8 +96,7 @@ public:
     static std::unique_ptr<Effect> create(ParamDict& d, const World& world);
 
     std::string name() const override { return "crystal"; }
-    std::vector<std::string> fieldsWritten() const override;
-    int initializationOrder() const override { return 0; }
+    FieldDeclaration declaration() const override;
     void initialize(World& world) override;
     void step(World&, const StepInfo&) override {}
     void addToFrame(World&, Frame&) override {}

@@ -113,8 +113,7 @@ public:
     static std::unique_ptr<Effect> create(ParamDict& dict, const World& world);
 
     std::string name() const override { return "fluid"; }
-    std::vector<std::string> fieldsWritten() const override { return {"vel", "T"}; }
-    int initializationOrder() const override { return 2; }
+    FieldDeclaration declaration() const override;
     void initialize(World& world) override;
     void step(World& world, const StepInfo& info) override;
     void addToFrame(World& world, Frame& frame) override;

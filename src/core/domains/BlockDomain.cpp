@@ -16,7 +16,7 @@ BlockKeys readBlockKeys(ParamDict& d, const DomainCommon& c, size_t dims)
     const auto size = d.getFloatArray("size", {256, 256},
         {2, 3}, 1, 1 << 20, "cells", "cells along x, y (and z for a box)");
     const auto origin = d.getFloatArray("origin", {0, 0, 0}, {2, 3}, -1e6, 1e6, "m",
-        "world position of the first cell's centre [x, y(, z)] (snapped to the nearest cell; a plane lies at its z)");
+        "world position of the first cell's centre [x, y(, z)] (x, y snapped to the nearest cell; a plane lies exactly at height z)");
     if (box && size.size() != 3) d.fail("size", "a box domain needs [nx, ny, nz]");
     if (!box && size.size() != 2) d.fail("size", "a plane domain needs [nx, ny]");
     if (box && lattice != "square") d.fail("lattice", "box domains use the cubic (square) lattice");
@@ -32,6 +32,7 @@ BlockKeys readBlockKeys(ParamDict& d, const DomainCommon& c, size_t dims)
     }
     k.size = openvdb::Coord(int(size[0]), int(size[1]), box ? int(size[2]) : 1);
     const openvdb::Vec3d o(origin[0], origin[1], origin.size() > 2 ? origin[2] : 0.0);
+    k.worldZ = o.z();
     const openvdb::Vec3d idx = xf->worldToIndex(o);
     k.origin = openvdb::Coord(int(std::lround(idx.x())), int(std::lround(idx.y())), int(std::lround(idx.z())));
     const openvdb::Coord hi = k.origin + k.size;

@@ -11,6 +11,7 @@ struct BlockKeys {
     Lattice lattice;
     openvdb::Coord size;   ///< cells along x, y, z (z = 1 for a plane)
     openvdb::Coord origin; ///< index of the first cell
+    double worldZ = 0.0;   ///< the origin's z in metres (a plane's height)
 };
 
 /// Reads `lattice`, `size` (@a dims entries) and `origin` (metres, snapped to a cell).

@@ -8,8 +8,13 @@ namespace {
 
 class PlaneDomain : public DomainImpl {
 public:
-    PlaneDomain(const Lattice& lattice, const openvdb::CoordBBox& bounds, double voxelSize)
-        : DomainImpl(lattice, bounds, voxelSize, /*withZ=*/false) {}
+    /// The layer is index z = 0 (the flat kernels keep one z slice per leaf, at the leaf's
+    /// origin); its world height @a worldZ goes into the transform.
+    PlaneDomain(const Lattice& lattice, const openvdb::CoordBBox& bounds, double voxelSize, double worldZ)
+        : DomainImpl(lattice, bounds, voxelSize, /*withZ=*/false)
+    {
+        if (worldZ != 0.0) mTransform->postTranslate(openvdb::Vec3d(0.0, 0.0, worldZ));
+    }
 
     std::string kind() const override { return "plane"; }
     bool flat() const override { return true; }
@@ -35,15 +40,18 @@ public:
 Domain readPlane(ParamDict& d, const DomainCommon& c)
 {
     const domains::BlockKeys k = domains::readBlockKeys(d, c, 2);
-    return makePlaneDomain(k.lattice, k.size, c.voxelSize, k.origin);
+    const openvdb::Coord n(k.size.x(), k.size.y(), 1), o(k.origin.x(), k.origin.y(), 0);
+    return Domain(std::make_shared<PlaneDomain>(k.lattice, domains::blockBounds(o, n), c.voxelSize, k.worldZ));
 }
 
 } // namespace
 
 Domain makePlaneDomain(const Lattice& lattice, const openvdb::Coord& size, double voxelSize, const openvdb::Coord& origin)
 {
+    // index z stays 0 (see PlaneDomain); origin.z() places the layer at that many cells of height
     const openvdb::Coord n(size.x(), size.y(), 1);
-    return Domain(std::make_shared<PlaneDomain>(lattice, domains::blockBounds(origin, n), voxelSize));
+    const openvdb::Coord o(origin.x(), origin.y(), 0);
+    return Domain(std::make_shared<PlaneDomain>(lattice, domains::blockBounds(o, n), voxelSize, origin.z() * voxelSize));
 }
 
 FROSTVDB_REGISTER_DOMAIN(plane, "plane", "one voxel layer (2D growth)", readPlane);
