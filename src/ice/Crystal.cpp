@@ -268,7 +268,6 @@ CrystalShape readCrystalShape(ParamDict& d, const Domain& dom, bool withValue)
 
 void forEachShapeCell(const Domain& dom, const CrystalShape& s, const std::function<void(const Coord&)>& fn)
 {
-    const auto& bb = dom.bbox();
     switch (s.kind) {
     case CrystalShape::Kind::Point:
     case CrystalShape::Kind::Disc: {
