@@ -57,7 +57,7 @@ inline std::string sceneTarget(const uint8_t* data, size_t size)
 /// Samples a map file over a small plane as [crystal] does; values must land in [0, 1].
 inline std::string mapTarget(const std::string& path, bool indexSpace)
 {
-    static const Domain domain(DomainKind::Plane, Lattice(), openvdb::Coord(24, 16, 1), 1e-3);
+    static const Domain domain = makePlaneDomain(Lattice(), openvdb::Coord(24, 16, 1), 1e-3);
     ice::MapSource src;
     src.path = path;
     src.stretch = true; // any aspect ratio: reach the sampler too

@@ -1,5 +1,5 @@
 // Scene-level tests of the automata effects: every rule runs from a scene and writes cells, ice
-// and freeze_time; batch mode makes distinct flakes; the shipped scenes parse.
+// and freeze_step; batch mode makes distinct flakes; the shipped scenes parse.
 #include <frostvdb/BuildPaths.h>
 #include <catch2/catch.hpp>
 
@@ -30,7 +30,7 @@ std::map<std::string, openvdb::FloatGrid::Ptr> runScene(const std::string& text,
 
 } // namespace
 
-TEST_CASE("every automaton section writes cells, ice and freeze_time", "[automata][fast]")
+TEST_CASE("every automaton section writes cells, ice and freeze_step", "[automata][fast]")
 {
     // [gravner_griffeath_3d] has its own tests (gg3d_test.cpp).
     const char* sections[] = {"packard", "coxe_reiter", "probabilistic_ca", "reiter", "gravner_griffeath"};
@@ -44,10 +44,10 @@ TEST_CASE("every automaton section writes cells, ice and freeze_time", "[automat
         auto g = runScene(text);
         REQUIRE(g.count("cells"));
         REQUIRE(g.count("ice"));
-        REQUIRE(g.count("freeze_time"));
+        REQUIRE(g.count("freeze_step"));
         CHECK(g["cells"]->activeVoxelCount() > 0);
         CHECK(g["ice"]->activeVoxelCount() > 0);
-        CHECK(g["freeze_time"]->activeVoxelCount() > 1);
+        CHECK(g["freeze_step"]->activeVoxelCount() > 1);
         CHECK(g["ice"]->getGridClass() == openvdb::GRID_FOG_VOLUME);
         // `ice` is on cubes; `cells` uses the sheared hexagonal transform.
         const auto vs = g["ice"]->voxelSize();
@@ -59,7 +59,7 @@ TEST_CASE("every automaton section writes cells, ice and freeze_time", "[automat
         CHECK(hi <= 1.0f);
         CHECK(lo >= 0.0f);
         // The seed cell is at index (0, 0, 0) and froze at step 0.
-        CHECK(g["freeze_time"]->tree().getValue(openvdb::Coord(0)) == 0.0f);
+        CHECK(g["freeze_step"]->tree().getValue(openvdb::Coord(0)) == 0.0f);
         // World position of cell (1, 0) is one cell spacing along x.
         const auto p = g["cells"]->transform().indexToWorld(openvdb::Coord(1, 0, 0));
         CHECK(p.x() == Approx(0.001));
@@ -73,7 +73,7 @@ TEST_CASE("batch mode grows K distinct flakes in one run", "[automata][fast]")
                              "[domain]\nsize = [61, 61]\n[coxe_reiter]\nbackground = 0.2\nbatch = 3\n";
     Simulation* sim = nullptr;
     auto g = runScene(text, &sim);
-    for (const char* name : {"ice", "ice_0", "ice_1", "ice_2", "cells_0", "cells_1", "cells_2", "freeze_time_2"}) {
+    for (const char* name : {"ice", "ice_0", "ice_1", "ice_2", "cells_0", "cells_1", "cells_2", "freeze_step_2"}) {
         INFO(name);
         REQUIRE(g.count(name));
         CHECK(g[name]->activeVoxelCount() > 0);

@@ -188,7 +188,7 @@ TEST_CASE("an effect with history but no state implementation refuses checkpoint
 {
     struct Historic : Effect {
         std::string name() const override { return "historic"; }
-        std::vector<std::string> fieldsWritten() const override { return {}; }
+        FieldDeclaration declaration() const override { return {}; }
         void initialize(World&) override {}
         void step(World&, const StepInfo&) override {}
         void addToFrame(World&, Frame&) override {}

@@ -43,14 +43,14 @@ std::set<Coord> cellsWith(const SimPtr& sim, const openvdb::FloatGrid& g, float 
     return out;
 }
 
-openvdb::FloatGrid::Ptr field(const SimPtr& sim, const char* name)
+openvdb::FloatGrid::Ptr field(const SimPtr& sim, const std::string& name)
 {
     auto g = sim->world().fields.get<openvdb::FloatGrid>(name);
     REQUIRE(g);
     return g;
 }
 
-openvdb::FloatGrid::Ptr field(Simulation& sim, const char* name)
+openvdb::FloatGrid::Ptr field(Simulation& sim, const std::string& name)
 {
     auto g = sim.world().fields.get<openvdb::FloatGrid>(name);
     REQUIRE(g);

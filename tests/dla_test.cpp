@@ -239,7 +239,7 @@ TEST_CASE("Empty-space jumps keep the hitting statistics of the plain walk", "[f
     // they stick (angle and distance from the centre) plus those that leave the domain, for the
     // plain walk and the jumping walk (independent seeds); chi-square test of homogeneity.
     for (auto kind : {LatticeKind::Hexagonal, LatticeKind::Square}) {
-        Domain dom(DomainKind::Plane, Lattice(kind), openvdb::Coord(64, 64, 1), 1e-4);
+        const Domain dom = makePlaneDomain(Lattice(kind), openvdb::Coord(64, 64, 1), 1e-4);
         auto p = openvdb::FloatGrid::create(0.f);
         for (int j = 28; j <= 35; ++j)
             for (int i = 28; i <= 35; ++i)
@@ -303,7 +303,7 @@ TEST_CASE("Walk-on-spheres jumps keep the hitting statistics of the exact-table 
     // circles are used from radius 8 on (the harshest case: the default cap is 128). Where the
     // walkers stick (piece, angle) and how many leave, against tables only: chi-square.
     for (auto kind : {LatticeKind::Hexagonal, LatticeKind::Square}) {
-        Domain dom(DomainKind::Plane, Lattice(kind), openvdb::Coord(256, 256, 1), 1e-4);
+        Domain dom = makePlaneDomain(Lattice(kind), openvdb::Coord(256, 256, 1), 1e-4);
         auto p = openvdb::FloatGrid::create(0.f);
         for (int j = 120; j <= 136; ++j)
             for (int i = 90; i <= 106; ++i)
@@ -359,7 +359,7 @@ TEST_CASE("DLA memory follows the ice, not the domain", "[fast][dla]")
     size_t bricks[2], bytes[2];
     int k = 0;
     for (int n : {512, 8192}) {
-        Domain dom(DomainKind::Plane, Lattice(LatticeKind::Square), openvdb::Coord(n, n, 1), 1e-4);
+        Domain dom = makePlaneDomain(Lattice(LatticeKind::Square), openvdb::Coord(n, n, 1), 1e-4);
         auto p = openvdb::FloatGrid::create(0.f);
         for (int j = -3; j <= 3; ++j)
             for (int i = -3; i <= 3; ++i) p->tree().setValue(openvdb::Coord(n / 2 + i, n / 2 + j, 0), 1.f);
@@ -385,7 +385,7 @@ TEST_CASE("DLA memory follows the ice, not the domain", "[fast][dla]")
 TEST_CASE("Shell tables are normalised and lattice symmetric", "[fast][dla][jumps]")
 {
     for (auto kind : {LatticeKind::Hexagonal, LatticeKind::Square}) {
-        Domain dom(DomainKind::Plane, Lattice(kind), openvdb::Coord(64, 64, 1), 1e-4);
+        const Domain dom = makePlaneDomain(Lattice(kind), openvdb::Coord(64, 64, 1), 1e-4);
         for (int r : {2, 5, 16}) {
             auto t = ice::shellTable(ice::walkerNeighbours(dom), r);
             CHECK(t->exits.size() == size_t(kind == LatticeKind::Hexagonal ? 6 * r : 4 * r));
@@ -404,7 +404,7 @@ TEST_CASE("Shell tables are normalised and lattice symmetric", "[fast][dla][jump
             CHECK(t->meanSteps < 1.0 * r * r);
         }
     }
-    Domain box(DomainKind::Box, Lattice(LatticeKind::Square), openvdb::Coord(32, 32, 32), 1e-4);
+    const Domain box = makeBoxDomain(Lattice(LatticeKind::Square), openvdb::Coord(32, 32, 32), 1e-4);
     auto t = ice::shellTable(ice::walkerNeighbours(box), 6);
     CHECK(t->exits.size() == size_t(4 * 36 + 2));
 }

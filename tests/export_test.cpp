@@ -22,7 +22,7 @@ namespace {
 
 const double kH = 0.001;
 
-Domain hexPlane(int n) { return Domain(DomainKind::Plane, Lattice(LatticeKind::Hexagonal), Coord(n, n, 1), kH); }
+Domain hexPlane(int n) { return makePlaneDomain(Lattice(LatticeKind::Hexagonal), Coord(n, n, 1), kH); }
 
 /// A smooth blob (fog volume in [0,1]) on the hexagonal lattice, centred in world space.
 openvdb::FloatGrid::Ptr hexBlob(const Domain& dom, Vec3d& centre, double sigma)
@@ -113,7 +113,7 @@ TEST_CASE("Export resamples a hexagonal grid to square voxels at the same world 
 
 TEST_CASE("Export leaves square domains and grids on other transforms alone", "[fast][export]")
 {
-    const Domain square(DomainKind::Plane, Lattice(LatticeKind::Square), Coord(16, 16, 1), kH);
+    const Domain square = makePlaneDomain(Lattice(LatticeKind::Square), Coord(16, 16, 1), kH);
     auto g = openvdb::FloatGrid::create(0.f);
     g->setTransform(square.transform());
     CHECK(exportGrids({g}, square, false)[0] == g);
@@ -231,7 +231,7 @@ TEST_CASE("Displacement PNG is 16-bit, raster-sized and follows growth", "[fast]
 TEST_CASE("Large displacement maps are UDIM tiles, only those with ice, equal to growth", "[fast][export]")
 {
     // 300 x 40 square plane, 128-pixel tiles: 3 tiles across, 1 up; growth in tiles 1001 and 1003
-    const Domain dom(DomainKind::Plane, Lattice(LatticeKind::Square), Coord(300, 40, 1), kH);
+    const Domain dom = makePlaneDomain(Lattice(LatticeKind::Square), Coord(300, 40, 1), kH);
     auto g = openvdb::FloatGrid::create(0.f);
     g->setTransform(dom.transform());
     for (int j = 5; j <= 10; ++j)

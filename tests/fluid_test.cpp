@@ -39,7 +39,7 @@ struct FluidWorld {
     FluidWorld(int nx, int ny, const std::vector<std::pair<std::string, ParamValue>>& keys, bool emptyIce = true,
                LatticeKind lattice = LatticeKind::Square)
     {
-        world.domain = Domain(DomainKind::Plane, Lattice(lattice, kH), openvdb::Coord(nx, ny, 1), 1e-4);
+        world.domain = makePlaneDomain(Lattice(lattice, kH), openvdb::Coord(nx, ny, 1), 1e-4);
         world.fields = FieldSet(world.domain.transform());
         if (emptyIce) world.fields.require<openvdb::FloatGrid>(ice::kPhase, 0.f);
         ParamDict d("fluid");

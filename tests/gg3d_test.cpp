@@ -223,7 +223,7 @@ TEST_CASE("gg3d: over-budget scenes are refused before allocation; an empty sect
     Frame f = sim.currentFrame(1);
     std::set<std::string> names;
     for (auto& g : f.grids) names.insert(g->getName());
-    for (const char* n : {"cells", "ice", "ice_sdf", "freeze_time"}) CHECK(names.count(n));
+    for (const char* n : {"cells", "ice", "ice_sdf", "freeze_step"}) CHECK(names.count(n));
 }
 
 namespace {

@@ -30,7 +30,7 @@ TEST_CASE("Frames round-trip every grid and its metadata", "[fast][io]")
     std::vector<std::string> names;
     for (auto& g : *grids) names.push_back(g->getName());
     std::sort(names.begin(), names.end());
-    CHECK(names == std::vector<std::string>{"freeze_time", "growth", "ice", "temperature"});
+    CHECK(names == std::vector<std::string>{"freeze_time", "growth", "ice", "ice_temperature"});
     auto byName = [&](const std::string& n) {
         for (auto& g : *grids)
             if (g->getName() == n) return openvdb::gridPtrCast<openvdb::FloatGrid>(g);
@@ -121,9 +121,9 @@ TEST_CASE("Command line: run, info and preview work end to end", "[fast][cli]")
     REQUIRE(std::filesystem::exists(dir + "/dendrite.0002.vdb"));
     REQUIRE(runCommand(bin + " info " + dir + "/dendrite.0002.vdb", dir + "/info") == 0);
     const std::string info = readFile(dir + "/info");
-    for (const char* g : {"ice", "temperature", "growth", "freeze_time", "fog volume", "voxel size", "seed"})
+    for (const char* g : {"ice", "ice_temperature", "growth", "freeze_time", "fog volume", "voxel size", "seed"})
         CHECK(info.find(g) != std::string::npos);
-    REQUIRE(runCommand(bin + " preview " + dir + "/dendrite.0002.vdb -o " + dir + "/p.png --grid temperature",
+    REQUIRE(runCommand(bin + " preview " + dir + "/dendrite.0002.vdb -o " + dir + "/p.png --grid ice_temperature",
                        dir + "/prev") == 0);
     CHECK(std::filesystem::file_size(dir + "/p.png") > 1000);
     CHECK(runCommand(bin + " preview " + dir + "/dendrite.0002.vdb -o " + dir + "/q.png --grid nope", dir + "/prev2") != 0);

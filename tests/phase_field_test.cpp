@@ -63,7 +63,7 @@ TEST_CASE("Sparse kernel in dense mode equals the plain dense-array loop bit for
         k.anisotropyMode = kind == LatticeKind::Square ? 4 : 6;
         const int n = 40;
         Lattice lat(kind, 3.0 / 64.0);
-        Domain dom(DomainKind::Plane, lat, openvdb::Coord(n, n, 1), 1e-4);
+        const Domain dom = makePlaneDomain(lat, openvdb::Coord(n, n, 1), 1e-4);
         RegionSettings rs;
         rs.dense = true;
         PhaseFieldSolver solver(k, dom, rs);

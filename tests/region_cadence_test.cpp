@@ -35,7 +35,7 @@ std::pair<openvdb::FloatGrid::Ptr, openvdb::FloatGrid::Ptr> runScene(const std::
 struct Disc {
     KobayashiParams k;
     Lattice lat{LatticeKind::Square, 3.0 / 64.0};
-    Domain dom{DomainKind::Plane, lat, openvdb::Coord(48, 48, 1), 1e-4};
+    const Domain dom = makePlaneDomain(lat, openvdb::Coord(48, 48, 1), 1e-4);
     openvdb::FloatGrid::Ptr p = openvdb::FloatGrid::create(0.f), T = openvdb::FloatGrid::create(0.f);
     Disc()
     {

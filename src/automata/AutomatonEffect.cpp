@@ -99,11 +99,13 @@ AutomatonEffect::AutomatonEffect(std::string section, AutomatonConfig cfg, Outpu
 {
 }
 
-std::vector<std::string> AutomatonEffect::fieldsWritten() const
+FieldDeclaration AutomatonEffect::declaration() const
 {
-    std::vector<std::string> f{"cells", "ice", "freeze_time"};
-    if (mOut.writeVapour) f.push_back("vapour");
-    return f;
+    FieldDeclaration d; // its own lattice and clock: no fields shared with other effects
+    d.stage = Stage::Sources;
+    d.output(out::kCells).output(out::kAutomatonIce).output(out::kFreezeStep);
+    if (mOut.writeVapour) d.output(out::kVapour);
+    return d;
 }
 
 AutomatonConfig AutomatonEffect::flakeConfig(const AutomatonConfig& base, const OutputOptions& out, int k)
@@ -159,7 +161,7 @@ void AutomatonEffect::initialize(World& world)
     const openvdb::Coord dim = world.domain.bbox().dim();
     if (base.radius <= 0) base.radius = std::max(2, (std::min(dim.x(), dim.y()) - 1) / 2);
     if (base.rule == Rule::GravnerGriffeath3D && base.layers <= 0)
-        base.layers = world.domain.isPlane() ? 31 : dim.z();
+        base.layers = world.domain.flat() ? 31 : dim.z();
     base.seed = hashCounters(world.seed, 0x4155544full); // "AUTO"
     mFlakes.clear();
     for (int k = 0; k < mOut.batch; ++k)
@@ -171,7 +173,7 @@ MemoryEstimate AutomatonEffect::memoryEstimate(const World& world) const
     const openvdb::Coord dim = world.domain.bbox().dim();
     const double R = mCfg.radius > 0 ? mCfg.radius : std::max(2, (std::min(dim.x(), dim.y()) - 1) / 2);
     const bool is3D = mCfg.rule == Rule::GravnerGriffeath3D;
-    const double layers = is3D ? (mCfg.layers > 0 ? mCfg.layers : (world.domain.isPlane() ? 31 : dim.z())) : 1.0;
+    const double layers = is3D ? (mCfg.layers > 0 ? mCfg.layers : (world.domain.flat() ? 31 : dim.z())) : 1.0;
     const double cells = (3.0 * R * R + 3.0 * R + 1.0) * layers;
     const double X = (R + 1.0) * mOut.voxelsPerCell + 1.0; // `ice` half-width in voxels (writeFlake)
     const double Z = is3D ? (layers * 0.5 + 1.0) * mOut.prismHeight * mOut.voxelsPerCell
@@ -335,7 +337,7 @@ void AutomatonEffect::addToFrame(World& world, Frame& frame)
         ice->setGridClass(openvdb::GRID_FOG_VOLUME);
         ice->setTransform(iceXform->copy());
         auto freeze = openvdb::FloatGrid::create(-1.0f);
-        freeze->setName("freeze_time" + suffix);
+        freeze->setName(out::kFreezeStep.name + suffix); // a step count, not the ice clock's freeze_time
         freeze->setTransform(cellXform->copy());
         freeze->insertMeta("unit", openvdb::StringMetadata("steps"));
         cells->insertMeta("rule", openvdb::StringMetadata(ruleName(mCfg.rule)));

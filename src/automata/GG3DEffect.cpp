@@ -133,11 +133,13 @@ GG3DEffect::GG3DEffect(GG3DConfig cfg, GG3DOutput out, std::string preset)
 {
 }
 
-std::vector<std::string> GG3DEffect::fieldsWritten() const
+FieldDeclaration GG3DEffect::declaration() const
 {
-    std::vector<std::string> f{"cells", "ice", "freeze_time"};
-    if (mOut.sdf) f.push_back("ice_sdf");
-    return f;
+    FieldDeclaration d; // its own lattice and clock: no fields shared with other effects
+    d.stage = Stage::Sources;
+    d.output(out::kCells).output(out::kAutomatonIce).output(out::kFreezeStep);
+    if (mOut.sdf) d.output(out::kIceSdf);
+    return d;
 }
 
 GG3DConfig GG3DEffect::flakeConfig(const GG3DConfig& base, double vary, int k)
@@ -214,7 +216,7 @@ std::unique_ptr<Effect> GG3DEffect::create(ParamDict& d, const World& world)
     cfg.layers = int(d.getInt("layers", 0, 0, 100000, "prisms",
         "domain height in prism layers, centred on the seed; 0 = [domain] size z for a box, else 2/3 of the "
         "domain diameter (rounded to the seed's parity)"));
-    if (cfg.layers == 0) cfg.layers = world.domain.isPlane() ? std::max(9, 2 * cfg.domainRadius / 3) : dim.z();
+    if (cfg.layers == 0) cfg.layers = world.domain.flat() ? std::max(9, 2 * cfg.domainRadius / 3) : dim.z();
     cfg.walls = d.getString("walls", "reflecting", {"reflecting", "reservoir"},
         "domain boundary: reflecting (mass conserved; equals the paper's periodic domain for symmetric flakes) or a "
         "vapour reservoir at rho") == "reflecting" ? GG3DWalls::Reflecting : GG3DWalls::Reservoir;

@@ -249,7 +249,7 @@ void GG3DEffect::addToFrame(World& world, Frame& frame)
             break;
         }
         for (auto* g : {&one.cells, &one.freeze, &one.ice, &one.sdf})
-            if (*g) frame.add(name(*g, *g == one.cells ? "cells" : *g == one.freeze ? "freeze_time"
+            if (*g) frame.add(name(*g, *g == one.cells ? "cells" : *g == one.freeze ? "freeze_step"
                                           : *g == one.ice ? "ice" : "ice_sdf", "_" + std::to_string(k)));
         // Side by side along x, 2R + 4 cells apart (R = domain radius).
         const int shift = k * (2 * mCfg.domainRadius + 4);
@@ -278,7 +278,7 @@ void GG3DEffect::addToFrame(World& world, Frame& frame)
     if (K > 1 && mOut.sdf && all.ice && all.ice->activeVoxelCount() > 0)
         all.sdf = openvdb::tools::topologyToLevelSet(*all.ice, 3, 0, 0, mOut.sdfSmoothing);
     frame.add(name(all.cells, "cells", ""));
-    frame.add(name(all.freeze, "freeze_time", ""));
+    frame.add(name(all.freeze, "freeze_step", ""));
     all.ice->pruneGrid();
     frame.add(name(all.ice, "ice", ""));
     if (mOut.sdf && all.sdf) {
@@ -290,7 +290,7 @@ void GG3DEffect::addToFrame(World& world, Frame& frame)
             const std::string stem = dot == std::string::npos ? path : path.substr(0, dot);
             path = stem + "." + std::to_string(frame.frame) + "." + mOut.mesh;
             openvdb::FloatGrid::Ptr m = all.sdf;
-            const double worldScale = world.hasShared("output.world_scale") ? world.shared<double>("output.world_scale") : 1.0;
+            const double worldScale = world.worldScale;
             if (worldScale != 1.0) {
                 m = all.sdf->deepCopy();
                 auto x = m->transform().copy();

@@ -20,23 +20,6 @@ namespace {
 using MaskLeaf = openvdb::MaskTree::LeafNodeType;
 constexpr int kLeafDim = int(MaskLeaf::DIM);
 
-/// Clips a mask to a box: leaves inside are kept, leaves outside dropped, straddling leaves
-/// masked voxel by voxel (cheaper than Tree::clip for a handful of boundary leaves).
-void clipToBox(openvdb::MaskTree& tree, const openvdb::CoordBBox& box)
-{
-    std::vector<openvdb::Coord> outside;
-    for (auto it = tree.cbeginLeaf(); it; ++it)
-        if (!box.hasOverlap(it->getNodeBoundingBox())) outside.push_back(it->origin());
-    for (const auto& o : outside) delete tree.stealNode<MaskLeaf>(o, false, false);
-    openvdb::tree::LeafManager<openvdb::MaskTree> leaves(tree);
-    leaves.foreach([&](MaskLeaf& leaf, size_t) {
-        if (box.isInside(leaf.getNodeBoundingBox())) return;
-        auto& mask = leaf.getValueMask();
-        for (auto it = leaf.cbeginValueOn(); it; ++it)
-            if (!box.isInside(it.getCoord())) mask.setOff(it.pos());
-    });
-}
-
 /// A plane region's leaf masks as flat arrays with a dense leaf table over the part of the domain
 /// the dilation can reach: the dilation then reads neighbour masks by index instead of copying
 /// the tree each iteration (the tree copies, with their 32^3-entry internal nodes, were 4/5 of
@@ -140,7 +123,7 @@ void dilatePlaneRegion(openvdb::MaskTree& tree, int iterations, bool eightNeighb
 void fillLeaves(openvdb::MaskTree& tree, const Domain& domain)
 {
     openvdb::tree::LeafManager<openvdb::MaskTree> leaves(tree);
-    const bool plane = domain.isPlane();
+    const bool plane = domain.flat();
     const int z0 = domain.bbox().min().z();
     const uint64_t planeBits = 0x0101010101010101ull << (z0 & (kLeafDim - 1));
     leaves.foreach([&](MaskLeaf& leaf, size_t) {
@@ -159,7 +142,7 @@ openvdb::MaskGrid::Ptr buildActiveRegion(const std::vector<const openvdb::FloatG
     auto region = openvdb::MaskGrid::create(false);
     region->setTransform(domain.transform()->copy());
     if (settings.dense) {
-        region->tree().fill(domain.bbox(), true, true);
+        domain.fillSupport(region->tree());
         region->tree().voxelizeActiveTiles(); // leaves, so kernels can iterate leaf by leaf
         return region;
     }
@@ -167,14 +150,14 @@ openvdb::MaskGrid::Ptr buildActiveRegion(const std::vector<const openvdb::FloatG
     // removed by truncateToTolerance when the last region was retired.
     for (const auto* f : fields) region->tree().topologyUnion(f->tree());
     region->tree().voxelizeActiveTiles();
-    clipToBox(region->tree(), domain.bbox());
+    domain.clipToSupport(region->tree());
     // A support that fills the domain needs no dilation (it would be clipped away again).
     if (regionFillsDomain(*region, domain)) return region;
     const int iterations = std::max(1, steps) * (reach + settings.frontTravel);
     // Hexagonal lattices reach (1,-1) and (-1,1): edge neighbours in index space.
     const bool hex = domain.lattice().kind() == LatticeKind::Hexagonal;
     if (iterations > 0 && !region->tree().empty()) {
-        if (domain.isPlane()) {
+        if (domain.flat()) { // support and stencil in one z layer: planar dilation
             dilatePlaneRegion(region->tree(), iterations, hex, domain);
         } else {
             openvdb::tools::dilateActiveValues(region->tree(), iterations, openvdb::tools::NN_FACE,
@@ -185,7 +168,7 @@ openvdb::MaskGrid::Ptr buildActiveRegion(const std::vector<const openvdb::FloatG
     // front enters a new leaf keeps its topology for many rebuilds, so the output buffers, leaf
     // groups and implicit-system layouts of the last region are reused as they are.
     fillLeaves(region->tree(), domain);
-    clipToBox(region->tree(), domain.bbox());
+    domain.clipToSupport(region->tree());
     return region;
 }
 

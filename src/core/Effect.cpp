@@ -26,6 +26,27 @@ void Effect::loadState(World&, const StateReader&)
                               "cannot be resumed");
 }
 
+const char* stageName(Stage s)
+{
+    switch (s) {
+    case Stage::Sources: return "sources";
+    case Stage::Walkers: return "walkers";
+    case Stage::PhaseField: return "phase field";
+    case Stage::ObstacleCopy: return "obstacle copy";
+    case Stage::Fluid: return "fluid";
+    case Stage::HeatAdvection: return "heat advection";
+    }
+    return "?";
+}
+
+std::vector<std::string> Effect::fieldsWritten() const
+{
+    std::vector<std::string> names;
+    for (const auto& u : declaration().uses)
+        if (u.key->role == FieldRole::Field && (u.access & (kInitialises | kWrites))) names.push_back(u.key->name);
+    return names;
+}
+
 void EffectRegistry::add(EffectInfo info)
 {
     registry()[info.section] = std::move(info);

@@ -121,6 +121,11 @@ std::string ParamDict::canonicalText(const std::vector<std::string>& skip) const
     return os.str();
 }
 
+void ParamDict::onlyWhen(bool applies, const std::string& key, const std::string& option) const
+{
+    if (!applies && has(key)) fail(key, "does not apply with " + option + " (remove the key or change that option)");
+}
+
 void ParamDict::fail(const std::string& key, const std::string& what) const
 {
     const ParamOrigin* o = origin(key);

@@ -80,10 +80,11 @@ void readRegionSection(ParamDict& d, RegionSettings& r)
         "rebuild the active region (and truncate) every k steps, the dilation widened to k steps of travel; "
         "0: automatic (k = 8 cells / (stencil reach + front_travel), 16 once the region fills the domain; "
         "1 while another effect writes the fields)"));
+    d.onlyWhen(!r.dense, "tolerance", "dense = true");
+    d.onlyWhen(!r.dense, "front_travel", "dense = true");
 }
 
 /// [output] world_scale lives in World::shared (key below) so effects writing their own files see it.
-const char* const kWorldScaleKey = "output.world_scale";
 
 void readOutputSection(ParamDict& d, OutputSettings& o, double* worldScale = nullptr)
 {
@@ -93,6 +94,7 @@ void readOutputSection(ParamDict& d, OutputSettings& o, double* worldScale = nul
     o.preview = p != "none";
     o.previewEvery = p == "every";
     o.previewGrid = d.getString("preview_grid", "", {}, "grid drawn in previews (default: ice, density or cells)");
+    d.onlyWhen(o.preview, "preview_grid", "preview = \"none\"");
     o.halfFloat = d.getBool("half_float", false, "store float grids as 16-bit half floats");
     o.keepLattice = d.getBool("keep_lattice", false,
         "hexagonal domains: write grids on the sheared lattice transform instead of resampling them to square voxels "
@@ -190,7 +192,7 @@ Simulation::Simulation(Scene scene) : mScene(std::move(scene))
                          "OpenVDB cannot build the domain's transform (" + shortMessage(e.what(), 120) + ")");
     }
     readRegionSection(mScene.section("region"), mWorld.region);
-    readOutputSection(mScene.section("output"), mOutput, &mWorld.shared<double>(kWorldScaleKey));
+    readOutputSection(mScene.section("output"), mOutput, &mWorld.worldScale);
     mWorld.memoryLimitBytes = readRunSettings(mScene.section("run"));
     mWorld.sceneLabel = mScene.label();
     mWorld.sceneText = mScene.text();
@@ -218,6 +220,14 @@ Simulation::Simulation(Scene scene) : mScene(std::move(scene))
     }
     if (mEffects.empty())
         throw SceneError(mScene.label(), 0, "", "the scene names no effect section, so there is nothing to simulate");
+    std::vector<DeclaredEffect> declared;
+    for (auto& e : mEffects) declared.push_back({e->name(), e->declaration()});
+    mOrder = deriveEffectOrder(declared, mScene.label());
+    for (const auto& d : declared)
+        for (const auto& u : d.declaration.uses)
+            if (u.key->role == FieldRole::Field && (u.access & kWrites) &&
+                std::find(mWrittenFields.begin(), mWrittenFields.end(), u.key->name) == mWrittenFields.end())
+                mWrittenFields.push_back(u.key->name);
     mEffectSeconds.assign(mEffects.size(), 0.0);
     checkMemoryBudget();
 }
@@ -226,7 +236,7 @@ void Simulation::checkMemoryBudget() const
 {
     // The displacement PNG is one raster over the whole plane (io/Export.h): 4-byte floats and
     // 2-byte samples per cell, whatever the sparse fields hold.
-    if (mOutput.displacementPng && mWorld.domain.isPlane())
+    if (mOutput.displacementPng && mWorld.domain.flat())
         checkMemoryEstimate(perVoxelEstimate(double(mWorld.domain.bbox().volume()), 8.0, "domain.size",
                                              "the displacement PNG raster (output.displacement_png)"),
                             mWorld.memoryLimitBytes, mWorld.sceneLabel);
@@ -281,12 +291,10 @@ Effect* Simulation::effect(const std::string& section) const
 void Simulation::initialize()
 {
     if (mInitialized) return;
-    std::vector<Effect*> order;
-    for (auto& e : mEffects) order.push_back(e.get());
-    std::stable_sort(order.begin(), order.end(), [](const Effect* a, const Effect* b) {
-        return a->initializationOrder() < b->initializationOrder();
-    });
-    for (Effect* e : order) atEffect(*e, "initialisation", [&] { e->initialize(mWorld); });
+    for (size_t i : mOrder.initialize) {
+        Effect* e = mEffects[i].get();
+        atEffect(*e, "initialisation", [&] { e->initialize(mWorld); });
+    }
     mInitialized = true;
 }
 
@@ -296,11 +304,14 @@ void Simulation::step()
     StepInfo info;
     info.step = mStep;
     info.frame = mStep / mWorld.stepsPerFrame + 1;
-    for (size_t i = 0; i < mEffects.size(); ++i) {
+    for (size_t i : mOrder.step) {
         const auto t0 = Clock::now();
         atEffect(*mEffects[i], "step", [&] { mEffects[i]->step(mWorld, info); });
         mEffectSeconds[i] += seconds(t0, Clock::now());
     }
+    if (mWorld.domain.hasPostStep()) // e.g. a shell's closest-point re-extension
+        for (const auto& name : mWrittenFields)
+            if (auto g = mWorld.fields.base(name)) mWorld.domain.postStep(*g);
     ++mStep;
 }
 
@@ -333,7 +344,7 @@ std::string Simulation::writeFrame(const Frame& frame, const std::string& dir)
     meta.insertMeta("time", openvdb::DoubleMetadata(frame.time));
     meta.insertMeta("voxel_size_m", openvdb::DoubleMetadata(mWorld.domain.voxelSize()));
     openvdb::GridPtrVec grids = exportGrids(frame.grids, mWorld.domain, mOutput.keepLattice);
-    const double worldScale = mWorld.shared<double>(kWorldScaleKey);
+    const double worldScale = mWorld.worldScale;
     if (worldScale != 1.0) { // shallow copies: the frame's own grids keep their transforms
         meta.insertMeta("world_scale", openvdb::DoubleMetadata(worldScale));
         for (auto& g : grids) {
@@ -354,7 +365,7 @@ std::string Simulation::writeFrame(const Frame& frame, const std::string& dir)
 
 std::vector<std::string> Simulation::writeDisplacement(const Frame& frame, const std::string& dir)
 {
-    if (!mOutput.displacementPng || !mWorld.domain.isPlane()) return {};
+    if (!mOutput.displacementPng || !mWorld.domain.flat()) return {};
     for (auto& g : frame.grids) {
         auto growth = openvdb::gridPtrCast<openvdb::FloatGrid>(g);
         if (!growth || g->getName() != "growth") continue;
@@ -736,10 +747,13 @@ std::string sceneReferenceMarkdown()
           "always in step with the program. Every key can be overridden on the command line with "
           "`--set section.key=value`. Unknown sections and keys, wrong types and out-of-range values are errors "
           "that name the file, line and key.\n\n";
-    auto table = [&](const std::string& section, const std::string& summary, const ParamDict& d) {
+    auto table = [&](const std::string& section, const std::string& summary, const ParamDict& d,
+                     const std::vector<ParamSpec>& more = {}) {
         os << "## [" << section << "]\n\n" << summary << "\n\n| key | type | default | range | unit | meaning |\n"
            << "|---|---|---|---|---|---|\n";
-        for (auto& s : d.specs())
+        std::vector<ParamSpec> specs = d.specs();
+        specs.insert(specs.end(), more.begin(), more.end());
+        for (auto& s : specs)
             os << "| `" << s.key << "` | " << s.type << " | `" << s.defaultText << "` | " << s.range << " | "
                << (s.unit.empty() ? "-" : s.unit) << " | " << s.doc << " |\n";
         os << "\n";
@@ -753,7 +767,20 @@ std::string sceneReferenceMarkdown()
     readOutputSection(output, o);
     readRunSettings(runSection);
     table("scene", "Run-wide settings.", scene);
-    table("domain", "Where effects live: a plane one voxel thick or a 3D box, on a square or hexagonal lattice.", domain);
+    std::vector<ParamSpec> kindKeys; // keys of the other domain kinds (src/core/domains/)
+    for (const auto* k : DomainRegistry::all()) {
+        ParamDict other("domain");
+        other.set("kind", k->kind, {"", 0});
+        try { Domain::fromParams(other); } catch (const std::exception&) {} // specs are recorded before any refusal
+        for (const auto& s : other.specs()) {
+            bool known = false;
+            for (const auto& t : domain.specs()) known = known || t.key == s.key;
+            for (const auto& t : kindKeys) known = known || t.key == s.key;
+            if (!known) kindKeys.push_back(s);
+        }
+    }
+    table("domain", "Where effects live: a plane one voxel thick or a 3D box, on a square or hexagonal lattice.", domain,
+          kindKeys);
     table("region", "The sparse active region of the PDE effects.", region);
     table("output", "What is written.", output);
     table("run", "Resources of the whole run (see docs/guide.md, \"Failures and what frostvdb does\").", runSection);

@@ -29,40 +29,17 @@ namespace frostvdb::gas {
 namespace {
 
 // ---------------------------------------------------------------------------------------------
-// Flow registry: flow sections register their function for the world they run in; gases read
-// them at each frame. Applied in a fixed order whatever the section order.
+// Flows: each flow section puts its function into the world's typed state (key gas::kFlows) at
+// initialisation; gases read them at each frame. Applied in a fixed order whatever the section order.
 
 enum FlowOrder { kAttractor = 0, kRepulsor = 1, kLinear = 2, kVortex = 3, kTable = 4 };
 
-struct FlowRegistry {
-    std::mutex mutex;
-    std::map<const World*, std::map<int, std::shared_ptr<const FlowFunction>>> flows;
-
-    static FlowRegistry& get()
+struct FlowState {
+    std::map<int, std::shared_ptr<const FlowFunction>> flows;
+    FlowList list() const
     {
-        static FlowRegistry r;
-        return r;
-    }
-    void add(const World* w, int order, std::shared_ptr<const FlowFunction> f)
-    {
-        std::lock_guard<std::mutex> lock(mutex);
-        flows[w][order] = std::move(f);
-    }
-    void remove(const World* w, int order)
-    {
-        std::lock_guard<std::mutex> lock(mutex);
-        auto it = flows.find(w);
-        if (it == flows.end()) return;
-        it->second.erase(order);
-        if (it->second.empty()) flows.erase(it);
-    }
-    FlowList list(const World* w)
-    {
-        std::lock_guard<std::mutex> lock(mutex);
         FlowList out;
-        auto it = flows.find(w);
-        if (it != flows.end())
-            for (auto& [k, f] : it->second) out.push_back(f);
+        for (auto& [k, f] : flows) out.push_back(f);
         return out;
     }
 };
@@ -71,17 +48,18 @@ class FlowEffect : public Effect {
 public:
     FlowEffect(std::string section, int order, std::shared_ptr<const FlowFunction> f)
         : mSection(std::move(section)), mOrder(order), mFlow(std::move(f)) {}
-    ~FlowEffect() override
-    {
-        if (mWorld) FlowRegistry::get().remove(mWorld, mOrder);
-    }
     std::string name() const override { return mSection; }
-    std::vector<std::string> fieldsWritten() const override { return {}; }
+    FieldDeclaration declaration() const override
+    {
+        FieldDeclaration d;
+        d.stage = Stage::Sources;
+        d.use(kFlows, kInitialises);
+        return d;
+    }
     void initialize(World& world) override
     {
         if (!mFlow) mFlow = load(world);
-        mWorld = &world;
-        FlowRegistry::get().add(mWorld, mOrder, mFlow);
+        world.state<FlowState>().flows[mOrder] = mFlow;
     }
     void step(World&, const StepInfo&) override {}
     void addToFrame(World&, Frame&) override {}
@@ -93,7 +71,6 @@ protected:
 private:
     std::string mSection;
     int mOrder;
-    const World* mWorld = nullptr;
 
 protected:
     std::shared_ptr<const FlowFunction> mFlow;
@@ -174,16 +151,19 @@ public:
         mBuild.fire = mModel->isFire();
     }
     std::string name() const override { return mSection; }
-    std::vector<std::string> fieldsWritten() const override
+    FieldDeclaration declaration() const override
     {
-        std::vector<std::string> f{"density"};
-        if (mBuild.velocity) f.push_back("vel");
+        FieldDeclaration d;
+        d.stage = Stage::Sources;
+        d.use(kFlows, kReads);
+        if (mPublish) d.use(kDensity, kWrites);
+        d.output(out::kDensity);
+        if (mBuild.velocity) d.output(out::kVel);
         if (mBuild.fire) {
-            f.push_back("flame");
-            f.push_back("temperature");
-            if (mBuild.colour) f.push_back("Cd");
+            d.output(out::kFlame).output(out::kTemperature);
+            if (mBuild.colour) d.output(out::kColour);
         }
-        return f;
+        return d;
     }
     void initialize(World& world) override
     {
@@ -239,7 +219,7 @@ private:
     void build(World& world, int64_t frameNumber)
     {
         const auto t0 = Clock::now();
-        mFlows = FlowRegistry::get().list(&world);
+        mFlows = world.state<FlowState>().list();
         const GasContext ctx = GasContext::at(double(frameNumber), mModel->common().fps, &mFlows);
         const auto xf = mXform ? mXform : gasTransform(world);
         const std::string key = flowKey().empty() ? extentKey() : flowKey();
@@ -280,7 +260,7 @@ private:
     {
         const auto xf = world.fields.transform();
         if (*g->transformPtr() == *xf) {
-            world.fields.replace("density", g->copyGrid());
+            world.fields.replace(kDensity, g->copyGrid());
             return;
         }
         auto src = openvdb::gridPtrCast<openvdb::FloatGrid>(g);
@@ -289,7 +269,7 @@ private:
         dst->setTransform(xf->copy());
         dst->setGridClass(openvdb::GRID_FOG_VOLUME);
         openvdb::tools::resampleToMatch<openvdb::tools::BoxSampler>(*src, *dst);
-        world.fields.replace("density", dst);
+        world.fields.replace(kDensity, dst);
     }
     /// Adds @a g to the frame, or merges it into a grid of the same name another gas added
     /// (density sums, others keep the maximum). Merging builds a new grid: cached grids of the

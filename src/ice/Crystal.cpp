@@ -31,53 +31,51 @@ namespace {
 using openvdb::Coord;
 using openvdb::Vec3d;
 
-/// Index position of domain fractions (a missing z is the middle of a box).
-Vec3d indexOf(const Domain& dom, const std::vector<double>& f)
+/// Index position of a shape point: fractions of the domain's parameterisation, or metres.
+Vec3d indexOf(const Domain& dom, const std::vector<double>& f, bool world)
 {
-    const auto& bb = dom.bbox();
-    const Vec3d size = (bb.max() - bb.min()).asVec3d();
-    const double fz = f.size() > 2 ? f[2] : 0.5;
-    return Vec3d(bb.min().x() + f[0] * size.x(), bb.min().y() + f[1] * size.y(),
-                 dom.isPlane() ? 0.0 : bb.min().z() + fz * size.z());
+    if (!world) return dom.parameterToIndex(f);
+    Vec3d w(f[0], f[1], 0.0);
+    if (f.size() > 2) w.z() = f[2];
+    else w.z() = dom.transform()->indexToWorld(dom.centre()).z(); // on the domain's middle layer
+    Vec3d idx = dom.worldToIndex(w);
+    if (dom.flat()) idx.z() = dom.bbox().min().z(); // a flat domain's own layer
+    return idx;
 }
 
 /// Position in the lattice's own geometry, in cells (hexagonal cells are unit apart too).
 Vec3d geo(const Domain& dom, const Vec3d& idx)
 {
     const openvdb::Vec2d p = dom.lattice().planePosition(idx.x(), idx.y());
-    return Vec3d(p.x(), p.y(), dom.isPlane() ? 0.0 : idx.z());
+    return Vec3d(p.x(), p.y(), idx.z());
 }
 
 /// Index window around [lo, hi] widened by @a r cells (with room for the hexagonal shear).
 openvdb::CoordBBox window(const Domain& dom, Vec3d lo, Vec3d hi, double r)
 {
     const double rr = 2.0 * r + 2.0;
-    const Coord a(int(std::floor(lo.x() - rr)), int(std::floor(lo.y() - rr)),
-                  dom.isPlane() ? 0 : int(std::floor(lo.z() - r - 2.0)));
-    const Coord b(int(std::ceil(hi.x() + rr)), int(std::ceil(hi.y() + rr)),
-                  dom.isPlane() ? 0 : int(std::ceil(hi.z() + r + 2.0)));
+    const Coord a(int(std::floor(lo.x() - rr)), int(std::floor(lo.y() - rr)), int(std::floor(lo.z() - r - 2.0)));
+    const Coord b(int(std::ceil(hi.x() + rr)), int(std::ceil(hi.y() + rr)), int(std::ceil(hi.z() + r + 2.0)));
     openvdb::CoordBBox box(a, b);
     box.intersect(dom.bbox());
     return box;
 }
 
-unsigned parseEdges(ParamDict& d, const std::string& text, bool plane)
+/// Splits "left, top" into boundary part names the domain knows ("all": every part).
+std::vector<std::string> parseEdges(ParamDict& d, const std::string& text, const Domain& dom)
 {
-    unsigned bits = 0;
+    const std::vector<std::string> known = dom.boundaryNames();
+    std::vector<std::string> out;
     std::string word;
     auto flush = [&]() {
         if (word.empty()) return;
-        using E = CrystalShape;
-        if (word == "all") bits |= E::Left | E::Right | E::Bottom | E::Top | (plane ? 0u : unsigned(E::Front | E::Back));
-        else if (word == "left") bits |= E::Left;
-        else if (word == "right") bits |= E::Right;
-        else if (word == "bottom") bits |= E::Bottom;
-        else if (word == "top") bits |= E::Top;
-        else if (!plane && word == "front") bits |= E::Front;
-        else if (!plane && word == "back") bits |= E::Back;
-        else
-            d.fail("edges", "unknown edge '" + word + "' (allowed: all, left, right, bottom, top" +
-                                (plane ? std::string(")") : std::string(", front, back)")));
+        if (word == "all") out.insert(out.end(), known.begin(), known.end());
+        else if (std::find(known.begin(), known.end(), word) != known.end()) out.push_back(word);
+        else {
+            std::string list = "all";
+            for (const auto& k : known) list += ", " + k;
+            d.fail("edges", "unknown edge '" + word + "' (allowed: " + list + ")");
+        }
         word.clear();
     };
     for (char c : text) {
@@ -85,8 +83,10 @@ unsigned parseEdges(ParamDict& d, const std::string& text, bool plane)
         else word += char(std::tolower(static_cast<unsigned char>(c)));
     }
     flush();
-    if (!bits) d.fail("edges", "names no edge");
-    return bits;
+    if (out.empty()) d.fail("edges", "names no edge");
+    std::sort(out.begin(), out.end());
+    out.erase(std::unique(out.begin(), out.end()), out.end());
+    return out;
 }
 
 bool endsWith(const std::string& s, const std::string& suffix)
@@ -139,7 +139,10 @@ void sampleDomain(const Domain& dom, const ValueFn& value, const std::function<v
         });
         for (int j = 0; j < ny; ++j)
             for (int i = 0; i < nx; ++i)
-                fn(Coord(bb.min().x() + i, bb.min().y() + j, k), layer[size_t(j) * nx + i]);
+            {
+                const Coord c(bb.min().x() + i, bb.min().y() + j, k);
+                if (dom.contains(c)) fn(c, layer[size_t(j) * nx + i]); // the support, not its bounds
+            }
     }
 }
 
@@ -207,14 +210,21 @@ CrystalShape readCrystalShape(ParamDict& d, const Domain& dom, bool withValue)
     const std::string kind = d.getString("shape", "point", {"point", "disc", "line", "edge"},
         "point: disc of `radius` cells; disc: radius as a fraction of the domain; line: segment of `width` cells; "
         "edge: band of `width` cells along domain edges (a box: balls, capsules and slabs)");
-    const std::vector<size_t> dims = dom.isPlane() ? std::vector<size_t>{2} : std::vector<size_t>{2, 3};
-    s.position = d.getFloatArray("position", {0.5, 0.5}, dims, 0.0, 1.0, "fraction",
+    const std::vector<size_t> dims = dom.parameterDimension() == 2 ? std::vector<size_t>{2} : std::vector<size_t>{2, 3};
+    s.world = d.getString("space", "fraction", {"fraction", "world"},
+        "how position, from and to are given: fractions of the domain's parameterisation, or world metres "
+        "[x, y(, z)] (a missing z: the domain's middle layer)") == "world";
+    const double lo = s.world ? -1e6 : 0.0, hi = s.world ? 1e6 : 1.0;
+    const std::vector<size_t> worldDims{2, 3};
+    s.position = d.getFloatArray("position", {0.5, 0.5}, s.world ? worldDims : dims, lo, hi, "fraction or m",
         "centre of a point or disc as fractions of the domain [x, y] (box: [x, y, z], z defaults to 0.5)");
     s.radius = d.getFloat("radius", 3.0, 0.0, 1e6, "cells", "radius of a point");
     const double rf = d.getFloat("radius_fraction", 0.1, 0.0, 1.0, "fraction",
         "radius of a disc as a fraction of the domain's smaller side");
-    s.from = d.getFloatArray("from", {}, dims, 0.0, 1.0, "fraction", "start of a line as fractions of the domain");
-    s.to = d.getFloatArray("to", {}, dims, 0.0, 1.0, "fraction", "end of a line as fractions of the domain");
+    s.from = d.getFloatArray("from", {}, s.world ? worldDims : dims, lo, hi, "fraction or m",
+        "start of a line as fractions of the domain");
+    s.to = d.getFloatArray("to", {}, s.world ? worldDims : dims, lo, hi, "fraction or m",
+        "end of a line as fractions of the domain");
     s.width = d.getFloat("width", 2.0, 0.0, 1e6, "cells",
         "thickness of a line (cells within width/2 of it) or of an edge band (ceil(width) cells)");
     const std::string edges = d.getString("edges", "all", {},
@@ -238,6 +248,7 @@ CrystalShape readCrystalShape(ParamDict& d, const Domain& dom, bool withValue)
     only("to", {"line"});
     only("width", {"line", "edge"});
     only("edges", {"edge"});
+    only("space", {"point", "disc", "line"});
 
     const auto& bb = dom.bbox();
     if (kind == "point") {
@@ -251,7 +262,7 @@ CrystalShape readCrystalShape(ParamDict& d, const Domain& dom, bool withValue)
             d.fail(d.has("from") ? "to" : "from", "a line needs both `from` and `to`");
     } else {
         s.kind = CrystalShape::Kind::Edge;
-        s.edges = parseEdges(d, edges, dom.isPlane());
+        s.edges = parseEdges(d, edges, dom);
         if (s.width < 1.0) d.fail("width", "an edge band is at least 1 cell wide");
     }
     return s;
@@ -259,11 +270,10 @@ CrystalShape readCrystalShape(ParamDict& d, const Domain& dom, bool withValue)
 
 void forEachShapeCell(const Domain& dom, const CrystalShape& s, const std::function<void(const Coord&)>& fn)
 {
-    const auto& bb = dom.bbox();
     switch (s.kind) {
     case CrystalShape::Kind::Point:
     case CrystalShape::Kind::Disc: {
-        const Vec3d c = indexOf(dom, s.position);
+        const Vec3d c = indexOf(dom, s.position, s.world);
         const Vec3d g = geo(dom, c);
         const double r2 = s.radius * s.radius;
         const auto box = window(dom, c, c, s.radius);
@@ -272,7 +282,7 @@ void forEachShapeCell(const Domain& dom, const CrystalShape& s, const std::funct
         break;
     }
     case CrystalShape::Kind::Line: {
-        const Vec3d a = indexOf(dom, s.from), b = indexOf(dom, s.to);
+        const Vec3d a = indexOf(dom, s.from, s.world), b = indexOf(dom, s.to, s.world);
         const Vec3d ga = geo(dom, a), gb = geo(dom, b), ab = gb - ga;
         const double len2 = ab.lengthSqr(), hw = 0.5 * s.width;
         const auto box = window(dom, openvdb::math::minComponent(a, b), openvdb::math::maxComponent(a, b), hw);
@@ -285,21 +295,7 @@ void forEachShapeCell(const Domain& dom, const CrystalShape& s, const std::funct
     }
     case CrystalShape::Kind::Edge: {
         const int n = std::max(1, int(std::ceil(s.width - 1e-9)));
-        const Coord lo = bb.min(), hi = bb.max();
-        auto band = [&](unsigned bit, int axis, bool low) {
-            if (!(s.edges & bit)) return;
-            Coord a = lo, b = hi;
-            if (low) b[axis] = std::min(hi[axis], lo[axis] + n - 1);
-            else a[axis] = std::max(lo[axis], hi[axis] - n + 1);
-            const openvdb::CoordBBox box(a, b);
-            for (auto it = box.begin(); it; ++it) fn(*it);
-        };
-        band(CrystalShape::Left, 0, true);
-        band(CrystalShape::Right, 0, false);
-        band(CrystalShape::Bottom, 1, true);
-        band(CrystalShape::Top, 1, false);
-        band(CrystalShape::Front, 2, true);
-        band(CrystalShape::Back, 2, false);
+        for (const auto& e : s.edges) dom.forEachBoundaryVoxel(e, n, fn);
         break;
     }
     }
@@ -438,6 +434,7 @@ std::unique_ptr<Effect> CrystalEffect::create(ParamDict& d, const World& world)
     readMap("seed", fx->mSeedMap, "seed crystal map: ice where the map >= seed_map_threshold (a VDB level set: inside)");
     fx->mSeedThreshold = d.getFloat("seed_map_threshold", 0.5, 0.0, 1.0, "",
                                     "seed map value from which a cell starts as ice");
+    d.onlyWhen(fx->mSeedMap.has, "seed_map_threshold", "no seed_map");
     readMap("melt", fx->mMeltMap, "melting temperature map in [0,1]: 1 promotes growth, 0 suppresses it");
     fx->mMeltValue = d.getFloat("melt_value", 1.0, 0.0, 1.0, "",
                                 "melt value wherever no melt map or melt shape says otherwise");
@@ -447,12 +444,13 @@ std::unique_ptr<Effect> CrystalEffect::create(ParamDict& d, const World& world)
     return fx;
 }
 
-std::vector<std::string> CrystalEffect::fieldsWritten() const
+FieldDeclaration CrystalEffect::declaration() const
 {
-    std::vector<std::string> f;
-    if (hasSeeds()) f.push_back(kPhase);
-    if (hasMelt()) f.push_back(kMelt);
-    return f;
+    FieldDeclaration d;
+    d.stage = Stage::Sources;
+    if (hasSeeds()) d.use(kPhase, kInitialises);
+    if (hasMelt()) d.use(kMelt, kInitialises);
+    return d;
 }
 
 void CrystalEffect::initialize(World& world)
@@ -469,7 +467,11 @@ void CrystalEffect::initialize(World& world)
     }
     if (hasMelt()) {
         auto m = world.fields.require<openvdb::FloatGrid>(kMelt, 1.f);
-        if (mMeltValue != 1.0) m->tree().fill(dom.bbox(), float(mMeltValue), true);
+        if (mMeltValue != 1.0) { // the value over the domain's support
+            openvdb::MaskTree support;
+            dom.fillSupport(support);
+            m->setTree(std::make_shared<openvdb::FloatTree>(support, 1.f, float(mMeltValue), openvdb::TopologyCopy()));
+        }
         if (mMeltMap.has) {
             auto acc = m->getAccessor();
             sampleMap(dom, mMeltMap.src, true, [&](const Coord& c, float v) {

@@ -57,7 +57,7 @@ std::unique_ptr<Effect> DlaEffect::create(ParamDict& d, const World& world)
                       "time step of the ice clock when no [phase_field] runs (freeze_time = step * dt, drift vel*dt)");
     p.flowDrift = d.getFloat("flow_drift", 1.0, 0.0, 1e6, "",
                              "scale of the flow drift: each walker step adds flow_drift * vel * dt (in cells) "
-                             "where the field vel exists (paper 4.3)");
+                             "where the field flow_vel ([fluid]) exists (paper 4.3)");
     p.maxSteps = d.getInt("max_steps", 0, 0, int64_t(1) << 50, "steps",
                           "walker lifetime in lattice steps (a jump counts its mean duration); 0: until it "
                           "sticks or leaves the domain");
@@ -82,17 +82,31 @@ std::unique_ptr<Effect> DlaEffect::create(ParamDict& d, const World& world)
     p.steamReach = d.getFloat("steam_reach", 0.05, 0.0, 1e3, "m",
                               "on a plane: steam up to this height above it counts, weighted 1 - height/reach "
                               "(column maximum); 0: the plane's own height only");
+    d.onlyWhen(p.jumps, "jump_min_radius", "jumps = false");
+    d.onlyWhen(p.jumps, "jump_max_radius", "jumps = false");
     if (p.jumpMaxRadius > 0 && p.jumpMaxRadius < p.jumpMinRadius)
         d.fail("jump_max_radius", "must be 0 or >= jump_min_radius");
-    (void)world;
+    if (world.domain && world.domain.bbox().min() != openvdb::Coord(0)) // the dense walker arrays index from 0
+        throw SceneError(world.sceneLabel, 0, "domain.origin",
+                         "[dla] needs a domain whose first cell is at the world origin (origin = [0, 0, 0])");
     return fx;
 }
 
-std::vector<std::string> DlaEffect::fieldsWritten() const
+FieldDeclaration DlaEffect::declaration() const
 {
-    std::vector<std::string> f{kPhase, kTemperature, kGrowth, kFreezeTime};
-    if (mParams.hits > 1) f.push_back(kDlaHits);
-    return f;
+    FieldDeclaration d;
+    d.stage = Stage::Walkers;
+    d.use(kClock, kReadsAtInit | kReads) // falls back to its own dt without [phase_field]
+        .use(kPhase, kReadsAtInit | kReads | kWrites)
+        .use(kTemperature, kInitialises | kWrites)
+        .use(kGrowth, kInitialises | kWrites)
+        .use(kFreezeTime, kInitialises | kWrites)
+        .use(kMelt, kReads)
+        .use(kVelocity, kReads)
+        .use(gas::kDensity, kReads);
+    if (mParams.hits > 1) d.use(kDlaHits, kInitialises | kReads | kWrites);
+    d.output(out::kIce).output(out::kIceTemperature).output(out::kGrowth).output(out::kFreezeTime);
+    return d;
 }
 
 void DlaEffect::initialize(World& world)
@@ -119,7 +133,7 @@ void DlaEffect::initialize(World& world)
 
 void DlaEffect::updateSteam(World& world)
 {
-    auto density = world.fields.get<openvdb::FloatGrid>("density");
+    auto density = world.fields.get<openvdb::FloatGrid>(gas::kDensity);
     if (!density) {
         mSteamSource.reset();
         mSteamCdf.clear();
@@ -136,8 +150,9 @@ void DlaEffect::updateSteam(World& world)
     const Domain& dom = world.domain;
     const auto xf = dom.transform();
     const auto& dxf = density->transform();
-    const bool plane = dom.isPlane();
-    const double reach = plane ? mParams.steamReach : 0.0;
+    const bool surface = dom.hasFrame(); // steam above the surface along its normal counts
+    const bool plane = dom.flat();       // a flat surface: project the gas's bounds onto its layer
+    const double reach = surface ? mParams.steamReach : 0.0;
     const double dz = dxf.voxelSize()[2];
     const int samples = reach > 0 ? std::max(1, int(std::ceil(reach / dz))) : 0;
     // the domain cells under the density's world bounding box
@@ -150,7 +165,8 @@ void DlaEffect::updateSteam(World& world)
                                             cy ? ib.max().y() + 0.5 : ib.min().y() - 0.5,
                                             cz ? ib.max().z() + 0.5 : ib.min().z() - 0.5);
                 const openvdb::Vec3d w = dxf.indexToWorld(corner);
-                const openvdb::Vec3d q = xf->worldToIndex(plane ? openvdb::Vec3d(w.x(), w.y(), 0.0) : w);
+                openvdb::Vec3d q = xf->worldToIndex(w);
+                if (plane) q.z() = dom.bbox().min().z();
                 cells.expand(openvdb::Coord::floor(q));
                 cells.expand(openvdb::Coord::floor(q) + openvdb::Coord(1));
             }
@@ -164,12 +180,13 @@ void DlaEffect::updateSteam(World& world)
             const int j = lo.y() + row % dim.y(), k = lo.z() + row / dim.y();
             for (int i = lo.x(); i < lo.x() + dim.x(); ++i) {
                 const openvdb::Vec3d p = xf->indexToWorld(openvdb::Vec3d(i, j, k));
+                const openvdb::Vec3d up = surface ? dom.frame(openvdb::Coord(i, j, k)).normal : openvdb::Vec3d(0, 0, 1);
                 float best = 0.f;
                 for (int s = 0; s <= samples; ++s) {
                     const double h = s * dz;
                     if (reach > 0 && h > reach) break;
                     const float wgt = reach > 0 ? float(1.0 - h / reach) : 1.f;
-                    const float v = acc.getValue(dxf.worldToIndexNodeCentered(p + openvdb::Vec3d(0, 0, h)));
+                    const float v = acc.getValue(dxf.worldToIndexNodeCentered(p + up * h));
                     best = std::max(best, v * wgt);
                 }
                 w[size_t(i - lo.x()) + size_t(dim.x()) * size_t(row)] = best;

@@ -31,12 +31,7 @@ int64_t DlaParams::humidityAt(int64_t step) const
 
 std::vector<openvdb::Coord> walkerNeighbours(const Domain& domain)
 {
-    auto n = domain.lattice().planeNeighbours();
-    if (!domain.isPlane()) {
-        n.push_back(openvdb::Coord(0, 0, 1));
-        n.push_back(openvdb::Coord(0, 0, -1));
-    }
-    return n;
+    return domain.walkerNeighbours();
 }
 
 namespace {

@@ -65,9 +65,9 @@ std::unique_ptr<Effect> FluidEffect::create(ParamDict& d, const World& world)
         "conjugate-gradient iteration cap per linear solve (a solve that hits it is reported)"));
     f.solidThreshold = d.getFloat("obstacle_threshold", 0.5, 0.0, 1.0, "",
         "cells with p above this are solid obstacles (the paper: 0.5)");
-    if (!world.domain.isPlane())
+    if (!world.domain.flat()) // the paper's 2D stable fluid: one layer of cells
         throw SceneError(world.sceneLabel, 0, "fluid",
-                         "[fluid] runs on plane domains only (domain.kind = \"plane\"); box domains are not supported yet");
+                         "[fluid] runs on flat domains only (domain.kind = \"plane\"), not on \"" + world.domain.kind() + "\"");
     const auto& bb = world.domain.bbox();
     if (bb.dim().x() < 4 || bb.dim().y() < 4)
         throw SceneError(world.sceneLabel, 0, "fluid", "[fluid] needs a domain of at least 4 x 4 cells");
@@ -80,11 +80,26 @@ openvdb::Vec2d FluidEffect::auxPosition(double i, double j) const
     return {i + 0.5 * j, j * kSqrt3Over2};
 }
 
+FieldDeclaration FluidEffect::declaration() const
+{
+    FieldDeclaration d;
+    d.stage = Stage::ObstacleCopy; // then its fluid step and the heat advection (the paper's last three stages)
+    d.use(ice::kClock, kReadsAtInit | kReads)
+        .use(ice::kPhase, kReadsAtInit | kReads)
+        .use(ice::kTemperature, kInitialises | kReads | kWrites)
+        .use(ice::kGrowth, kInitialises)
+        .use(ice::kFreezeTime, kInitialises)
+        .use(ice::kVelocity, kInitialises | kWrites);
+    d.output(out::kIce).output(out::kIceTemperature).output(out::kGrowth).output(out::kFreezeTime).output(out::kFlowVel);
+    return d;
+}
+
 void FluidEffect::initialize(World& world)
 {
     ice::requireIceFields(world);
     const Domain& dom = world.domain;
     mHex = dom.lattice().kind() == LatticeKind::Hexagonal;
+    mOrigin = dom.bbox().min(); // aux cell (0, 0) sits on the domain's first cell
     const int nx = dom.bbox().dim().x(), ny = dom.bbox().dim().y();
     int ax = nx, ay = ny;
     if (mHex) { // the axis-aligned rectangle around the sheared domain, same spacing
@@ -112,10 +127,10 @@ void FluidEffect::updateObstacles(World& world)
                 for (int a = 0; a < W; ++a) {
                     float v;
                     if (!mHex) {
-                        v = acc.getValue(openvdb::Coord(a, b, 0));
+                        v = acc.getValue(mOrigin + openvdb::Coord(a, b, 0));
                     } else {
                         const double j = b / kSqrt3Over2, i = a - 0.5 * j;
-                        v = openvdb::tools::BoxSampler::sample(acc, openvdb::Vec3R(i, j, 0.0));
+                        v = openvdb::tools::BoxSampler::sample(acc, mOrigin.asVec3d() + openvdb::Vec3R(i, j, 0.0));
                     }
                     solid[size_t(b) * W + a] = v > thr ? 1 : 0;
                 }
@@ -140,7 +155,7 @@ void FluidEffect::writeVelocityField(World& world)
     tbb::parallel_for(leaves.leafRange(64), [&](const openvdb::tree::LeafManager<openvdb::Vec3STree>::LeafRange& r) {
         for (auto leaf = r.begin(); leaf; ++leaf)
             for (auto it = leaf->beginValueOn(); it; ++it) {
-                const openvdb::Coord c = it.getCoord();
+                const openvdb::Coord c = it.getCoord() - mOrigin;
                 const openvdb::Vec2d q = auxPosition(c.x(), c.y());
                 const openvdb::Vec2d u = mFluid->sample(q.x(), q.y());
                 it.setValue(openvdb::Vec3s(float(u.x() * scale), float(u.y() * scale), 0.f));
@@ -180,13 +195,14 @@ void FluidEffect::advectTemperature(World& world, double dt)
         for (auto leaf = r.begin(); leaf; ++leaf)
             for (auto it = leaf->beginValueOn(); it; ++it) {
                 const openvdb::Coord c = it.getCoord();
-                const openvdb::Vec2d q = auxPosition(c.x(), c.y());
+                const openvdb::Vec2d q = auxPosition(c.x() - mOrigin.x(), c.y() - mOrigin.y());
                 const openvdb::Vec2d u = mFluid->sample(q.x(), q.y());
                 if (u.x() == 0.0 && u.y() == 0.0) { it.setValue(acc.getValue(c)); continue; }
                 const double x = q.x() - s * u.x(), y = q.y() - s * u.y();
                 double i = x, j = y;
                 if (mHex) { j = y / kSqrt3Over2; i = x - 0.5 * j; }
-                it.setValue(openvdb::tools::BoxSampler::sample(acc, openvdb::Vec3R(i, j, double(c.z()))));
+                it.setValue(openvdb::tools::BoxSampler::sample(
+                    acc, openvdb::Vec3R(i + mOrigin.x(), j + mOrigin.y(), double(c.z()))));
             }
     });
     if (!world.region.dense) truncateToTolerance(*tNew, world.region.tolerance);
@@ -233,7 +249,7 @@ void FluidEffect::addToFrame(World& world, Frame& frame)
     auto vel = world.fields.get<openvdb::Vec3SGrid>(ice::kVelocity);
     if (!vel) return;
     auto out = vel->deepCopy(); // already in world units
-    out->setName("vel");
+    out->setName(out::kFlowVel.name); // not `vel`: that is the gas's m/s
     out->setVectorType(openvdb::VEC_CONTRAVARIANT_RELATIVE);
     out->insertMeta("units", openvdb::StringMetadata("m per unit simulation time"));
     frame.add(out);
@@ -261,11 +277,13 @@ bool FluidEffect::writePreview(World& world, const Frame& frame, const std::stri
                 const double qx = x * px, qy = (height - 1 - y) * px;
                 double i = qx, j = qy;
                 if (mHex) { j = qy / kSqrt3Over2; i = qx - 0.5 * j; }
+                i += mOrigin.x();
+                j += mOrigin.y();
                 if (i < bb.min().x() - 0.5 || i > bb.max().x() + 0.5 || j < bb.min().y() - 0.5 || j > bb.max().y() + 0.5) {
                     img.set(x, y, 0, 0, 0);
                     continue;
                 }
-                const openvdb::Vec3R ijk(i, j, 0.0);
+                const openvdb::Vec3R ijk(i, j, double(mOrigin.z()));
                 const double speed = std::min(1.5, mFluid->sample(qx, qy).length() / U) / 1.5;
                 const double heat = std::min(1.0, std::fabs(openvdb::tools::BoxSampler::sample(ta, ijk) - tInf) / tSpan);
                 const double ice = std::min(1.0, std::max(0.0, double(openvdb::tools::BoxSampler::sample(pa, ijk))));

@@ -12,25 +12,21 @@ namespace ice {
 void stampDisc(World& world, openvdb::FloatGrid& p, const std::vector<double>& f, double radius)
 {
     const Domain& dom = world.domain;
-    const auto& bb = dom.bbox();
-    const openvdb::Vec3d size = (bb.max() - bb.min()).asVec3d();
-    const double fz = f.size() > 2 ? f[2] : 0.5;
-    const openvdb::Vec3d centre(bb.min().x() + f[0] * size.x(), bb.min().y() + f[1] * size.y(),
-                                dom.isPlane() ? 0.0 : bb.min().z() + fz * size.z());
+    const openvdb::Vec3d centre = dom.parameterToIndex(f);
     // Measured in the lattice's own geometry so that a hexagonal seed is round too; the index
     // window is wide enough for the hex shear (|di| <= r + |dj|/2).
     const openvdb::Vec2d c2 = dom.lattice().planePosition(centre.x(), centre.y());
     const int r = int(std::ceil(radius * 2.0)) + 1;
     auto acc = p.getAccessor();
-    const int k0 = dom.isPlane() ? 0 : int(std::floor(centre.z())) - r;
-    const int k1 = dom.isPlane() ? 0 : int(std::ceil(centre.z())) + r;
+    const int k0 = std::max(dom.bbox().min().z(), int(std::floor(centre.z())) - r); // a flat domain: its layer
+    const int k1 = std::min(dom.bbox().max().z(), int(std::ceil(centre.z())) + r);
     for (int k = k0; k <= k1; ++k)
         for (int j = int(centre.y()) - r; j <= int(centre.y()) + r; ++j)
             for (int i = int(centre.x()) - r; i <= int(centre.x()) + r; ++i) {
                 const openvdb::Coord c(i, j, k);
                 if (!dom.contains(c)) continue;
                 const openvdb::Vec2d q = dom.lattice().planePosition(i, j) - c2;
-                const double dz = dom.isPlane() ? 0.0 : k - centre.z();
+                const double dz = k - centre.z();
                 if (q.lengthSqr() + dz * dz <= radius * radius) acc.setValue(c, 1.f);
             }
 }
@@ -55,7 +51,7 @@ void recordPhaseChange(openvdb::FloatGrid::Accessor& growth, openvdb::FloatGrid:
 void addIceOutputs(World& world, Frame& frame)
 {
     for (const auto& g : frame.grids)
-        if (g->getName() == "ice") return;
+        if (g->getName() == out::kIce.name) return;
     auto p = world.fields.get<openvdb::FloatGrid>(kPhase);
     if (!p) return;
     auto ice = p->deepCopy();
@@ -72,7 +68,7 @@ void addIceOutputs(World& world, Frame& frame)
 
     if (auto T = world.fields.get<openvdb::FloatGrid>(kTemperature)) {
         auto temperature = T->deepCopy();
-        temperature->setName("temperature");
+        temperature->setName(out::kIceTemperature.name); // dimensionless: not the gas's Kelvin
         temperature->setGridClass(openvdb::GRID_UNKNOWN);
         frame.add(temperature);
     }

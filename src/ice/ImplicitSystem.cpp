@@ -17,8 +17,8 @@ inline int nbIndex(int dx, int dy, int dz) { return (dz + 1) * 9 + (dy + 1) * 3 
 } // namespace
 
 SlotLayout::SlotLayout(openvdb::tree::LeafManager<openvdb::FloatTree>& topology, const Stencil& stencil,
-                       bool isPlane)
-    : plane(isPlane), slots(isPlane ? 64 : 512)
+                       bool flat)
+    : plane(flat), slots(flat ? 64 : 512)
 {
     const size_t nLeaves = topology.leafCount();
     colours = stencil.hexagonal ? 3 : 2;

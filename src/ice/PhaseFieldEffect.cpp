@@ -37,6 +37,12 @@ std::unique_ptr<Effect> PhaseFieldEffect::create(ParamDict& d, const World& worl
     k.useBiCGSTAB = d.getString("solver", "gauss_seidel", {"gauss_seidel", "bicgstab"},
                                 "lw_cn: multi-colour Gauss-Seidel (red-black; 3 colours on hexagonal) or Eigen "
                                 "BiCGSTAB on the same system") == "bicgstab";
+    const std::string eulerOpt = "scheme = \"euler\"";
+    d.onlyWhen(k.scheme != PhaseFieldScheme::Euler, "precision", eulerOpt);
+    d.onlyWhen(k.scheme != PhaseFieldScheme::Euler, "solver_tolerance", eulerOpt);
+    d.onlyWhen(precision == "custom", "solver_tolerance", "precision = \"" + precision + "\"");
+    d.onlyWhen(k.scheme != PhaseFieldScheme::Euler, "max_iterations", eulerOpt);
+    d.onlyWhen(k.scheme != PhaseFieldScheme::Euler, "solver", eulerOpt);
     const std::string substeps =
         d.getString("substeps", "none", {"none", "auto"},
                     "none: a dt above the stability limit is refused; auto: each step is split into equal "
@@ -54,7 +60,7 @@ std::unique_ptr<Effect> PhaseFieldEffect::create(ParamDict& d, const World& worl
     k.farTemperature = d.getFloat("far_temperature", 0.0, -10.0, 10.0, "",
                                   "initial and far-field temperature T_inf (undercooling is T_e - T_inf)");
     k.noise = d.getFloat("noise", 0.0, 0.0, 0.1, "", "amplitude a of Kobayashi's interface noise (0: none)");
-    const double limit = k.stabilityLimit(world.domain.stencil(), !world.domain.isPlane());
+    const double limit = k.stabilityLimit(world.domain.stencil(), !world.domain.flat());
     fx->mStabilityLimit = limit;
     fx->mSubsteps = 1;
     if (k.dt > limit) {
@@ -69,6 +75,20 @@ std::unique_ptr<Effect> PhaseFieldEffect::create(ParamDict& d, const World& worl
         }
     }
     return fx;
+}
+
+FieldDeclaration PhaseFieldEffect::declaration() const
+{
+    FieldDeclaration d;
+    d.stage = Stage::PhaseField;
+    d.use(ice::kClock, kInitialises) // owns dt, T_inf, K, T_e
+        .use(ice::kPhase, kReadsAtInit | kReads | kWrites) // seeds the default crystal when none is given
+        .use(ice::kTemperature, kInitialises | kReads | kWrites)
+        .use(ice::kGrowth, kInitialises | kWrites)
+        .use(ice::kFreezeTime, kInitialises | kWrites)
+        .use(ice::kMelt, kReads);
+    d.output(out::kIce).output(out::kIceTemperature).output(out::kGrowth).output(out::kFreezeTime);
+    return d;
 }
 
 void PhaseFieldEffect::initialize(World& world)

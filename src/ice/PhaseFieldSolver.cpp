@@ -45,9 +45,9 @@ struct Block {
     /// Plane blocks: per row, the cells (bit x) whose coefficients pass 1 must compute: the
     /// group's leaves present in the region plus a ring of one cell.
     std::vector<uint64_t> need;
-    explicit Block(bool isPlane)
-        : bx((isPlane ? kPlaneGroup : 1) * kDim + 2 * kHalo), by(bx), bz(isPlane ? 1 : kDim + 2 * kHalo),
-          plane(isPlane)
+    explicit Block(bool flat)
+        : bx((flat ? kPlaneGroup : 1) * kDim + 2 * kHalo), by(bx), bz(flat ? 1 : kDim + 2 * kHalo),
+          plane(flat)
     {
         const size_t n = size_t(bx) * by * bz;
         for (auto* v : {&p, &T, &a, &cx, &cy, &gx, &gy, &gz, &melt, &pe, &te}) v->assign(n, 0.f);
@@ -318,7 +318,7 @@ struct LeafKernel {
     void run(openvdb::tree::LeafManager<openvdb::FloatTree>& pLeaves,
              openvdb::tree::LeafManager<openvdb::FloatTree>& tLeaves, const LeafGroups& groups) const
     {
-        const bool plane = domain.isPlane();
+        const bool plane = domain.flat();
         const int z0 = domain.bbox().min().z();
         const Block proto(plane);
         const FlatStencil st(domain.stencil(), proto.bx, std::ptrdiff_t(proto.bx) * proto.by);
@@ -480,7 +480,7 @@ void PhaseFieldSolver::step(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::Ptr&
     openvdb::tree::LeafManager<openvdb::FloatTree> pLeaves(pNew->tree());
     openvdb::tree::LeafManager<openvdb::FloatTree> tLeaves(tNew->tree());
     if (!mGroups || mGroupsGeneration != mGeneration) {
-        mGroups = std::make_unique<LeafGroups>(pLeaves, mDomain.isPlane());
+        mGroups = std::make_unique<LeafGroups>(pLeaves, mDomain.flat());
         mGroupsGeneration = mGeneration;
     }
     Accumulators acc;
@@ -507,7 +507,7 @@ void PhaseFieldSolver::step(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::Ptr&
         std::ostringstream os;
         os << "phase field left its bounds: " << failure.field << " = " << failure.value << " at voxel "
            << failure.where << " in step " << stepIndex + 1 << " (t = " << tNext << "); dt = " << k.dt
-           << ", stability limit " << k.stabilityLimit(mDomain.stencil(), !mDomain.isPlane())
+           << ", stability limit " << k.stabilityLimit(mDomain.stencil(), !mDomain.flat())
            << ". Lower phase_field.dt or the anisotropy/latent heat; nothing of this step was written.";
         throw SimulationError(os.str());
     }
@@ -543,7 +543,7 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
                                        PhaseFieldStepStats* stats)
 {
     const KobayashiParams& k = mParams;
-    const bool plane = mDomain.isPlane();
+    const bool plane = mDomain.flat();
     const Stencil stencil = mDomain.stencil();
     // The layout depends only on the region's topology: built once per region.
     if (!mLayout || mLayoutGeneration != mGeneration) {
@@ -726,7 +726,7 @@ uint64_t PhaseFieldSolver::kernelOnly(const openvdb::MaskGrid& region, const ope
     tOut.tree().topologyUnion(region.tree());
     openvdb::tree::LeafManager<openvdb::FloatTree> pLeaves(pOut.tree());
     openvdb::tree::LeafManager<openvdb::FloatTree> tLeaves(tOut.tree());
-    const LeafGroups groups(pLeaves, mDomain.isPlane());
+    const LeafGroups groups(pLeaves, mDomain.flat());
     LeafKernel{mParams, mDomain, p, T, mMelt}.run(pLeaves, tLeaves, groups);
     return pOut.activeVoxelCount();
 }

@@ -63,7 +63,7 @@ RealisticResult realistic(int n, int steps, int rebuildEvery)
     k.delta = 0.04;
     k.latentHeat = 1.6;
     const Lattice lat(LatticeKind::Square, 0.03);
-    const Domain dom(DomainKind::Plane, lat, openvdb::Coord(n, n, 1), 1e-4);
+    const Domain dom = makePlaneDomain(lat, openvdb::Coord(n, n, 1), 1e-4);
     RegionSettings rs;
     rs.tolerance = 0.0;
     rs.rebuildEvery = rebuildEvery;
@@ -161,7 +161,7 @@ int benchSparse(const BenchArgs& args)
     const int steps = args.quick ? 3 : 5;
     KobayashiParams k;
     const Lattice lat(LatticeKind::Square, 3.0 / 64.0);
-    const Domain dom(DomainKind::Plane, lat, openvdb::Coord(n, n, 1), 1e-4);
+    const Domain dom = makePlaneDomain(lat, openvdb::Coord(n, n, 1), 1e-4);
     RegionSettings sparse, dense;
     dense.dense = true;
 

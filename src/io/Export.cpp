@@ -218,7 +218,7 @@ openvdb::GridPtrVec exportGrids(const openvdb::GridPtrVec& grids, const Domain& 
         auto r = resampleGrid(*g, *square);
         // A flat domain stays one voxel thick: the shear's rounding leaves near-background
         // values in the layers above and below, and nothing lies outside the raster.
-        if (dom.isPlane()) {
+        if (dom.flat()) {
             const SquareRaster sr = squareRaster(dom);
             const int z = dom.bbox().min().z();
             r->clip(openvdb::CoordBBox(openvdb::Coord(sr.a0, sr.b0, z), openvdb::Coord(sr.a1, sr.b1, z)));
@@ -291,7 +291,7 @@ void sampleBlocks(const openvdb::FloatGrid& growth, const SquareRaster& r, doubl
 std::vector<std::string> writeDisplacementMaps(const openvdb::FloatGrid& growth, const Domain& dom,
                                                const std::string& stem, int tileSize)
 {
-    if (!dom.isPlane()) throw std::invalid_argument("displacement PNGs are for flat domains");
+    if (!dom.flat()) throw std::invalid_argument("displacement PNGs are for flat domains");
     if (tileSize < 8) throw std::invalid_argument("displacement tile size must be at least 8 pixels");
     const SquareRaster r = squareRaster(dom);
     const int W = r.width(), H = r.height();

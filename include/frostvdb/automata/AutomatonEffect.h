@@ -38,7 +38,7 @@ public:
     AutomatonEffect(std::string section, AutomatonConfig cfg, OutputOptions out);
 
     std::string name() const override { return mSection; }
-    std::vector<std::string> fieldsWritten() const override;
+    FieldDeclaration declaration() const override;
     void initialize(World& world) override;
     void step(World& world, const StepInfo& info) override;
     void addToFrame(World& world, Frame& frame) override;

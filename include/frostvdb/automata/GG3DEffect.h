@@ -58,7 +58,7 @@ public:
     static std::unique_ptr<Effect> create(ParamDict& d, const World& world);
 
     std::string name() const override { return "gravner_griffeath_3d"; }
-    std::vector<std::string> fieldsWritten() const override;
+    FieldDeclaration declaration() const override;
     void initialize(World& world) override;
     void step(World& world, const StepInfo& info) override;
     void addToFrame(World& world, Frame& frame) override;

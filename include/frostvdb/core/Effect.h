@@ -7,10 +7,14 @@
 /// Life cycle, driven by Simulation:
 /// @code
 ///   auto fx = EffectRegistry::create("phase_field", params, world); // reads params only
+///   fx->declaration();                     // its stage and the field keys it uses (FieldKeys.h)
 ///   fx->initialize(world);                 // allocates its fields, sets initial state
-///   for each step: fx->step(world, info);  // the paper's step order is the scene's order
+///   for each step: fx->step(world, info);  // in the order derived from the declarations
 ///   at each frame: fx->addToFrame(world, frame);
 /// @endcode
+/// The driver orders effects from their declarations (core/StepOrder.h): initialisation puts
+/// the effects that initialise a field or state before those that read it then; steps follow
+/// the paper's stages (walkers, phase field, obstacle copy, fluid, heat advection).
 /// A factory must not allocate fields or do heavy work: `frostvdb keys` builds every effect with
 /// empty parameters to list its keys.
 #include <frostvdb/core/Budget.h>
@@ -20,6 +24,7 @@
 /// buffers, private arrays). Resume runs initialize() as usual, puts the saved fields back, then
 /// calls loadState(), so state derived from the parameters needs no saving.
 #include <frostvdb/core/Domain.h>
+#include <frostvdb/core/FieldKeys.h>
 #include <frostvdb/core/Fields.h>
 #include <frostvdb/core/Params.h>
 #include <frostvdb/core/State.h>
@@ -29,6 +34,7 @@
 #include <functional>
 #include <map>
 #include <memory>
+#include <typeindex>
 #include <string>
 #include <vector>
 
@@ -53,21 +59,24 @@ struct World {
     Domain domain;
     FieldSet fields;
     RegionSettings region;
+    double worldScale = 1.0; ///< output.world_scale: multiplies the world size of everything written
     double memoryLimitBytes = 0; ///< [run] memory_limit resolved (0: no limit); see core/Budget.h
 
-    /// State several effects share beyond grids (e.g. the ice clock in ice/IceState.h), created
-    /// on first request and keyed by name. T must be default-constructible.
+    /// Typed state several effects share beyond grids (the ice clock ice::IceShared, the gas
+    /// flows gas::FlowState), one object per type, created on first request. Declare it with
+    /// its FieldKey (role State) so the driver orders the effects that set and read it.
     template <typename T>
-    T& shared(const std::string& key)
+    T& state()
     {
-        auto& slot = mShared[key];
+        auto& slot = mState[std::type_index(typeid(T))];
         if (!slot) slot = std::make_shared<T>();
         return *static_cast<T*>(slot.get());
     }
-    bool hasShared(const std::string& key) const { return mShared.count(key) > 0; }
+    template <typename T>
+    bool hasState() const { return mState.count(std::type_index(typeid(T))) > 0; }
 
 private:
-    std::map<std::string, std::shared_ptr<void>> mShared;
+    std::map<std::type_index, std::shared_ptr<void>> mState;
 };
 
 struct StepInfo {
@@ -84,19 +93,44 @@ struct Frame {
     void add(openvdb::GridBase::Ptr g) { grids.push_back(std::move(g)); }
 };
 
+/// Where an effect runs in a step: the ice paper's order (section 4), after the sources whose
+/// fields the stages read (seeds and maps, gases, gas flows, automata).
+enum class Stage { Sources = 0, Walkers = 1, PhaseField = 2, ObstacleCopy = 3, Fluid = 4, HeatAdvection = 5 };
+const char* stageName(Stage s);
+
+/// How an effect uses a key (bits).
+enum FieldAccess : unsigned {
+    kInitialises = 1, ///< initialize() creates or sets it (seeds, the ice clock, flows)
+    kReadsAtInit = 2, ///< initialize() reads it (it runs after the key's initialisers)
+    kReads = 4,       ///< step() reads it
+    kWrites = 8,      ///< step() writes it
+};
+
+struct FieldUse {
+    const FieldKey* key;
+    unsigned access;
+};
+
+/// What an effect declares: its stage, the fields and state it uses, the grids it writes to frames.
+struct FieldDeclaration {
+    Stage stage = Stage::Sources;
+    std::vector<FieldUse> uses;
+    std::vector<const FieldKey*> outputs;
+    FieldDeclaration& use(const FieldKey& k, unsigned access) { uses.push_back({&k, access}); return *this; }
+    FieldDeclaration& output(const FieldKey& k) { outputs.push_back(&k); return *this; }
+};
+
 class Effect {
 public:
     virtual ~Effect() = default;
     /// The scene section this effect was created from.
     virtual std::string name() const = 0;
-    /// Names of the fields this effect writes (for the run summary).
-    virtual std::vector<std::string> fieldsWritten() const = 0;
+    /// Its stage, the keys it initialises, reads and writes, and its output grids.
+    virtual FieldDeclaration declaration() const = 0;
+    /// Names of the fields this effect initialises or writes (from declaration()).
+    std::vector<std::string> fieldsWritten() const;
     /// Allocates fields and sets the initial state.
     virtual void initialize(World& world) = 0;
-    /// Effects are initialised by increasing order, then in scene order; steps always run in
-    /// scene order. Providers of state others read at initialisation use lower numbers: the
-    /// [crystal] seeds and maps 0, [phase_field] (owner of the ice clock and T_inf) 1.
-    virtual int initializationOrder() const { return 2; }
     /// Advances one step.
     virtual void step(World& world, const StepInfo& info) = 0;
     /// Adds this effect's output grids to a frame.

@@ -42,6 +42,13 @@ public:
         return it == mGrids.end() ? nullptr : openvdb::gridPtrCast<GridT>(it->second);
     }
 
+    /// The field of any type if allocated, else nullptr.
+    openvdb::GridBase::Ptr base(const std::string& name) const
+    {
+        auto it = mGrids.find(name);
+        return it == mGrids.end() ? nullptr : it->second;
+    }
+
     /// Replaces a field's grid (e.g. after a solver swapped buffers); keeps name and transform.
     void replace(const std::string& name, openvdb::GridBase::Ptr grid)
     {

@@ -68,6 +68,12 @@ public:
     std::vector<ParamDict>& getTables(const std::string& key, const std::string& doc,
                                       const ParamDict& elementSchema);
 
+    /// A key that does not apply under the options chosen: when the scene gives @a key although
+    /// @a applies is false, throws SceneError naming the key and @a option, the setting that
+    /// excludes it (e.g. `scheme = "euler"`), like an unknown key. Call it after the key's
+    /// look-up, which documents the key whatever the options.
+    void onlyWhen(bool applies, const std::string& key, const std::string& option) const;
+
     /// Throws SceneError naming the first key that no look-up read (in arrays of tables too).
     void checkAllRead() const;
 

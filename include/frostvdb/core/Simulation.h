@@ -9,10 +9,12 @@
 ///   [region] tolerance, dense, front_travel
 ///   [output] vdb, preview, preview_grid, half_float, keep_lattice, displacement_png
 ///   [run]    memory_limit
-/// Every other section must be a registered effect; effects run in the order of their sections.
+/// Every other section must be a registered effect; the initialisation and step order come from
+/// the effects' declarations (core/StepOrder.h), whatever the order of the sections.
 #include <frostvdb/core/Checkpoint.h>
 #include <frostvdb/core/Effect.h>
 #include <frostvdb/core/Scene.h>
+#include <frostvdb/core/StepOrder.h>
 
 #include <memory>
 #include <string>
@@ -89,6 +91,8 @@ public:
     void initialize();
     void step();
     int64_t stepsTaken() const { return mStep; }
+    /// Initialisation and step order (indices into effects()), derived from the declarations.
+    const EffectOrder& order() const { return mOrder; }
     /// Gathers the current frame's grids without writing.
     Frame currentFrame(int64_t frameNumber);
     /// Writes a frame file (+ metadata) and returns its path. Grids of a hexagonal domain are
@@ -136,6 +140,8 @@ private:
     World mWorld;
     OutputSettings mOutput;
     std::vector<std::unique_ptr<Effect>> mEffects;
+    EffectOrder mOrder;                    ///< derived from the effects' declarations
+    std::vector<std::string> mWrittenFields; ///< fields some effect writes: the domain's post-step hook sees them
     std::vector<double> mEffectSeconds;
     int64_t mStep = 0;
     bool mInitialized = false;

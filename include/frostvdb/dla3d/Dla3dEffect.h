@@ -17,7 +17,13 @@ public:
     static std::unique_ptr<Effect> create(ParamDict& d, const World& world);
 
     std::string name() const override { return "dla3d"; }
-    std::vector<std::string> fieldsWritten() const override { return {"points", "ice_sdf", "ice"}; }
+    FieldDeclaration declaration() const override
+    {
+        FieldDeclaration d; // its own particles: no fields shared with other effects
+        d.stage = Stage::Sources;
+        d.output(out::kPoints).output(out::kIceSdf).output(out::kAggregateIce);
+        return d;
+    }
     void initialize(World& world) override;
     void step(World& world, const StepInfo& info) override;
     void addToFrame(World& world, Frame& frame) override;

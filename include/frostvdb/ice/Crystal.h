@@ -1,8 +1,8 @@
 #pragma once
 /// @file Crystal.h
 /// @brief The ice paper's user controls (section 4.4, after Kim and Lin): the seed crystal map
-/// and the melting temperature map, as the scene section [crystal]. It runs before every other
-/// effect (initializationOrder 0), writes the initial phase p = 1 where the user seeds ice and
+/// and the melting temperature map, as the scene section [crystal]. It initialises p and melt, so
+/// the driver initialises it before the effects that read them (core/StepOrder.h); it writes the initial phase p = 1 where the user seeds ice and
 /// the field `melt` in [0,1], and does nothing during steps.
 ///
 /// Sources, combined in this order (later wins for `melt`, seeds are a union):
@@ -14,6 +14,7 @@
 ///       [[crystal.seed]]
 ///       shape = "point"           # disc of `radius` cells (ball in a box)
 ///       position = [0.5, 0.5]     # fractions of the domain, [x, y] or [x, y, z] in a box
+///       space = "fraction"        # or "world": position/from/to in metres
 ///       radius = 3
 ///       [[crystal.seed]]
 ///       shape = "line"            # segment of `width` cells (capsule in a box)
@@ -46,13 +47,13 @@ namespace ice {
 /// One element of [[crystal.seed]] or [[crystal.melt]].
 struct CrystalShape {
     enum class Kind { Point, Disc, Line, Edge };
-    enum Edge : unsigned { Left = 1, Right = 2, Bottom = 4, Top = 8, Front = 16, Back = 32 };
     Kind kind = Kind::Point;
     std::vector<double> position{0.5, 0.5}; ///< centre (point, disc), fractions of the domain
     std::vector<double> from, to;           ///< line end points, fractions of the domain
     double radius = 3.0;                    ///< cells (point); disc: set from radius_fraction
     double width = 2.0;                     ///< cells: line thickness, edge band width
-    unsigned edges = 0;                     ///< Edge bits
+    std::vector<std::string> edges;         ///< boundary parts of the domain (Domain::boundaryNames)
+    bool world = false;                     ///< position/from/to in world metres, not fractions
     float value = 1.f;                      ///< melt value ([[crystal.melt]] only)
 };
 
@@ -95,8 +96,7 @@ public:
     static std::unique_ptr<Effect> create(ParamDict& d, const World& world);
 
     std::string name() const override { return "crystal"; }
-    std::vector<std::string> fieldsWritten() const override;
-    int initializationOrder() const override { return 0; }
+    FieldDeclaration declaration() const override;
     void initialize(World& world) override;
     void step(World&, const StepInfo&) override {}
     void addToFrame(World&, Frame&) override {}

@@ -38,7 +38,7 @@
 namespace frostvdb {
 namespace ice {
 
-inline const char* const kDlaHits = "dla_hits";
+// kDlaHits ("dla_hits") is in core/FieldKeys.h.
 
 enum class DlaRelease { Uniform, Perimeter };
 
@@ -237,9 +237,8 @@ public:
     static std::unique_ptr<Effect> create(ParamDict& params, const World& world);
 
     std::string name() const override { return "dla"; }
-    std::vector<std::string> fieldsWritten() const override;
+    FieldDeclaration declaration() const override;
     void initialize(World& world) override;
-    int initializationOrder() const override { return 2; }
     void step(World& world, const StepInfo& info) override;
     void addToFrame(World& world, Frame& frame) override;
     double time() const override { return mTime; }

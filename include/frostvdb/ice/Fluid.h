@@ -119,8 +119,7 @@ public:
     static std::unique_ptr<Effect> create(ParamDict& dict, const World& world);
 
     std::string name() const override { return "fluid"; }
-    std::vector<std::string> fieldsWritten() const override { return {"vel", "T"}; }
-    int initializationOrder() const override { return 2; }
+    FieldDeclaration declaration() const override;
     void initialize(World& world) override;
     void step(World& world, const StepInfo& info) override;
     void addToFrame(World& world, Frame& frame) override;
@@ -149,6 +148,7 @@ private:
     std::unique_ptr<ice::StableFluid2D> mFluid;
     double mOffsetX = 0, mOffsetY = 0; ///< aux cell (0,0) sits at plane position (offset)
     bool mHex = false;
+    openvdb::Coord mOrigin{0, 0, 0}; ///< the domain's first cell (aux cell (0, 0))
     double mObstacleSeconds = 0, mVelOutSeconds = 0, mAdvectTSeconds = 0;
 };
 

@@ -11,7 +11,7 @@
 ///   growth_acc   FloatGrid, accumulated positive dp (PF and DLA), the displacement map
 ///   freeze_time  FloatGrid, time at which p first exceeded 1/2
 ///   melt         FloatGrid in [0,1], melt map = DLA sticking probability      (background 1)
-///   vel          Vec3SGrid, flow velocity in world units per unit time (written by [fluid])
+///   flow_vel     Vec3SGrid, flow velocity in world units per unit time (written by [fluid])
 ///   dla_hits     Int32Grid, walkers stuck at a cell that has not yet frozen ([dla], n > 1)
 #include <frostvdb/core/Effect.h>
 
@@ -20,12 +20,8 @@
 namespace frostvdb {
 namespace ice {
 
-inline const char* const kPhase = "p";
-inline const char* const kTemperature = "T";
-inline const char* const kGrowth = "growth_acc";
-inline const char* const kFreezeTime = "freeze_time";
-inline const char* const kMelt = "melt";
-inline const char* const kVelocity = "vel";
+// The field keys (kPhase, kTemperature, kGrowth, kFreezeTime, kMelt, kVelocity, kDlaHits, kClock)
+// are in core/FieldKeys.h with their units and meanings.
 
 /// The ice clock and the constants the ice effects share. [phase_field] sets dt, T_inf and K
 /// when it is created; without it [dla] sets dt from its own key. Time is step * dt.
@@ -39,7 +35,7 @@ struct IceShared {
     double timeAtStep(int64_t step) const { return double(step) * dt; }
 };
 
-inline IceShared& shared(World& world) { return world.shared<IceShared>("ice"); }
+inline IceShared& shared(World& world) { return world.state<IceShared>(); } ///< key ice::kClock
 
 /// Allocates p, T, growth_acc and freeze_time if missing. If p did not exist yet (no [crystal]
 /// section), seeds it with the default crystal: a disc (ball in a box) of radius 3 cells at
@@ -56,7 +52,7 @@ void stampDisc(World& world, openvdb::FloatGrid& p, const std::vector<double>& c
 void recordPhaseChange(openvdb::FloatGrid::Accessor& growth, openvdb::FloatGrid::Accessor& freeze,
                        const openvdb::Coord& c, float before, float after, double time);
 
-/// Adds the ice output grids to @a frame: `ice` (fog volume, p clamped to [0,1]), `temperature`,
+/// Adds the ice output grids to @a frame: `ice` (fog volume, p clamped to [0,1]), `ice_temperature`,
 /// `growth` (growth_acc normalised to [0,1], the paper's displacement map), `freeze_time`.
 /// Idempotent: every ice effect calls it, the first call of a frame writes the grids.
 void addIceOutputs(World& world, Frame& frame);

@@ -3,7 +3,7 @@
 /// @brief Section [phase_field]: the Kobayashi phase field (p, T) of the ice paper as an effect,
 /// with either scheme of Kobayashi.h (forward Euler on eqs. 1-5, or the second-order lw_cn on eq. 8).
 /// Writes the fields p, T, growth_acc, freeze_time and the output grids `ice` (fog volume,
-/// p clamped to [0,1]), `temperature`, `growth` (accumulated positive dp normalised to [0,1],
+/// p clamped to [0,1]), `ice_temperature`, `growth` (accumulated positive dp normalised to [0,1],
 /// the paper's displacement map) and `freeze_time` (time p first exceeded 1/2).
 #include <frostvdb/core/Effect.h>
 #include <frostvdb/ice/PhaseFieldSolver.h>
@@ -17,9 +17,8 @@ public:
     static std::unique_ptr<Effect> create(ParamDict& params, const World& world);
 
     std::string name() const override { return "phase_field"; }
-    std::vector<std::string> fieldsWritten() const override { return {"p", "T", "growth_acc", "freeze_time"}; }
+    FieldDeclaration declaration() const override;
     void initialize(World& world) override;
-    int initializationOrder() const override { return 1; }
     void step(World& world, const StepInfo& info) override;
     void addToFrame(World& world, Frame& frame) override;
     double time() const override { return mTime; }
