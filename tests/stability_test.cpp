@@ -566,3 +566,4 @@ TEST_CASE("Known limits found by the stability suite (the issue's bounds, not me
         checkCase(c);
     }
 }
+
