@@ -200,7 +200,7 @@ void PhaseFieldSolver::step(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::Ptr&
                             openvdb::FloatGrid* freezeTime, int64_t stepIndex, double time, uint64_t seed,
                             PhaseFieldStepStats* stats)
 {
-    if (mParams.scheme == PhaseFieldScheme::SecondOrder && !mLastDp) {
+    if (mParams.scheme == PhaseFieldScheme::SecondOrder && !mLastInP) {
         // Rannacher start-up: the sharp seed (p jumps from 0 to 1 within a cell) excites modes
         // that Crank-Nicolson does not damp (its amplification tends to -1 for stiff modes),
         // which costs the observed order. The first step is two implicit-Euler half-steps,
@@ -296,8 +296,8 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
     std::vector<double> p0(ps.rows(), 0.0), T0(ps.rows(), 0.0);
     const double theta = mTheta;
     const double tScale = theta * k.dt, tDiag = 1.0 + theta * k.dt * -stencil.wLapCentre;
-    const openvdb::FloatGrid* dP = mLastDp.get();
-    const openvdb::FloatGrid* dT = mLastDt.get();
+    const openvdb::FloatGrid* dP = mLastInP.get();
+    const openvdb::FloatGrid* dT = mLastInT.get();
     // Coefficients at theta of the step (the midpoint for Crank-Nicolson, the end for implicit
     // Euler), extrapolated along the last step's increment, scaled to this step's dt.
     const float extrapolate = dP ? float(theta * k.dt / mLastStepDt) : 0.f;
@@ -325,11 +325,19 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
                 gather(pAcc, b, origin, b.p);
                 gather(tAcc, b, origin, b.T);
                 if (mAcc) gather(*mAcc, b, origin, b.melt);
-                // cx, cy are free in this scheme and hold the last increments.
-                if (dpAcc) gather(*dpAcc, b, origin, incP);
-                else std::fill(incP.begin(), incP.end(), 0.f);
-                if (dtAcc) gather(*dtAcc, b, origin, incT);
-                else std::fill(incT.begin(), incT.end(), 0.f);
+                // cx, cy are free in this scheme and hold the increments since the last step's
+                // start, p - p^{n-1}: the last step's own change plus whatever other effects did
+                // since (a walker froze the cell, the flow carried heat), so the extrapolation
+                // starts from the p the step really sees (the last step's dp alone, after a walker
+                // set p = 1, put the reaction's tangent at the old p and pushed p to 1.013).
+                if (dpAcc) {
+                    gather(*dpAcc, b, origin, incP);
+                    for (size_t i = 0; i < incP.size(); ++i) incP[i] = b.p[i] - incP[i];
+                } else std::fill(incP.begin(), incP.end(), 0.f);
+                if (dtAcc) {
+                    gather(*dtAcc, b, origin, incT);
+                    for (size_t i = 0; i < incT.size(); ++i) incT[i] = b.T[i] - incT[i];
+                } else std::fill(incT.begin(), incT.end(), 0.f);
                 // pf (in gz, free in this scheme): p extrapolated to the end of the step.
                 for (size_t i = 0; i < b.p.size(); ++i) {
                     b.pe[i] = std::min(1.f, std::max(0.f, b.p[i] + extrapolate * incP[i]));
@@ -406,8 +414,8 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
         stats->clippedVoxels += outside;
     }
 
-    // Write back, record growth and freezing, remember this step's increments.
-    auto lastDp = openvdb::FloatGrid::create(0.f), lastDt = openvdb::FloatGrid::create(0.f);
+    // Write back, record growth and freezing, remember this step's start values.
+    auto lastDp = openvdb::FloatGrid::create(p.background()), lastDt = openvdb::FloatGrid::create(T.background());
     lastDp->tree().topologyUnion(pLeaves.tree());
     lastDt->tree().topologyUnion(pLeaves.tree());
     openvdb::tree::LeafManager<openvdb::FloatTree> dpLeaves(lastDp->tree()), dtLeaves(lastDt->tree());
@@ -429,15 +437,15 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
                 pl.setValueOnly(n, pn);
                 tl.setValueOnly(n, tn);
                 const double dp = ps.x[s] - p0[s];
-                dpl.setValueOnly(n, float(dp));
-                dtl.setValueOnly(n, float(ts.x[s] - T0[s]));
+                dpl.setValueOnly(n, float(p0[s]));
+                dtl.setValueOnly(n, float(T0[s]));
                 if (gl && dp > 0) gl->setValueOn(n, gl->getValue(n) + float(dp));
                 if (fl && pn > 0.5f && !fl->isValueOn(n)) fl->setValueOn(n, float(tNext));
             }
         }
     });
-    mLastDp = lastDp;
-    mLastDt = lastDt;
+    mLastInP = lastDp;
+    mLastInT = lastDt;
     mLastStepDt = k.dt;
 }
 

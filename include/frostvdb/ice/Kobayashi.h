@@ -391,6 +391,33 @@ struct SecondOrderRow {
     double coef[FlatStencil::kMaxTaps];
 };
 
+/// The reaction's part of a second-order row, linear in p': diag += d, rhs += r.
+struct ReactionPart {
+    double diag, rhs;
+};
+
+/// Reaction n = p (1 - p) g, g = p - 1/2 + m(T) + a chi, linearised about @a pm (the theta-point
+/// estimate of p) and taken at p_t = theta p' + (1 - theta) p0: n(pm) + n'(pm) (p_t - pm);
+/// plus the latent-heat loop: freezing by dp warms the cell by K dp, which lowers m(T) and slows
+/// freezing. With gamma large this loop is stiff (rate ~ p(1-p) |m'(T)| K / tau, 16 per step at
+/// dt 0.0008 with gamma 30, K 2.5); taken only from the extrapolated te it oscillated and
+/// overshot (p 1.044) or thawed frozen arms. T at the theta-point is te plus theta K times the
+/// difference between this step's dp and the one the extrapolation assumed (@a pf - p0), an
+/// O(dt^2) correction that makes the loop implicit: n += w (p' - pf), w = pm (1-pm) m'(T) theta K.
+inline ReactionPart kobayashiReactionPart(double p0, double pm, double pf, double x, double noiseChi,
+                                          const KobayashiParams& k, double theta)
+{
+    const double r = k.dt / k.tau;
+    const double m = k.alpha / M_PI * std::atan(x);
+    const double g = pm - 0.5 + m + noiseChi;
+    const double dn = (1.0 - 2.0 * pm) * g + pm * (1.0 - pm);
+    const double react0 = pm * (1.0 - pm) * g - dn * pm, reactDiag = -dn; // n = react0 - reactDiag p_t
+    const double dmdT = -k.alpha / M_PI * k.gamma / (1.0 + x * x);
+    const double w = pm * (1.0 - pm) * dmdT * theta * k.latentHeat; // <= 0
+    // Below the stability limit theta r dn < 1, so the diagonal stays > 0.
+    return {theta * r * reactDiag - r * w, r * (react0 - reactDiag * (1.0 - theta) * p0) - r * w * pf};
+}
+
 inline SecondOrderRow kobayashiSecondOrderRow(const float* p, const float* T, const float* pe, const float* te,
                                               const float* pf, const float* a, std::size_t i, const FlatStencil& st,
                                               const KobayashiParams& k, double Te, double chi, double theta)
@@ -402,28 +429,15 @@ inline SecondOrderRow kobayashiSecondOrderRow(const float* p, const float* T, co
     row.lapT = symmetricTapSum(T, i, st, st.wLap);
     const double p0 = p[i];
     const double r = k.dt / k.tau;
-    const double pm = pe[i];
     const double x = k.gamma * (Te - double(te[i]));
-    const double m = k.alpha / M_PI * std::atan(x);
-    const double g = pm - 0.5 + m + k.noise * chi;
-    // Reaction n = p (1 - p) g, linearised about the extrapolated pm and taken at the step's
-    // theta-point p_t = theta p' + (1 - theta) p: n(pm) + n'(pm) (p_t - pm).
-    const double dn = (1.0 - 2.0 * pm) * g + pm * (1.0 - pm);
-    const double react0 = pm * (1.0 - pm) * g - dn * pm, reactDiag = -dn; // n = react0 - reactDiag p_t
-    // Latent heat feedback, implicit: freezing by dp warms the cell by K dp, which lowers m(T)
-    // and slows freezing. With gamma large this loop is stiff (rate ~ p(1-p) |m'(T)| K / tau,
-    // 16 per step at dt 0.0008 with gamma 30, K 2.5); taken only from the extrapolated te it
-    // oscillated and overshot. T at the theta-point is te plus theta K times the difference
-    // between this step's dp and the one the extrapolation assumed (pf - p), an O(dt^2)
-    // correction that makes the loop implicit: n += w (p' - pf), w = pm (1 - pm) m'(T) theta K.
-    const double dmdT = -k.alpha / M_PI * k.gamma / (1.0 + x * x);
-    const double w = pm * (1.0 - pm) * dmdT * theta * k.latentHeat; // <= 0
     for (int q = 0; q < st.n; ++q) row.coef[q] = theta * r * C[q];
-    row.diag = 1.0 + theta * r * sumC + theta * r * reactDiag - r * w;
-    row.rhs = p0 + (1.0 - theta) * r * Lp + r * (react0 - reactDiag * (1.0 - theta) * p0) - r * w * double(pf[i]);
+    const ReactionPart rp = kobayashiReactionPart(p0, pe[i], pf[i], x, k.noise * chi, k, theta);
+    row.diag = 1.0 + theta * r * sumC + rp.diag;
+    row.rhs = p0 + (1.0 - theta) * r * Lp + rp.rhs;
     // Forward Euler guess, kept in [0, 1] so that even a loosely converged solve starts inside
     // the bounds (the solver's iterates are then convex combinations of in-bound values).
-    row.predictor = std::fmin(1.0, std::fmax(0.0, p0 + r * (Lp + react0 - reactDiag * p0)));
+    const ReactionPart ex = kobayashiReactionPart(p0, pe[i], pf[i], x, k.noise * chi, k, 0.0);
+    row.predictor = std::fmin(1.0, std::fmax(0.0, p0 + r * Lp + ex.rhs - ex.diag * p0));
     return row;
 }
 

@@ -75,9 +75,9 @@ private:
     Domain mDomain;
     RegionSettings mRegion;
     const openvdb::FloatGrid* mMelt = nullptr;
-    /// The second-order scheme's last increments of p and T, for its midpoint coefficients.
-    openvdb::FloatGrid::Ptr mLastDp, mLastDt;
-    double mLastStepDt = 0; ///< the dt those increments were taken over
+    /// The second-order scheme's memory for its midpoint coefficients.
+    openvdb::FloatGrid::Ptr mLastInP, mLastInT; ///< p and T at the start of the last step
+    double mLastStepDt = 0; ///< the last step's dt
     double mTheta = 0.5;    ///< implicit weight: 1/2 Crank-Nicolson, 1 in the start-up half-steps
 };
 
