@@ -28,8 +28,8 @@ struct PhaseFieldStepStats {
     double heatSeconds = 0; ///< the T system alone (latent heat + Crank-Nicolson solve)
     int64_t solves = 0, solverIterationsP = 0, solverIterationsT = 0, unconverged = 0;
     double lastResidual = 0;
-    /// lw_cn: voxel-steps whose p left [0, 1] by more than 1e-6. Nothing is clipped any more (the
-    /// scheme is bounded); the count stays in run.json under its old key to show it is ~0.
+    /// lw_cn: voxel-steps whose p left [0, 1] and was clipped back (only next to walker-frozen
+    /// cells now, see PhaseFieldSolver.cpp).
     int64_t clippedVoxels = 0;
 };
 
