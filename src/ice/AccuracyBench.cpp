@@ -674,8 +674,8 @@ int benchAccuracy(const BenchArgs& args)
           "hexagonal lattice (was stopped by the guard); 3D box anisotropy. Still open: forward Euler with delta "
           "0.2 on the square lattice undershoots p to -0.012 while the sharp seed relaxes (the cross terms of "
           "eq. 1 on the wide stencil are not monotone), and lw_cn next to walker-frozen cells reaches p = 1.013 "
-          "(measured with DLA H 400 on a 96^2 hexagonal plane; nothing is clipped any more, so `bench snowflake` "
-          "now reports the voxels outside [0, 1] instead of a clip count).\n\n");
+          "(measured with DLA H 400 on a 96^2 hexagonal plane; 1.05 in the Figure 7 snowflake, so p is still clipped there and `bench snowflake` "
+          "reports the clipped voxels).\n\n");
     R.out("---\nBench wall time: " + fmt("%.0f", since(tStart)) + " s.\n");
     {
         std::ofstream f(docs + "/accuracy.md");
