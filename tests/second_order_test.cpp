@@ -90,29 +90,41 @@ TEST_CASE("Hexagonal colouring never gives neighbours the same colour", "[fast][
     }
 }
 
-TEST_CASE("The Lax-Wendroff term c^T H c is exact on quadratics", "[fast][lw_cn]")
+TEST_CASE("lw_cn's advection-diffusion operator: exact on quadratics, positive coefficients", "[fast][lw_cn]")
 {
-    // u = a x^2 + b xy + c y^2 in world units; H = [[2a, b], [b, 2c]].
-    const double A = 0.7, B = -1.3, C = 0.4;
+    // u = q0 x + q1 y + A x^2 + B xy + C y^2 and a linear coefficient field a = a0 + ax x + ay y
+    // in world units: L u = a lap u + grad a . grad u = a0 (2A + 2C) + ax q0 + ay q1 at the origin.
+    const double q0 = 0.3, q1 = -0.8, A = 0.7, B = -1.3, C = 0.4;
     for (auto kind : {LatticeKind::Square, LatticeKind::Hexagonal}) {
         const double h = 0.1;
         const Lattice lat(kind, h);
         const int W = 5;
-        std::vector<float> u(W * W);
-        for (int j = 0; j < W; ++j)
-            for (int i = 0; i < W; ++i) {
-                const auto q = lat.planePosition(i - 2, j - 2) * h;
-                u[j * W + i] = float(A * q.x() * q.x() + B * q.x() * q.y() + C * q.y() * q.y());
-            }
         const FlatStencil st(lat.stencil(false), W, 0);
-        for (double angle : {0.0, 0.4, 1.1, 2.0}) {
-            const double cx = std::cos(angle), cy = std::sin(angle);
-            const double exact = 2 * A * cx * cx + 2 * B * cx * cy + 2 * C * cy * cy;
-            const double diag = 2 * A * cx * cx + 2 * C * cy * cy; // the per-axis (square) form
-            const double got = directionalSecondDerivative(u.data(), 2 * W + 2, st, cx, cy, 0.0);
-            INFO(Lattice::kindName(kind) << " angle " << angle);
-            if (kind == LatticeKind::Hexagonal) CHECK(got == Approx(exact).epsilon(1e-4));
-            else CHECK(got == Approx(diag).epsilon(1e-4));
+        for (double slope : {0.2, 1.0, 40.0}) { // 40: Peclet > 1, a is raised on the dominated taps
+            const double a0 = 1.0, ax = slope * 0.6, ay = -slope * 0.8;
+            std::vector<float> u(W * W), a(W * W);
+            for (int j = 0; j < W; ++j)
+                for (int i = 0; i < W; ++i) {
+                    const auto pos = lat.planePosition(i - 2, j - 2) * h;
+                    const double x = pos.x(), y = pos.y();
+                    u[j * W + i] = float(q0 * x + q1 * y + A * x * x + B * x * y + C * y * y);
+                    a[j * W + i] = float(a0 + ax * x + ay * y);
+                }
+            double coef[FlatStencil::kMaxTaps];
+            const size_t centre = 2 * W + 2;
+            const double sum = advectionDiffusionCoefficients(a.data(), centre, st, coef);
+            const double Lu = symmetricTapSum(u.data(), centre, st, coef);
+            INFO(Lattice::kindName(kind) << " slope " << slope);
+            double total = 0;
+            for (int q = 0; q < st.n; ++q) {
+                CHECK(coef[q] >= 0.0);
+                total += coef[q];
+            }
+            CHECK(sum == Approx(total).epsilon(1e-12));
+            const double exact = a0 * (2 * A + 2 * C) + ax * q0 + ay * q1;
+            if (slope < 10) CHECK(Lu == Approx(exact).epsilon(1e-4));
+            // Raised diffusion where the advection dominates: a_eff = |c.e| h/2 on those taps.
+            else CHECK(Lu != Approx(exact).epsilon(1e-2));
         }
     }
 }

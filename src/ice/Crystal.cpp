@@ -480,9 +480,10 @@ void CrystalEffect::initialize(World& world)
         }
         for (const auto& s : mMelt) stampShape(dom, *m, s, s.value);
         // Store only what differs from the background 1.
+        // (serially: switching voxels off in parallel races on the leaves' mask words)
         openvdb::tools::foreach(m->beginValueOn(), [](const openvdb::FloatGrid::ValueOnIter& it) {
             if (*it == 1.f) it.setValueOff();
-        });
+        }, /*threaded=*/false);
         openvdb::tools::pruneInactive(m->tree());
     }
 }

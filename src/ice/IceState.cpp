@@ -1,6 +1,7 @@
 #include <frostvdb/ice/IceState.h>
 
 #include <openvdb/tools/Prune.h>
+#include <openvdb/tree/LeafManager.h>
 #include <openvdb/tools/ValueTransformer.h>
 
 #include <algorithm>
@@ -56,11 +57,20 @@ void addIceOutputs(World& world, Frame& frame)
     if (!p) return;
     auto ice = p->deepCopy();
     // Fog volume: values in [0,1], background 0, nothing stored where there is no ice.
-    openvdb::tools::foreach(ice->beginValueOn(), [](const openvdb::FloatGrid::ValueOnIter& it) {
+    // Per leaf: switching voxels off writes the leaf's mask words, which a voxel-parallel
+    // foreach raced on (the frame's topology then varied from run to run).
+    auto clampToFog = [](auto& it) {
         const float v = std::min(std::max(*it, 0.f), 1.f);
         it.setValue(v);
         if (v <= 0.f) it.setValueOff();
+    };
+    openvdb::tree::LeafManager<openvdb::FloatTree> leaves(ice->tree());
+    leaves.foreach([&](openvdb::FloatTree::LeafNodeType& leaf, size_t) {
+        for (auto it = leaf.beginValueOn(); it; ++it) clampToFog(it);
     });
+    auto tiles = ice->tree().beginValueOn();
+    tiles.setMaxDepth(openvdb::FloatTree::ValueOnIter::LEAF_DEPTH - 1);
+    for (; tiles; ++tiles) clampToFog(tiles);
     openvdb::tools::pruneInactive(ice->tree());
     ice->setName("ice");
     ice->setGridClass(openvdb::GRID_FOG_VOLUME);

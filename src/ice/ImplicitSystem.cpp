@@ -111,7 +111,7 @@ double ImplicitSystem::residualMaxNorm() const
         tbb::blocked_range<size_t>(0, rows(), 1024), 0.0,
         [&](const tbb::blocked_range<size_t>& r, double m) {
             for (size_t i = r.begin(); i != r.end(); ++i)
-                m = std::max(m, std::fabs(rhs[i] - diag[i] * x[i] + scale[i] * neighbourSum(i)));
+                m = std::max(m, std::fabs(rhs[i] - diag[i] * x[i] + offDiagonal(i)));
             return m;
         },
         [](double a, double b) { return std::max(a, b); });
@@ -126,23 +126,52 @@ SolveReport ImplicitSystem::solve(LinearSolverKind kind, double tolerance, int m
 SolveReport ImplicitSystem::gaussSeidel(double tolerance, int maxIterations)
 {
     SolveReport rep;
+    // Hexagonal: colours 1 and 2 are updated together from the same values (see the header).
+    const bool pairLast = mL.colours == 3;
+    std::vector<double> next;
+    if (pairLast) next.resize(mL.rowsOfColour[1].size() + mL.rowsOfColour[2].size());
+    // The update of row i from the current x; returns its residual before the update.
+    auto relax = [&](size_t i, double& v) {
+        v = (rhs[i] + offDiagonal(i)) / diag[i];
+        return std::fabs(v - x[i]) * diag[i];
+    };
+    auto maxReduce = [](double a, double b) { return std::max(a, b); };
     for (int it = 0; it < maxIterations; ++it) {
         double worst = 0;
-        for (const auto& list : mL.rowsOfColour) {
+        for (int c = 0; c < mL.colours; ++c) {
+            const auto& list = mL.rowsOfColour[c];
+            if (pairLast && c >= 1) {
+                // Colours 1 and 2: compute both into `next`, then write both.
+                if (c == 2) continue;
+                const auto& list2 = mL.rowsOfColour[2];
+                const size_t n1 = list.size(), n = n1 + list2.size();
+                auto rowAt = [&](size_t k) { return size_t(k < n1 ? list[k] : list2[k - n1]); };
+                const double m = tbb::parallel_reduce(
+                    tbb::blocked_range<size_t>(0, n, 1024), 0.0,
+                    [&](const tbb::blocked_range<size_t>& r, double mx) {
+                        for (size_t k = r.begin(); k != r.end(); ++k) mx = std::max(mx, relax(rowAt(k), next[k]));
+                        return mx;
+                    },
+                    maxReduce);
+                tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 4096), [&](const tbb::blocked_range<size_t>& r) {
+                    for (size_t k = r.begin(); k != r.end(); ++k) x[rowAt(k)] = next[k];
+                });
+                worst = std::max(worst, m);
+                continue;
+            }
             // Rows of one colour only read rows of the others: a parallel update in place.
             const double m = tbb::parallel_reduce(
                 tbb::blocked_range<size_t>(0, list.size(), 1024), 0.0,
                 [&](const tbb::blocked_range<size_t>& r, double mx) {
                     for (size_t k = r.begin(); k != r.end(); ++k) {
                         const size_t i = size_t(list[k]);
-                        const double v = (rhs[i] + scale[i] * neighbourSum(i)) / diag[i];
-                        // The residual of this equation just before its update.
-                        mx = std::max(mx, std::fabs(v - x[i]) * diag[i]);
+                        double v;
+                        mx = std::max(mx, relax(i, v));
                         x[i] = v;
                     }
                     return mx;
                 },
-                [](double a, double b) { return std::max(a, b); });
+                maxReduce);
             worst = std::max(worst, m);
         }
         rep.iterations = it + 1;
@@ -171,8 +200,9 @@ SolveReport ImplicitSystem::bicgstab(double tolerance, int maxIterations)
         trip.emplace_back(r, r, diag[r]);
         for (int q = 0; q < mL.taps; ++q) {
             const int32_t col = mL.neighbours[size_t(r) * mL.taps + q];
-            if (col < n) trip.emplace_back(r, col, -scale[r] * mL.weights[q]);
-            else bi += scale[r] * mL.weights[q] * outside(); // Dirichlet neighbour: right-hand side
+            const double c = coef.empty() ? scale[r] * mL.weights[q] : coef[size_t(r) * mL.taps + q];
+            if (col < n) trip.emplace_back(r, col, -c);
+            else bi += c * outside(); // Dirichlet neighbour: right-hand side
         }
         b[r] = bi;
         x0[r] = x[r];

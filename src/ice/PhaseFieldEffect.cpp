@@ -20,7 +20,7 @@ std::unique_ptr<Effect> PhaseFieldEffect::create(ParamDict& d, const World& worl
     const std::string scheme =
         d.getString("scheme", "euler", {"euler", "lw_cn"},
                     "time integration: euler (full eqs. 1-5, forward Euler) or lw_cn (simplified eq. 8: "
-                    "Lax-Wendroff advection, Crank-Nicolson diffusion, implicit solve; the paper's section 5)");
+                    "advection and diffusion in a Crank-Nicolson average, implicit solve, second order; the paper's section 5)");
     k.scheme = scheme == "euler" ? PhaseFieldScheme::Euler : PhaseFieldScheme::SecondOrder;
     const bool euler = k.scheme == PhaseFieldScheme::Euler;
     k.dt = d.getFloat("dt", euler ? 0.0002 : 0.0008, 1e-8, 0.1, "",
@@ -68,7 +68,7 @@ std::unique_ptr<Effect> PhaseFieldEffect::create(ParamDict& d, const World& worl
             fx->mSubsteps = int(std::ceil(k.dt / limit * (1.0 + 1e-9)));
         } else {
             std::ostringstream os;
-            os << k.dt << " exceeds the " << (euler ? "explicit (forward Euler)" : "Lax-Wendroff advection")
+            os << k.dt << " exceeds the " << (euler ? "explicit (forward Euler)" : "second-order (Crank-Nicolson positivity and reaction)")
                << " stability limit " << limit << " for this lattice spacing (" << world.domain.lattice().spacing()
                << ") and epsilon/delta/tau; lower dt or set substeps = \"auto\"";
             d.fail("dt", os.str());
@@ -133,6 +133,7 @@ void PhaseFieldEffect::saveState(const World& world, StateWriter& out) const
 {
     out.putDouble("time", mTime);
     for (auto& [name, grid] : mSolver->historyGrids()) out.putGrid(name, *grid);
+    out.putDouble("last_step_dt", mSolver->lastStepDt());
     const auto cadence = mSolver->cadenceState(*world.fields.get<openvdb::FloatGrid>(ice::kPhase),
                                                *world.fields.get<openvdb::FloatGrid>(ice::kTemperature));
     out.putGrid("region", cadence.region);
@@ -150,6 +151,7 @@ void PhaseFieldEffect::loadState(World& world, const StateReader& in)
 {
     mTime = in.getDouble("time");
     for (auto& [name, grid] : mSolver->historyGrids()) *grid = in.getGrid<openvdb::FloatGrid>(name);
+    mSolver->lastStepDt() = in.getDouble("last_step_dt");
     PhaseFieldSolver::CadenceState cadence;
     cadence.region = in.getGrid<openvdb::MaskGrid>("region");
     cadence.stepsLeft = int(in.getInt("region_steps_left"));

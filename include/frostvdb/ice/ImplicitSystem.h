@@ -5,6 +5,10 @@
 ///
 ///   diag_i x_i - s_i * sum_q w_q x_{i+q} = rhs_i        (w_q: the lattice Laplacian's taps)
 ///
+/// or, when per-row coefficients are given (the phase equation, whose rows also carry the
+/// advection), diag_i x_i - sum_q C_iq x_{i+q} = rhs_i with C_iq >= 0 (an M-matrix when
+/// diag_i >= sum_q C_iq, so every solver iterate started inside the data's bounds stays there).
+///
 /// Unknowns live in flat per-leaf slot arrays (64 slots per leaf on a plane, 512 in a box) in
 /// the LeafManager's leaf order, so a solver touches neighbours by index arithmetic and one
 /// 27-entry neighbour-leaf table per leaf, never through tree accessors. A neighbour outside
@@ -14,17 +18,23 @@
 ///  - multi-colour Gauss-Seidel: red-black on the square lattice (5-/7-point stencils are
 ///    bipartite), three colours (i + 2j + k) mod 3 on the hexagonal one (its triangles are not
 ///    two-colourable). Voxels of one colour only read the others, so a colour is updated in
-///    parallel and the result does not depend on the thread count;
+///    parallel and the result does not depend on the thread count. On the hexagonal lattice a
+///    sweep updates colour 0, then colours 1 and 2 together from the same values (Jacobi between
+///    them): a 60-degree rotation or a mirror about a colour-0 cell swaps colours 1 and 2, so this
+///    sweep, unlike 0-1-2, commutes with the lattice's symmetries and keeps D6-symmetric data
+///    exactly symmetric at any tolerance;
 ///  - Eigen's BiCGSTAB (diagonal preconditioner) on the same rows, for comparison (the system is
 ///    not symmetric: s_i varies per row).
 /// Both stop when the residual's max norm is at most the tolerance (GS measures the residual
 /// of each equation as it updates it; BiCGSTAB's 2-norm criterion is set to imply it).
 #include <frostvdb/core/Lattice.h>
+#include <frostvdb/ice/Kobayashi.h> // canonicalSum
 
 #include <openvdb/openvdb.h>
 #include <openvdb/tree/LeafManager.h>
 
 #include <cstdint>
+#include <utility>
 #include <vector>
 
 namespace frostvdb {
@@ -73,6 +83,11 @@ public:
 
     /// Per-row data set by the caller; x has one extra entry, the outside value.
     std::vector<double> x, diag, scale, rhs;
+    /// Optional per-row tap coefficients C_iq (rows x taps, row-major); when empty the row's
+    /// off-diagonal is scale_i * w_q. useCoefficients() sizes it.
+    std::vector<double> coef;
+    void useCoefficients() { coef.assign(rows() * size_t(mL.taps), 0.0); }
+    int taps() const { return mL.taps; }
     void setOutside(double v) { x[rows()] = v; }
     double outside() const { return x[rows()]; }
 
@@ -82,12 +97,22 @@ public:
     double residualMaxNorm() const;
 
 private:
-    double neighbourSum(size_t r) const
+    /// The off-diagonal part sum_q C_iq x_q of row r. Summed as opposite-tap pairs, the pair
+    /// sums in a canonical (sorted) order, so that a cell and its mirror or rotated image (whose
+    /// taps are the same values in another order) get bit-identical sums: the hexagonal D6 and
+    /// square D4 symmetry of the solution is then exact.
+    double offDiagonal(size_t r) const
     {
         const int32_t* nb = &mL.neighbours[r * mL.taps];
-        double sum = 0;
-        for (int q = 0; q < mL.taps; ++q) sum += mL.weights[q] * x[nb[q]];
-        return sum;
+        double pair[4];
+        const int np = mL.taps / 2;
+        if (coef.empty()) {
+            for (int k = 0; k < np; ++k) pair[k] = mL.weights[2 * k] * x[nb[2 * k]] + mL.weights[2 * k + 1] * x[nb[2 * k + 1]];
+            return scale[r] * canonicalSum(pair, np);
+        }
+        const double* c = &coef[r * mL.taps];
+        for (int k = 0; k < np; ++k) pair[k] = c[2 * k] * x[nb[2 * k]] + c[2 * k + 1] * x[nb[2 * k + 1]];
+        return canonicalSum(pair, np);
     }
     SolveReport gaussSeidel(double tolerance, int maxIterations);
     SolveReport bicgstab(double tolerance, int maxIterations);

@@ -28,6 +28,7 @@
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
+#include <utility>
 
 namespace frostvdb {
 
@@ -88,19 +89,23 @@ struct KobayashiParams {
         return std::fmin(1.0 / w0, tau / (epsMax * epsMax * w0 + std::fmax(growth, decay)));
     }
 
-    /// Largest stable dt of the second-order scheme. Diffusion (Crank-Nicolson) and the decaying
-    /// reaction (trapezoidal) are unconditionally stable; what remains is
-    ///  - the Lax-Wendroff advection with velocity grad(eps^2)/tau: dt |v|_1 / h <= 1, where each
-    ///    gradient component of eps^2 is at most (eps_max^2 - eps_min^2)/h, so
-    ///    |v|_1 <= d (eps_max^2 - eps_min^2)/(h tau), d the number of independent directions;
+    /// Largest dt at which the second-order step keeps p and T within their bounds. Its
+    /// implicit side is an M-matrix at any dt; what limits dt is the explicit (1 - theta) half,
+    /// theta = 1/2, whose coefficients must stay >= 0 (a positive combination of old values):
+    ///  - heat: dt/2 |w0| <= 1 (w0 the Laplacian's centre weight);
+    ///  - phase: dt/(2 tau) sum_q C_q <= 1, sum_q C_q = a_eff |w0| <= eps_max^2 |w0| (the raised
+    ///    a_eff of a Peclet-limited tap stays below (eps_max^2 - eps_min^2)/3);
     ///  - the growing reaction inside the interface, whose trapezoidal factor (1 + r n'/2) /
-    ///    (1 - r n'/2), r = dt/tau, overshoots p's bounds once r n' > 1: dt <= tau / max n'.
-    double secondOrderStabilityLimit(const Stencil& s, bool withZ) const
+    ///    (1 - r n'/2), r = dt/tau, would overshoot p's bounds once r n' > 1: dt <= tau / max n'.
+    /// The decaying reaction (|n'| up to 1/2 + alpha/2 where the melt is warmer than T_e) is not
+    /// in the limit: trapezoidal decay stays bounded by the old value (A-stable) and only dips
+    /// below 0 by a fraction of an already small p where r |n'| / 2 > 1 (melting cells).
+    /// The advection needs no CFL condition: it is inside the implicit Crank-Nicolson average.
+    double secondOrderStabilityLimit(const Stencil& s, bool /*withZ*/) const
     {
-        const double epsMax = epsBar * (1.0 + std::fabs(delta)), epsMin = epsBar * std::fmax(0.0, 1.0 - std::fabs(delta));
-        const double dAlpha = epsMax * epsMax - epsMin * epsMin;
-        double limit = 1e30;
-        if (dAlpha > 0) limit = tau * s.spacing * s.spacing / ((withZ ? 3.0 : 2.0) * dAlpha);
+        const double w0 = std::fabs(s.wLapCentre);
+        const double epsMax = epsBar * (1.0 + std::fabs(delta));
+        double limit = std::fmin(2.0 / w0, 2.0 * tau / (epsMax * epsMax * w0));
         double growth, decay;
         reactionSlopeBounds(growth, decay);
         if (growth > 0) limit = std::fmin(limit, tau / growth);
@@ -113,6 +118,10 @@ struct KobayashiParams {
     }
 };
 
+/// Gradient (change of p per cell) below which the second-order scheme fades the anisotropy
+/// out (kobayashiEpsSquared).
+constexpr double kFlatGradientPerCell = 0.005;
+
 /// A stencil flattened for one array layout: neighbour k of cell i is at i + off[k].
 struct FlatStencil {
     static constexpr int kMaxTaps = 8;
@@ -122,6 +131,10 @@ struct FlatStencil {
     double invH2 = 1;       ///< 1/h^2: weight of a directional second difference
     bool hexagonal = false; ///< in-plane taps are the 3 hexagonal directions
     double wLapSum = 0;     ///< -(centre weight of the Laplacian)
+    double flatGradient2 = 0; ///< sigma^2 of kobayashiEpsSquared: (kFlatGradientPerCell / h)^2
+    /// e_{2k} . e_{2l} for the opposite-tap pairs k, l (taps come as +e, -e), rounded to the
+    /// exact multiple of 1/2 it is on the square and hexagonal lattices.
+    double pairDot[kMaxTaps / 2][kMaxTaps / 2] = {};
 
     /// @a strideY, @a strideZ: distance between rows and slices of the layout.
     FlatStencil(const Stencil& s, std::ptrdiff_t strideY, std::ptrdiff_t strideZ)
@@ -138,6 +151,12 @@ struct FlatStencil {
         invH2 = 1.0 / (s.spacing * s.spacing);
         hexagonal = s.hexagonal;
         wLapSum = -s.wLapCentre;
+        flatGradient2 = (kFlatGradientPerCell / s.spacing) * (kFlatGradientPerCell / s.spacing);
+        for (int k = 0; 2 * k < n; ++k)
+            for (int l = 0; 2 * l < n; ++l) {
+                const double d = ex[2 * k] * ex[2 * l] + ey[2 * k] * ey[2 * l] + ez[2 * k] * ez[2 * l];
+                pairDot[k][l] = std::round(2.0 * d) / 2.0;
+            }
     }
 };
 
@@ -147,9 +166,17 @@ struct Anisotropy {
     int integerMode; ///< j as an integer >= 0, or -1 when j is fractional
     explicit Anisotropy(const KobayashiParams& k)
         : epsBar(k.epsBar), delta(k.delta), j(k.anisotropyMode), theta0(k.theta0),
-          cj0(std::cos(k.anisotropyMode * k.theta0)), sj0(std::sin(k.anisotropyMode * k.theta0)),
+          cj0(snap(std::cos(k.anisotropyMode * k.theta0))), sj0(snap(std::sin(k.anisotropyMode * k.theta0))),
           integerMode(std::floor(k.anisotropyMode) == k.anisotropyMode ? int(k.anisotropyMode) : -1)
     {
+    }
+    /// cos/sin of j theta0 within rounding of 0 or +-1 are those exactly (sin(6 pi/2) is 4e-16,
+    /// not 0, and would tilt the arms off the lattice's mirror axes by that much).
+    static double snap(double v)
+    {
+        for (double e : {-1.0, 0.0, 1.0})
+            if (std::fabs(v - e) < 1e-12) return e;
+        return v;
     }
 
     /// eps(theta) and d eps / d theta for the gradient direction (gx, gy). Integer j avoids
@@ -247,100 +274,185 @@ inline void kobayashiEulerHeatOnly(const float* T, std::size_t i, const FlatSten
     tOut = float(t0 + k.dt * lapT + k.latentHeat * dp);
 }
 
-/// c^T H(u) c at cell i from the lattice's directional second differences
-/// D_k = (u(+e_k) - 2 u + u(-e_k)) / h^2: sum_k (c.e_k)^2 D_k on the square lattice (the
-/// paper's per-axis Lax-Wendroff form: exact when u_xy = 0), and on the hexagonal lattice
-/// sum_k (4/3 (c.e_k)^2 - 1/3 |c|^2) D_k over its three directions, exact for every quadratic
-/// (from sum_k e_k e_k^T = 3/2 I and sum_k (c.e_k)^2 e_k e_k^T = 3/8 (|c|^2 I + 2 c c^T)).
-inline double directionalSecondDerivative(const float* u, std::size_t i, const FlatStencil& st, double cx, double cy,
-                                          double cz)
+/// Sum of up to kMaxTaps values in an order fixed by the values alone (ascending), so that a
+/// cell and its rotated or mirrored image, whose terms are the same values in another order,
+/// get bit-identical sums. Only for terms that symmetries permute without changing their sign
+/// (scalar fields: products of weights and values, squares).
+inline double canonicalSum(double* v, int n)
 {
-    const double u0 = u[i];
-    const double cxy2 = cx * cx + cy * cy;
-    double sum = 0;
-    for (int q = 0; q < st.n; ++q) {
-        const double ce = cx * st.ex[q] + cy * st.ey[q] + cz * st.ez[q];
-        const bool inPlane = st.ez[q] == 0.0;
-        const double w = (st.hexagonal && inPlane) ? (4.0 / 3.0) * ce * ce - (1.0 / 3.0) * cxy2 : ce * ce;
-        sum += w * (double(u[i + st.off[q]]) - u0);
-    }
-    return sum * st.invH2;
+    for (int a = 1; a < n; ++a)
+        for (int b = a; b > 0 && v[b] < v[b - 1]; --b) std::swap(v[b], v[b - 1]);
+    double s = 0;
+    for (int a = 0; a < n; ++a) s += v[a];
+    return s;
 }
 
-/// The explicit parts of one second-order step at cell i (eq. 8), for the implicit system
-///   (1 + r/2 a W - r/2 n') p' - r/2 a sum_q w_q p'_q = rhs,   r = dt/tau, a = eps^2,
-/// returned as diag, scale (= r/2 a) and rhs; @a predictor (fully explicit) is the solver's
-/// first guess. Coefficients (a, its gradient c, m(T), n') are taken at the step's midpoint,
-/// extrapolated from the last two steps (pe = 3/2 p^n - 1/2 p^{n-1}, the same for T), which
-/// keeps the scheme second order in time although they depend on the solution; @a a holds
-/// eps^2 of pe (kobayashiAux on pe). Lax-Wendroff on the advection with velocity c/tau:
-///   increment = r [c . grad p^n + dt/(2 tau) c^T H(p^n) c],
-/// c^T H c from the lattice's directional second differences D_k: sum_k (c.e_k)^2 D_k on the
-/// square lattice (the paper's per-axis form), and on the hexagonal one the exact
-/// sum_k (4/3 (c.e_k)^2 - 1/3 |c|^2) D_k over its three directions. The reaction is
-/// n(pe) + n'(pe) ((p^n + p')/2 - pe): linearised about the midpoint, trapezoidal in p.
-/// The full Lax-Wendroff correction also advects the other terms: + dt/(2 tau) c . grad f with
-/// f = eps^2 lap p + n (kobayashiNonAdvective, precomputed on the block). Also returns lap T^n
-/// for the temperature system.
+/// sum_q w_q (u_q - u_i) over opposite-tap pairs, the pair sums in canonical order.
+inline double symmetricTapSum(const float* u, std::size_t i, const FlatStencil& st, const double* w)
+{
+    const double u0 = u[i];
+    double pair[FlatStencil::kMaxTaps / 2];
+    const int np = st.n / 2;
+    for (int k = 0; k < np; ++k)
+        pair[k] = w[2 * k] * (double(u[i + st.off[2 * k]]) - u0) + w[2 * k + 1] * (double(u[i + st.off[2 * k + 1]]) - u0);
+    return canonicalSum(pair, np);
+}
+
+/// eps(theta)^2 at cell i for the gradient of @a u: the only anisotropic coefficient of eq. 8.
+/// The anisotropy fades out where u is flat: eps = eps_bar (1 + delta f cos(j (theta0 - theta)))
+/// with f = (|g|^2 / (|g|^2 + sigma^2))^(j/2), sigma = kFlatGradientPerCell / h. Where there is
+/// no interface the normal angle theta is undefined, and where |g| is of the order of a step's
+/// error, that error turns theta (and eps^2) by O(1): the coefficients' extrapolation to the
+/// midpoint, second order elsewhere, was first order there, and so was the whole scheme with
+/// anisotropy (observed 1.6 -> 1.3 as dt shrank). f makes eps^2 a smooth function of grad u;
+/// f > 0.99 where p changes by more than 0.1 per cell (every interface).
+/// On the hexagonal lattice with j = 6 and the arms on lattice directions it is evaluated from
+/// the three pair differences D_k = u(+e_k) - u(-e_k) alone, by functions that a 60-degree
+/// rotation or a mirror (which permute the D_k and flip their signs) leave bit-identical:
+///   with u_k = g . e_k (exact: D_m + (D_a/2 +- D_b/2)), |g|^2 = 2/3 sum u_k^2 and
+///   cos 6 theta = 32 (u_0 u_1 u_2)^2 / |g|^6 - 1 = 108 prod u_k^2 / (sum u_k^2)^3 - 1,
+/// products and sums in canonical order. Elsewhere: the generic form (Anisotropy), which the
+/// square lattice's axis-aligned taps already keep exactly D4-symmetric.
+inline double kobayashiEpsSquared(const float* u, std::size_t i, const FlatStencil& st, const Anisotropy& an)
+{
+    if (st.hexagonal && an.integerMode == 6 && an.sj0 == 0.0) {
+        double D[3];
+        for (int k = 0; k < 3; ++k) D[k] = double(u[i + st.off[2 * k]]) - double(u[i + st.off[2 * k + 1]]);
+        // Taps 0/1: 0 degrees, 2/3: 60, 4/5: -60. e0.e60 = e0.e-60 = 1/2, e60.e-60 = -1/2.
+        const double u0 = D[0] + (0.5 * D[1] + 0.5 * D[2]);
+        const double u1 = D[1] + (0.5 * D[0] - 0.5 * D[2]);
+        const double u2 = D[2] + (0.5 * D[0] - 0.5 * D[1]);
+        double sq[3] = {u0 * u0, u1 * u1, u2 * u2};
+        for (int a = 1; a < 3; ++a)
+            for (int b = a; b > 0 && sq[b] < sq[b - 1]; --b) std::swap(sq[b], sq[b - 1]);
+        const double S = (sq[0] + sq[1]) + sq[2];
+        double c6 = 1.0; // no gradient: theta = 0 (as the generic form)
+        if (S > 1e-300) c6 = 108.0 * ((sq[0] * sq[1]) * sq[2]) / (S * S * S) - 1.0;
+        const double g2 = (2.0 / 3.0) * (st.wGrad[0] * st.wGrad[0]) * S; // |grad u|^2
+        const double f = g2 / (g2 + st.flatGradient2);
+        c6 *= f * f * f;
+        const double eps = an.epsBar * (1.0 + an.delta * (an.cj0 * c6));
+        return eps * eps;
+    }
+    double sx = 0, sy = 0;
+    const double u0 = u[i];
+    for (int q = 0; q < st.n; ++q) {
+        const double d = st.wGrad[q] * (double(u[i + st.off[q]]) - u0);
+        sx += d * st.ex[q];
+        sy += d * st.ey[q];
+    }
+    double eps, epsPrime;
+    an(sx, sy, eps, epsPrime);
+    const double g2 = sx * sx + sy * sy;
+    eps = an.epsBar + (eps - an.epsBar) * std::pow(g2 / (g2 + st.flatGradient2), 0.5 * an.j);
+    return eps * eps;
+}
+
+/// The phase equation's linear operator at cell i in eq. 8's advection-diffusion form,
+///   L p = a lap p + c . grad p = sum_q C_q (p_q - p_i),   C_q = a w_q + wGrad_q (c . e_q),
+/// a = eps^2 at the cell, c = grad a (central differences of @a a). c . e_q is summed from the
+/// pair differences with its exact lattice weights (e_q . e_k in {0, +-1/2, +-1}), the
+/// direction's own pair first, so that symmetric images get identical coefficients. Every C_q
+/// is kept >= 0 (positive coefficients: no new extrema, hence no overshoot where a walker froze
+/// a cell): where the advection would dominate a tap (cell Peclet number |c.e_q| h / (2a) > 1,
+/// only for delta above ~0.38), a is raised to |c.e_q| wGrad_q / w_q (upwinding by added
+/// diffusion, first order in space there, the time order is untouched). Returns sum_q C_q.
+inline double advectionDiffusionCoefficients(const float* a, std::size_t i, const FlatStencil& st, double* C)
+{
+    const int np = st.n / 2;
+    double A[FlatStencil::kMaxTaps / 2];
+    for (int k = 0; k < np; ++k) A[k] = st.wGrad[2 * k] * (double(a[i + st.off[2 * k]]) - double(a[i + st.off[2 * k + 1]]));
+    double ce[FlatStencil::kMaxTaps];
+    double aEff = a[i];
+    for (int k = 0; k < np; ++k) {
+        // c . e_{2k}: own pair, plus the others with their exact weights (a pair sum, commutative).
+        double rest = 0;
+        int m = 0;
+        double other[FlatStencil::kMaxTaps / 2];
+        for (int l = 0; l < np; ++l)
+            if (l != k && st.pairDot[k][l] != 0.0) other[m++] = st.pairDot[k][l] * A[l];
+        if (m == 1) rest = other[0];
+        else if (m == 2) rest = other[0] + other[1];
+        else for (int l = 0; l < m; ++l) rest += other[l]; // not reached on the supported lattices
+        ce[2 * k] = A[k] + rest;
+        ce[2 * k + 1] = -ce[2 * k];
+        aEff = std::fmax(aEff, std::fabs(ce[2 * k]) * st.wGrad[2 * k] / st.wLap[2 * k]);
+    }
+    double pair[FlatStencil::kMaxTaps / 2];
+    for (int k = 0; k < np; ++k) {
+        C[2 * k] = aEff * st.wLap[2 * k] + st.wGrad[2 * k] * ce[2 * k];
+        C[2 * k + 1] = aEff * st.wLap[2 * k + 1] + st.wGrad[2 * k + 1] * ce[2 * k + 1];
+        pair[k] = C[2 * k] + C[2 * k + 1];
+    }
+    return canonicalSum(pair, np);
+}
+
+/// One row of the second-order step at cell i (eq. 8), theta-weighted (theta = 1/2: Crank-
+/// Nicolson, second order; theta = 1: implicit Euler, the start-up steps):
+///   p' - theta r L(p') - r N(p') = p + (1 - theta) r L(p),   N linear in p' (see below),
+/// r = dt/tau, L the advection-diffusion operator above with its coefficients (a = eps^2 and
+/// its gradient) at the step's midpoint, extrapolated from the last increment (pe), as is m(T);
+/// the reaction, linear in p', is detailed below (bounded, with an implicit latent-heat loop). The advection sits inside the Crank-Nicolson
+/// average with the diffusion: the whole linear operator is time-centred, so the step is second
+/// order in time, and positive coefficients make the implicit side an M-matrix and the explicit
+/// side a positive combination (dt below the limit), so p stays within its bounds without any
+/// clipping. (The paper's Lax-Wendroff advection is dispersive: it overshoots at walker-frozen
+/// cells, and as written it is only first order with anisotropy, docs/accuracy.md.)
+/// Returned: diag, per-tap coefficients coef (the system is diag p'_i - sum_q coef_q p'_q = rhs),
+/// rhs, a bounded first guess and lap T^n for the temperature system. @a pf is the extrapolated
+/// p at the end of the step (clamped to [0, 1]), for the latent-heat feedback.
 struct SecondOrderRow {
-    double diag, scale, rhs, predictor, lapT;
+    double diag, rhs, predictor, lapT;
+    double coef[FlatStencil::kMaxTaps];
 };
 
-/// The rest of the phase equation's right-hand side at cell i, f = eps^2 lap p + n(p, T), for
-/// the Lax-Wendroff cross term c . grad f (see kobayashiSecondOrderRow).
-inline double kobayashiNonAdvective(const float* p, const float* T, const float* a, std::size_t i,
-                                    const FlatStencil& st, const KobayashiParams& k, double Te)
+/// The reaction's part of a second-order row, linear in p': diag += d, rhs += r.
+struct ReactionPart {
+    double diag, rhs;
+};
+
+/// Reaction n = p (1 - p) g, g = p - 1/2 + m(T) + a chi, linearised about @a pm (the theta-point
+/// estimate of p) and taken at p_t = theta p' + (1 - theta) p0: n(pm) + n'(pm) (p_t - pm);
+/// plus the latent-heat loop: freezing by dp warms the cell by K dp, which lowers m(T) and slows
+/// freezing. With gamma large this loop is stiff (rate ~ p(1-p) |m'(T)| K / tau, 16 per step at
+/// dt 0.0008 with gamma 30, K 2.5); taken only from the extrapolated te it oscillated and
+/// overshot (p 1.044) or thawed frozen arms. T at the theta-point is te plus theta K times the
+/// difference between this step's dp and the one the extrapolation assumed (@a pf - p0), an
+/// O(dt^2) correction that makes the loop implicit: n += w (p' - pf), w = pm (1-pm) m'(T) theta K.
+inline ReactionPart kobayashiReactionPart(double p0, double pm, double pf, double x, double noiseChi,
+                                          const KobayashiParams& k, double theta)
 {
-    const double p0 = p[i];
-    double lapP = 0;
-    for (int q = 0; q < st.n; ++q) lapP += st.wLap[q] * (double(p[i + st.off[q]]) - p0);
-    const double m = k.alpha / M_PI * std::atan(k.gamma * (Te - double(T[i])));
-    return double(a[i]) * lapP + p0 * (1.0 - p0) * (p0 - 0.5 + m);
+    const double r = k.dt / k.tau;
+    const double m = k.alpha / M_PI * std::atan(x);
+    const double g = pm - 0.5 + m + noiseChi;
+    const double dn = (1.0 - 2.0 * pm) * g + pm * (1.0 - pm);
+    const double react0 = pm * (1.0 - pm) * g - dn * pm, reactDiag = -dn; // n = react0 - reactDiag p_t
+    const double dmdT = -k.alpha / M_PI * k.gamma / (1.0 + x * x);
+    const double w = pm * (1.0 - pm) * dmdT * theta * k.latentHeat; // <= 0
+    // Below the stability limit theta r dn < 1, so the diagonal stays > 0.
+    return {theta * r * reactDiag - r * w, r * (react0 - reactDiag * (1.0 - theta) * p0) - r * w * pf};
 }
 
 inline SecondOrderRow kobayashiSecondOrderRow(const float* p, const float* T, const float* pe, const float* te,
-                                              const float* a, const float* f, std::size_t i, const FlatStencil& st,
-                                              const KobayashiParams& k, double Te, double chi)
+                                              const float* pf, const float* a, std::size_t i, const FlatStencil& st,
+                                              const KobayashiParams& k, double Te, double chi, double theta)
 {
-    const double p0 = p[i], t0 = T[i], a0 = a[i];
-    double lapP = 0, lapT = 0, cx = 0, cy = 0, cz = 0, gx = 0, gy = 0, gz = 0, fx = 0, fy = 0, fz = 0;
-    const double f0 = f[i];
-    for (int q = 0; q < st.n; ++q) {
-        const std::size_t j = i + st.off[q];
-        const double dfq = st.wGrad[q] * (double(f[j]) - f0);
-        fx += dfq * st.ex[q];
-        fy += dfq * st.ey[q];
-        fz += dfq * st.ez[q];
-        const double dpq = double(p[j]) - p0;
-        lapP += st.wLap[q] * dpq;
-        lapT += st.wLap[q] * (double(T[j]) - t0);
-        gx += st.wGrad[q] * dpq * st.ex[q];
-        gy += st.wGrad[q] * dpq * st.ey[q];
-        gz += st.wGrad[q] * dpq * st.ez[q];
-        const double da = st.wGrad[q] * (double(a[j]) - a0);
-        cx += da * st.ex[q];
-        cy += da * st.ey[q];
-        cz += da * st.ez[q];
-    }
-    const double cHc = directionalSecondDerivative(p, i, st, cx, cy, cz);
-    const double r = k.dt / k.tau;
-    const double pm = pe[i];
-    const double m = k.alpha / M_PI * std::atan(k.gamma * (Te - double(te[i])));
-    const double g = pm - 0.5 + m + k.noise * chi;
-    const double nm = pm * (1.0 - pm) * g;
-    // dn/dp at the midpoint; below the stability limit r dn <= 1, so diag stays >= 1/2.
-    const double dn = (1.0 - 2.0 * pm) * g + pm * (1.0 - pm);
-    // Lax-Wendroff on tau p_t = c . grad p + f: p_tt ~ (c/tau) . grad(p_t) = (c . grad(c . grad p)
-    // + c . grad f) / tau^2 with c frozen at the midpoint. The paper keeps only the first part;
-    // the second (the advection of diffusion and reaction) is what makes the step second order
-    // when the anisotropy moves the front (docs/accuracy.md).
-    const double advection = cx * gx + cy * gy + cz * gz + 0.5 * k.dt / k.tau * (cHc + cx * fx + cy * fy + cz * fz);
     SecondOrderRow row;
-    row.scale = 0.5 * r * a0;
-    row.diag = 1.0 + row.scale * st.wLapSum - 0.5 * r * dn;
-    row.rhs = p0 + r * (advection + 0.5 * a0 * lapP + nm + dn * (0.5 * p0 - pm));
-    row.predictor = p0 + r * (advection + a0 * lapP + nm + dn * (p0 - pm));
-    row.lapT = lapT;
+    double C[FlatStencil::kMaxTaps];
+    const double sumC = advectionDiffusionCoefficients(a, i, st, C);
+    const double Lp = symmetricTapSum(p, i, st, C);
+    row.lapT = symmetricTapSum(T, i, st, st.wLap);
+    const double p0 = p[i];
+    const double r = k.dt / k.tau;
+    const double x = k.gamma * (Te - double(te[i]));
+    for (int q = 0; q < st.n; ++q) row.coef[q] = theta * r * C[q];
+    const ReactionPart rp = kobayashiReactionPart(p0, pe[i], pf[i], x, k.noise * chi, k, theta);
+    row.diag = 1.0 + theta * r * sumC + rp.diag;
+    row.rhs = p0 + (1.0 - theta) * r * Lp + rp.rhs;
+    // Forward Euler guess, kept in [0, 1] so that even a loosely converged solve starts inside
+    // the bounds (the solver's iterates are then convex combinations of in-bound values).
+    const ReactionPart ex = kobayashiReactionPart(p0, pe[i], pf[i], x, k.noise * chi, k, 0.0);
+    row.predictor = std::fmin(1.0, std::fmax(0.0, p0 + r * Lp + ex.rhs - ex.diag * p0));
     return row;
 }
 

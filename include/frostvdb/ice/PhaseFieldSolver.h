@@ -32,7 +32,9 @@ struct PhaseFieldStepStats {
     double heatSeconds = 0; ///< the T system alone (latent heat + Crank-Nicolson solve)
     int64_t solves = 0, solverIterationsP = 0, solverIterationsT = 0, unconverged = 0;
     double lastResidual = 0;
-    int64_t clippedVoxels = 0; ///< lw_cn: p values clipped back into [0, 1] (Lax-Wendroff overshoot)
+    /// lw_cn: voxel-steps whose p left [0, 1] and was clipped back (only next to walker-frozen
+    /// cells now, see PhaseFieldSolver.cpp).
+    int64_t clippedVoxels = 0;
     int64_t rebuilds = 0;      ///< region rebuilds (every k steps, or when another effect wrote p or T)
 };
 
@@ -68,8 +70,10 @@ public:
     /// member must be listed here: the resume tests compare resumed runs bit for bit.
     std::vector<std::pair<const char*, openvdb::FloatGrid::Ptr*>> historyGrids()
     {
-        return {{"last_dp", &mLastDp}, {"last_dt", &mLastDt}};
+        return {{"last_in_p", &mLastInP}, {"last_in_t", &mLastInT}};
     }
+    /// The last step's dt (the midpoint extrapolation scales by it); saved with historyGrids().
+    double& lastStepDt() { return mLastStepDt; }
 
     /// The region cadence's state (region topology, steps left, truncation flag): a resumed run
     /// must keep the region an uninterrupted run would keep, or the bits differ.
@@ -94,6 +98,9 @@ public:
 
 private:
     using FloatLeaf = openvdb::FloatTree::LeafNodeType;
+    void stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::Ptr& T, openvdb::FloatGrid* growth,
+                  openvdb::FloatGrid* freezeTime, int64_t stepIndex, double time, uint64_t seed,
+                  PhaseFieldStepStats* stats);
     void stepSecondOrder(const openvdb::FloatGrid& p, const openvdb::FloatGrid& T,
                          openvdb::tree::LeafManager<openvdb::FloatTree>& pLeaves,
                          openvdb::tree::LeafManager<openvdb::FloatTree>& tLeaves,
@@ -109,11 +116,6 @@ private:
     Domain mDomain;
     RegionSettings mRegion;
     const openvdb::FloatGrid* mMelt = nullptr;
-    /// The second-order scheme's last increments of p and T, for its midpoint coefficients, and
-    /// the buffers of the ones before (reused).
-    openvdb::FloatGrid::Ptr mLastDp, mLastDt, mSpareDp, mSpareDt;
-    uint64_t mLastIncGeneration = 0, mSpareIncGeneration = 0;
-
     // Region cadence (see ActiveRegion.h). A generation numbers each distinct region topology;
     // a grid tagged with the current generation has exactly the region's topology (0: unknown).
     RegionCadence mCadence;
@@ -128,6 +130,10 @@ private:
     uint64_t mGroupsGeneration = 0;
     std::unique_ptr<SlotLayout> mLayout;      ///< the implicit systems' rows (second order)
     uint64_t mLayoutGeneration = 0;
+    /// The second-order scheme's memory for its midpoint coefficients.
+    openvdb::FloatGrid::Ptr mLastInP, mLastInT; ///< p and T at the start of the last step
+    double mLastStepDt = 0; ///< the last step's dt
+    double mTheta = 0.5;    ///< implicit weight: 1/2 Crank-Nicolson, 1 in the start-up half-steps
 };
 
 /// The plain dense-array loop of the same stencil and arithmetic, on a 2D nx x ny plane with a
