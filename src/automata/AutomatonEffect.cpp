@@ -28,24 +28,6 @@ double since(Clock::time_point t) { return std::chrono::duration<double>(Clock::
 
 const double kSqrt3 = std::sqrt(3.0);
 
-/// Nearest hexagonal cell to a fractional axial position (cube rounding).
-Axial roundAxial(double fq, double fr)
-{
-    const double x = fq, z = fr, y = -x - z;
-    double rx = std::round(x), ry = std::round(y), rz = std::round(z);
-    const double dx = std::abs(rx - x), dy = std::abs(ry - y), dz = std::abs(rz - z);
-    if (dx > dy && dx > dz) rx = -ry - rz;
-    else if (dy > dz) ry = -rx - rz;
-    else rz = -rx - ry;
-    return {int(rx), int(rz)};
-}
-
-/// World (in cell spacings) to the containing hexagonal cell.
-Axial cellAt(double x, double y)
-{
-    const double r = y / (kSqrt3 / 2.0);
-    return roundAxial(x - 0.5 * r, r);
-}
 
 /// The transform of the prism lattice: hexagonal shear in the plane, @a dz metres per layer.
 openvdb::math::Transform::Ptr prismTransform(double h, double dz)

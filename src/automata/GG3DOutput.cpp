@@ -23,24 +23,6 @@ namespace automata {
 namespace {
 const double kSqrt3 = std::sqrt(3.0);
 
-/// Nearest hexagonal cell to a fractional axial position (cube rounding).
-Axial roundAxial(double fq, double fr)
-{
-    const double x = fq, z = fr, y = -x - z;
-    double rx = std::round(x), ry = std::round(y), rz = std::round(z);
-    const double dx = std::abs(rx - x), dy = std::abs(ry - y), dz = std::abs(rz - z);
-    if (dx > dy && dx > dz) rx = -ry - rz;
-    else if (dy > dz) ry = -rx - rz;
-    else rz = -rx - ry;
-    return {int(rx), int(rz)};
-}
-
-/// World position in cell spacings -> containing hexagonal cell.
-Axial cellAt(double x, double y)
-{
-    const double r = y / (kSqrt3 / 2.0);
-    return roundAxial(x - 0.5 * r, r);
-}
 
 /// Prism lattice: hexagonal shear in the plane, @a dz per layer, layer m/2 at z = 0.
 openvdb::math::Transform::Ptr prismTransform(double h, double dz, int m)

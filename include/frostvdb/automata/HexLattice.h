@@ -18,6 +18,8 @@
 #include <cstdlib>
 #include <vector>
 
+#include <cmath>
+
 namespace frostvdb {
 namespace automata {
 
@@ -152,6 +154,25 @@ private:
     int mR = 0, mPad = 0, mOff = 0, mW = 1;
     std::array<int64_t, 6> mN{}, mP{}, mE{};
 };
+
+/// Nearest hexagonal cell to a fractional axial position (cube rounding).
+inline Axial roundAxial(double fq, double fr)
+{
+    const double x = fq, z = fr, y = -x - z;
+    double rx = std::round(x), ry = std::round(y), rz = std::round(z);
+    const double dx = std::abs(rx - x), dy = std::abs(ry - y), dz = std::abs(rz - z);
+    if (dx > dy && dx > dz) rx = -ry - rz;
+    else if (dy > dz) ry = -rx - rz;
+    else rz = -rx - ry;
+    return {int(rx), int(rz)};
+}
+
+/// A world position in cell spacings to the hexagonal cell that contains it.
+inline Axial cellAt(double x, double y)
+{
+    const double r = y / (std::sqrt(3.0) / 2.0);
+    return roundAxial(x - 0.5 * r, r);
+}
 
 } // namespace automata
 } // namespace frostvdb
