@@ -58,7 +58,7 @@ openvdb::FloatGrid::Ptr field(Simulation& sim, const std::string& name)
 }
 
 /// The SceneError message of building and initialising a scene ("" if none).
-std::string errorOf(const std::string& text)
+std::string initErrorOf(const std::string& text)
 {
     try {
         initSim(text);
@@ -326,47 +326,47 @@ TEST_CASE("Crystal errors name the file and the key", "[fast][crystal]")
 
     SECTION("missing file")
     {
-        const auto msg = errorOf(plane(16, 16) + "[crystal]\nmelt_map = \"" + dir + "/nope.png\"\n");
+        const auto msg = initErrorOf(plane(16, 16) + "[crystal]\nmelt_map = \"" + dir + "/nope.png\"\n");
         CHECK(msg.find("test.toml:6") != std::string::npos);
         CHECK(msg.find("crystal.melt_map") != std::string::npos);
         CHECK(msg.find("nope.png") != std::string::npos);
     }
     SECTION("wrong size")
     {
-        const auto msg = errorOf(plane(16, 16) + "[crystal]\nseed_map = \"" + png + "\"\n");
+        const auto msg = initErrorOf(plane(16, 16) + "[crystal]\nseed_map = \"" + png + "\"\n");
         CHECK(msg.find("crystal.seed_map") != std::string::npos);
         CHECK(msg.find("wide.png") != std::string::npos);
         CHECK(msg.find("64x8") != std::string::npos);
-        CHECK(errorOf(plane(16, 16) + "[crystal]\nseed_map = \"" + png + "\"\nmap_stretch = true\n").empty());
+        CHECK(initErrorOf(plane(16, 16) + "[crystal]\nseed_map = \"" + png + "\"\nmap_stretch = true\n").empty());
     }
     SECTION("unknown grid name")
     {
-        const auto msg = errorOf(plane(16, 16) + "[crystal]\nmelt_map = \"" + dir + "/bad.vdb\"\nmelt_map_grid = \"cold\"\n");
+        const auto msg = initErrorOf(plane(16, 16) + "[crystal]\nmelt_map = \"" + dir + "/bad.vdb\"\nmelt_map_grid = \"cold\"\n");
         CHECK(msg.find("crystal.melt_map") != std::string::npos);
         CHECK(msg.find("'cold'") != std::string::npos);
         CHECK(msg.find("hot") != std::string::npos);
     }
     SECTION("value out of [0,1]")
     {
-        const auto msg = errorOf(plane(16, 16) + "[crystal]\nmelt_map = \"" + dir + "/bad.vdb\"\n");
+        const auto msg = initErrorOf(plane(16, 16) + "[crystal]\nmelt_map = \"" + dir + "/bad.vdb\"\n");
         CHECK(msg.find("crystal.melt_map") != std::string::npos);
         CHECK(msg.find("bad.vdb") != std::string::npos);
         CHECK(msg.find("[0, 1]") != std::string::npos);
     }
     SECTION("unknown key and a key of another shape, in an array of tables")
     {
-        auto msg = errorOf(plane(16, 16) + "[[crystal.seed]]\nradus = 3\n");
+        auto msg = initErrorOf(plane(16, 16) + "[[crystal.seed]]\nradus = 3\n");
         CHECK(msg.find("crystal.seed#1.radus") != std::string::npos);
         CHECK(msg.find("test.toml:6") != std::string::npos);
-        msg = errorOf(plane(16, 16) + "[[crystal.seed]]\n[[crystal.seed]]\nshape = \"line\"\nfrom = [0, 0]\nto = [1, 1]\nradius = 2\n");
+        msg = initErrorOf(plane(16, 16) + "[[crystal.seed]]\n[[crystal.seed]]\nshape = \"line\"\nfrom = [0, 0]\nto = [1, 1]\nradius = 2\n");
         CHECK(msg.find("crystal.seed#2.radius") != std::string::npos);
         CHECK(msg.find("point") != std::string::npos);
-        msg = errorOf(plane(16, 16) + "[[crystal.seed]]\nshape = \"edge\"\nedges = \"left, front\"\n");
+        msg = initErrorOf(plane(16, 16) + "[[crystal.seed]]\nshape = \"edge\"\nedges = \"left, front\"\n");
         CHECK(msg.find("crystal.seed#1.edges") != std::string::npos);
         CHECK(msg.find("front") != std::string::npos);
-        msg = errorOf(plane(16, 16) + "[crystal]\nseed = 3\n");
+        msg = initErrorOf(plane(16, 16) + "[crystal]\nseed = 3\n");
         CHECK(msg.find("crystal.seed") != std::string::npos);
-        msg = errorOf(plane(16, 16) + "[[crystal.seed]]\nposition = [0.5, 0.5, 0.5]\n");
+        msg = initErrorOf(plane(16, 16) + "[[crystal.seed]]\nposition = [0.5, 0.5, 0.5]\n");
         CHECK(msg.find("crystal.seed#1.position") != std::string::npos);
     }
 }

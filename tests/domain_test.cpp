@@ -14,16 +14,6 @@ using openvdb::Coord;
 
 namespace {
 
-std::string errorOf(const std::string& text)
-{
-    try {
-        makeSim(text);
-    } catch (const SceneError& e) {
-        return e.what();
-    }
-    return "";
-}
-
 /// A test domain: a disc of cells, to check that effects only see the support they are given.
 class DiscDomain : public DomainImpl {
 public:

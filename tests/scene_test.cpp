@@ -11,16 +11,6 @@ using namespace frostvdb::test;
 
 namespace {
 
-std::string errorOf(const std::string& text, const std::vector<std::string>& overrides = {})
-{
-    try {
-        makeSim(text, overrides);
-    } catch (const SceneError& e) {
-        return e.what();
-    }
-    return "";
-}
-
 const char* kGood = "[domain]\nsize = [32, 32]\n\n[phase_field]\ndt = 0.0002\n";
 
 } // namespace

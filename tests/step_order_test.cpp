@@ -13,16 +13,6 @@ using namespace frostvdb::test;
 
 namespace {
 
-std::string errorOf(const std::string& text)
-{
-    try {
-        makeSim(text);
-    } catch (const SceneError& e) {
-        return e.what();
-    }
-    return "";
-}
-
 std::vector<std::string> names(const Simulation& sim, const std::vector<size_t>& order)
 {
     std::vector<std::string> n;

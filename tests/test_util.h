@@ -1,5 +1,6 @@
 #pragma once
 // Helpers shared by the tests: build a Simulation from scene text, run it quietly, compare grids.
+#include <frostvdb/core/Error.h>
 #include <frostvdb/core/Simulation.h>
 
 #include <openvdb/openvdb.h>
@@ -20,6 +21,17 @@ inline Simulation makeSim(const std::string& text, const std::vector<std::string
     Scene scene = Scene::fromString(text, "test.toml");
     for (auto& o : overrides) scene.applyOverride(o);
     return Simulation(std::move(scene));
+}
+
+/// The SceneError message of building @a text (with @a overrides) into a Simulation; "" if none.
+inline std::string errorOf(const std::string& text, const std::vector<std::string>& overrides = {})
+{
+    try {
+        makeSim(text, overrides);
+    } catch (const SceneError& e) {
+        return e.what();
+    }
+    return "";
 }
 
 /// A fresh empty folder under the system temp dir.
