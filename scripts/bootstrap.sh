@@ -11,17 +11,7 @@ packages=(build-essential cmake ccache pkg-config
           libtbb-dev libeigen3-dev catch2 libtomlplusplus-dev libpng-dev
           python3-openvdb libopenvdb-tools libopenvdb-ax-tools
           libassimp-dev)
-missing=()
-for p in "${packages[@]}"; do
-  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
-done
-if [ ${#missing[@]} -gt 0 ]; then
-  echo "frostvdb: installing ${missing[*]}" >&2
-  sudo_cmd=""
-  [ "$(id -u)" -ne 0 ] && sudo_cmd="sudo"
-  $sudo_cmd apt-get update -qq
-  DEBIAN_FRONTEND=noninteractive $sudo_cmd apt-get install -y -qq --no-install-recommends "${missing[@]}" >&2
-fi
+"$here/scripts/install-packages.sh" "${packages[@]}"
 
 build_type="${FROSTVDB_BUILD_TYPE:-Release}"
 if [ ! -f build/CMakeCache.txt ]; then
