@@ -355,6 +355,34 @@ TEST_CASE("A folder holding another run's frames is refused unless --overwrite",
     }
 }
 
+TEST_CASE("Parallel frame chunks into one folder keep one summary each", "[fast][robust]")
+{
+    const std::string dir = tempDir("chunks");
+    for (int64_t f : {3, 1}) { // out of order, as a farm runs them
+        auto sim = makeSim(kTiny);
+        RunOptions ro = quietInto(dir);
+        ro.firstFrame = f;
+        ro.lastFrame = f + 1;
+        CHECK_NOTHROW(sim.run(ro)); // the other chunk's frames are of the same run
+    }
+    const std::string a = readFile(dir + "/run.frames-0001-0002.json");
+    const std::string b = readFile(dir + "/run.frames-0003-0004.json");
+    CHECK(a.find("tiny.0001.vdb") != std::string::npos);
+    CHECK(a.find("tiny.0003.vdb") == std::string::npos);
+    CHECK(b.find("tiny.0003.vdb") != std::string::npos);
+    CHECK(b.find("\"status\": \"complete\"") != std::string::npos);
+    CHECK(!std::filesystem::exists(dir + "/run.json"));
+    // Another version of the scene is still refused, and --overwrite removes the old summaries.
+    auto other = makeSim(kTiny, {"scene.frames=2"});
+    RunOptions ro = quietInto(dir);
+    CHECK_THROWS_AS(other.run(ro), SceneError);
+    ro.overwrite = true;
+    other.run(ro);
+    CHECK(std::filesystem::exists(dir + "/run.json"));
+    CHECK(!std::filesystem::exists(dir + "/run.frames-0001-0002.json"));
+    CHECK(!std::filesystem::exists(dir + "/tiny.0003.vdb"));
+}
+
 // ---------------------------------------------------------------------------------------------
 // 6. Strict command line and --set
 

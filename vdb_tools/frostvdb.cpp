@@ -145,7 +145,7 @@ int cmdRun(const std::vector<std::string>& args)
     const RunSummary sum = sim.run(ro);
     std::cout << sum.toText();
     const std::string dir = ro.outDir.empty() ? "out/" + sum.scene : ro.outDir;
-    std::cout << "  wrote " << sum.files.size() << " files and run.json to " << dir << "/\n";
+    std::cout << "  wrote " << sum.files.size() << " files and " << sum.summaryFile << " to " << dir << "/\n";
     return 0;
 }
 

@@ -152,6 +152,22 @@ std::string runJsonString(const std::string& path, const std::string& key)
     return e == std::string::npos ? std::string() : text.substr(p + pat.size(), e - p - pat.size());
 }
 
+/// The run summaries in @a dir: run.json (a run of the whole frame range) and
+/// run.frames-A-B.json (a chunk of it), sorted by name.
+std::vector<std::string> runSummariesIn(const std::string& dir)
+{
+    static const std::regex summaryName(R"(^run(\.frames-[0-9]+-[0-9]+)?\.json$)");
+    std::vector<std::string> out;
+    std::error_code ec;
+    for (auto it = std::filesystem::directory_iterator(dir, ec); !ec && it != std::filesystem::directory_iterator();
+         it.increment(ec)) {
+        const std::string name = it->path().filename().string();
+        if (std::regex_match(name, summaryName)) out.push_back(name);
+    }
+    std::sort(out.begin(), out.end());
+    return out;
+}
+
 std::string joinLines(const std::vector<std::string>& v)
 {
     std::string o;
@@ -533,6 +549,7 @@ RunSummary Simulation::startSummary(const RunOptions& opt, int64_t first, int64_
     sum.sceneHash = fnv1aHex(sum.effectiveScene);
     sum.firstFrame = first;
     sum.lastFrame = last;
+    sum.summaryFile = runSummaryName(sum);
     for (auto& e : mEffects) sum.effects.push_back(e->name());
     return sum;
 }
@@ -547,13 +564,16 @@ void Simulation::prepareOutputFolder(const std::string& dir, const RunOptions& o
     installTempCleanupHandlers();
     for (const auto& t : removeStaleTemporaries(dir))
         std::cerr << "frostvdb: removed " << dir << "/" << t << " (temporary file of a run that was killed)\n";
-    const std::string runJson = dir + "/run.json";
-    const bool sameRun = runJsonString(runJson, "scene_hash") == sum.sceneHash;
+    // Any summary of this scene's run (the whole range or a parallel chunk) makes the folder ours.
+    const auto summaries = runSummariesIn(dir);
+    bool sameRun = false;
+    for (const auto& s : summaries) sameRun = sameRun || runJsonString(dir + "/" + s, "scene_hash") == sum.sceneHash;
     const auto frames = frameFilesIn(dir, mWorld.sceneName);
     if (!frames.empty() && !sameRun) {
         if (!opt.overwrite) {
-            const std::string was = std::filesystem::exists(runJson)
-                                        ? "run.json records scene '" + runJsonString(runJson, "scene") +
+            const std::string was = !summaries.empty()
+                                        ? summaries.front() + " records scene '" +
+                                              runJsonString(dir + "/" + summaries.front(), "scene") +
                                               "' with other keys or overrides"
                                         : "no run.json";
             throw SceneError(dir, 0, "--out", "holds " + std::to_string(frames.size()) + " frame files of another run of '" +
@@ -565,6 +585,8 @@ void Simulation::prepareOutputFolder(const std::string& dir, const RunOptions& o
             if (!std::filesystem::remove(dir + "/" + f, ec) || ec)
                 throw WriteError(dir + "/" + f, "cannot remove the old frame: " + ec.message());
         }
+        for (const auto& f : summaries) // the old run's summaries would list frames that are gone
+            std::filesystem::remove(dir + "/" + f);
         std::cerr << "frostvdb: --overwrite: removed " << frames.size() << " frame files of the previous run of '"
                   << mWorld.sceneName << "' in " << dir << "\n";
     }
@@ -646,9 +668,20 @@ void Simulation::finishSummary(RunSummary& sum) const
     sum.peakRssBytes = peakRss();
 }
 
-void Simulation::writeRunJson(const std::string& dir, const RunSummary& sum)
+/// run.json for a run of the scene's whole frame range; a chunk (--frames A-B, as farm tasks run
+/// in parallel into one folder) writes run.frames-A-B.json, so chunks never replace each other's.
+std::string Simulation::runSummaryName(const RunSummary& sum) const
 {
-    writeFileAtomic(dir + "/run.json", sum.toJson());
+    if (sum.firstFrame == 1 && sum.lastFrame == mWorld.frames) return "run.json";
+    char buf[64];
+    std::snprintf(buf, sizeof buf, "run.frames-%04lld-%04lld.json", static_cast<long long>(sum.firstFrame),
+                  static_cast<long long>(sum.lastFrame));
+    return buf;
+}
+
+void Simulation::writeRunJson(const std::string& dir, const RunSummary& sum) const
+{
+    writeFileAtomic(dir + "/" + sum.summaryFile, sum.toJson());
 }
 
 RunSummary Simulation::run(const RunOptions& opt)

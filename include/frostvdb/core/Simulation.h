@@ -57,6 +57,7 @@ struct RunSummary {
     std::string effectiveScene;          ///< the scene after overrides (TOML)
     std::string sceneHash;               ///< FNV-1a of effectiveScene: identifies "the same scene + overrides"
     int64_t firstFrame = 0, lastFrame = 0;
+    std::string summaryFile = "run.json"; ///< run.json, or run.frames-A-B.json for a chunk of the range
     std::vector<std::string> effects;
     std::vector<std::string> fields;
     int64_t steps = 0;
@@ -128,7 +129,8 @@ private:
     void writeFrameOutputs(int64_t f, int64_t last, const std::string& dir, RunSummary& sum);
     std::string writeFramePreview(const Frame& frame, int64_t f, const std::string& dir);
     void finishSummary(RunSummary& sum) const;
-    static void writeRunJson(const std::string& dir, const RunSummary& sum);
+    std::string runSummaryName(const RunSummary& sum) const;
+    void writeRunJson(const std::string& dir, const RunSummary& sum) const;
     struct CheckpointClock;
     void refuseUncheckpointable(const char* what) const;
     int64_t resumeForRun(const RunOptions& opt, const std::string& dir, int64_t first, int64_t last);
