@@ -152,20 +152,29 @@ std::string runJsonString(const std::string& path, const std::string& key)
     return e == std::string::npos ? std::string() : text.substr(p + pat.size(), e - p - pat.size());
 }
 
-/// The run summaries in @a dir: run.json (a run of the whole frame range) and
-/// run.frames-A-B.json (a chunk of it), sorted by name.
-std::vector<std::string> runSummariesIn(const std::string& dir)
+/// The names in @a dir matching @a pattern whose first group (if any) is @a group (any if empty), sorted.
+std::vector<std::string> namesIn(const std::string& dir, const std::regex& pattern, const std::string& group = {})
 {
-    static const std::regex summaryName(R"(^run(\.frames-[0-9]+-[0-9]+)?\.json$)");
     std::vector<std::string> out;
     std::error_code ec;
     for (auto it = std::filesystem::directory_iterator(dir, ec); !ec && it != std::filesystem::directory_iterator();
          it.increment(ec)) {
         const std::string name = it->path().filename().string();
-        if (std::regex_match(name, summaryName)) out.push_back(name);
+        std::smatch m;
+        if (!std::regex_match(name, m, pattern)) continue;
+        if (!group.empty() && m[1].str() != group) continue;
+        out.push_back(name);
     }
     std::sort(out.begin(), out.end());
     return out;
+}
+
+/// The run summaries in @a dir: run.json (a run of the whole frame range) and
+/// run.frames-A-B.json (a chunk of it).
+std::vector<std::string> runSummariesIn(const std::string& dir)
+{
+    static const std::regex summaryName(R"(^run(\.frames-[0-9]+-[0-9]+)?\.json$)");
+    return namesIn(dir, summaryName);
 }
 
 std::string joinLines(const std::vector<std::string>& v)
@@ -180,18 +189,7 @@ std::string joinLines(const std::vector<std::string>& v)
 std::vector<std::string> frameFilesIn(const std::string& dir, const std::string& sceneName)
 {
     static const std::regex frameName(R"(^([A-Za-z0-9_-]+)\.[0-9]{4,}\.(vdb|png|displacement\.png)$)");
-    std::vector<std::string> out;
-    std::error_code ec;
-    for (auto it = std::filesystem::directory_iterator(dir, ec); !ec && it != std::filesystem::directory_iterator();
-         it.increment(ec)) {
-        const std::string name = it->path().filename().string();
-        std::smatch m;
-        if (!std::regex_match(name, m, frameName)) continue;
-        if (!sceneName.empty() && m[1].str() != sceneName) continue;
-        out.push_back(name);
-    }
-    std::sort(out.begin(), out.end());
-    return out;
+    return namesIn(dir, frameName, sceneName);
 }
 
 Simulation::Simulation(Scene scene) : mScene(std::move(scene))
