@@ -228,14 +228,32 @@ TEST_CASE("every effect with history resumes bit for bit", "[checkpoint]")
     checkResume("reiter", scene("[reiter]\n", "[41, 41]"), 4, 10);
     SECTION("Gravner-Griffeath 2D with noise")
     checkResume("gg", scene("[gravner_griffeath]\nsigma = 0.01\n", "[41, 41]"), 4, 10);
-    SECTION("Gravner-Griffeath 3D: refused with the section named (its state is not saved yet)")
+    SECTION("Gravner-Griffeath 3D, 1/24 wedge: the active box regrows after the checkpoint")
+    checkResume("gg3d_wedge", scene("[gravner_griffeath_3d]\npreset = \"fig07_plate\"\ndomain_radius = 14\nlayers = 9\n",
+                                    "[31, 31]"), 9, 40);
+    SECTION("Gravner-Griffeath 3D, whole domain, drift, noise, a switch after the checkpoint, 2 flakes")
+    checkResume("gg3d_switch",
+                scene("[gravner_griffeath_3d]\npreset = \"fig14_classic_dendrite\"\ndomain_radius = 12\nlayers = 11\n"
+                      "wedge = false\nphi = 0.01\nnoise = 0.00001\nswitch_step = 14\nswitch_beta = [1.2]\nbatch = 2\n",
+                      "[25, 25]"),
+                8, 24);
+    SECTION("Gravner-Griffeath 3D, a time-switched preset resumed after its switch")
+    checkResume("gg3d_after", scene("[gravner_griffeath_3d]\npreset = \"fig32_capped_column\"\nswitch_step = 5\n"
+                                    "domain_radius = 10\nlayers = 15\n", "[21, 21]"), 7, 18);
+}
+
+TEST_CASE("Gravner-Griffeath 3D checkpoint from another domain is refused by name", "[checkpoint][gg3d]")
+{
+    const std::string text = scene("[gravner_griffeath_3d]\ndomain_radius = 10\nlayers = 9\n", "[21, 21]");
+    const std::string path = checkpointPath(test::tempDir("ckpt_gg3d_other"), "resume");
     {
-        Simulation sim = test::makeSim(scene("[gravner_griffeath_3d]\nlayers = 5\n", "[31, 31]"));
-        sim.step();
-        const std::string path = checkpointPath(test::tempDir("ckpt_gg3d"), "resume");
-        CHECK_THROWS_WITH(sim.saveCheckpoint(path), Catch::Contains("[gravner_griffeath_3d]"));
-        CHECK_FALSE(fs::exists(path));
+        Simulation sim = test::makeSim(text);
+        for (int s = 0; s < 3; ++s) sim.step();
+        sim.saveCheckpoint(path);
     }
+    // the scene check names the differing key before any array is touched
+    Simulation other = test::makeSim(text, {"gravner_griffeath_3d.domain_radius=11"});
+    CHECK_THROWS_WITH(other.loadCheckpoint(path), Catch::Contains("gravner_griffeath_3d.domain_radius"));
 }
 
 TEST_CASE("resume refuses another scene and names the first differing parameter", "[checkpoint]")
@@ -392,4 +410,60 @@ finished:
     CHECK(test::readFile(dir + "/run.json").find("\"resumed_from_step\": -1") == std::string::npos);
     // the last resume removed the temporaries the killed runs left behind
     for (auto& e : fs::directory_iterator(dir)) CHECK(e.path().filename().string().find(".tmp") == std::string::npos);
+}
+
+TEST_CASE("Gravner-Griffeath 3D: kill -9 mid-run, resume: every frame bit-identical", "[checkpoint][gg3d]")
+{
+    // 6 frames of a classic dendrite with a time switch, checkpoints every 7 steps (inside frames);
+    // killed twice while running, then resumed to the end.
+    const std::string scenePath = test::tempDir("ckpt_gg3d_kill_scene") + "/gg.toml";
+    std::ofstream(scenePath) << "[scene]\nname = \"gg\"\nseed = 5\nframes = 6\nsteps_per_frame = 40\n"
+                                "[domain]\nsize = [41, 41]\nvoxel_size = 0.0001\n[output]\npreview = \"none\"\n"
+                                "[gravner_griffeath_3d]\npreset = \"fig14_classic_dendrite\"\ndomain_radius = 20\n"
+                                "layers = 13\nnoise = 0.00001\nswitch_step = 100\nswitch_beta = [1.3]\n";
+    const std::string ref = test::tempDir("ckpt_gg3d_kill_ref"), dir = test::tempDir("ckpt_gg3d_kill_run");
+    REQUIRE(waitExit(spawn({"run", scenePath, "--out", ref, "-q", "--threads", "2"})) == 0);
+    const std::set<std::string> expected = frameFiles(ref);
+    REQUIRE(expected.size() == 6);
+
+    int kills = 0, resumes = 0;
+    for (int attempt = 0; attempt < 10; ++attempt) {
+        const bool haveCheckpoint = fs::exists(checkpointPath(dir, "gg"));
+        std::vector<std::string> args = {"run", scenePath, "-q", "--threads", "2", "--checkpoint-every", "7"};
+        if (haveCheckpoint) args.insert(args.end(), {"--resume", dir});
+        else args.insert(args.end(), {"--out", dir});
+        resumes += haveCheckpoint;
+        const pid_t pid = spawn(args);
+        if (kills < 2) { // kill once frame 2 (then 4) is on disk, while the next frame is being grown
+            const std::string frame = dir + (kills == 0 ? "/gg.0002.vdb" : "/gg.0004.vdb");
+            int st = 0;
+            bool exited = false;
+            while (!fs::exists(frame))
+                if (waitpid(pid, &st, WNOHANG) == pid) { exited = true; break; }
+            if (!exited) {
+                std::this_thread::sleep_for(std::chrono::milliseconds(2));
+                kill(pid, SIGKILL);
+                REQUIRE(waitExit(pid) == -SIGKILL);
+                ++kills;
+                for (const auto& n : frameFiles(dir)) {
+                    INFO("after kill " << kills << ": " << n);
+                    CHECK(sameFrameFile(ref + "/" + n, dir + "/" + n));
+                }
+                continue;
+            }
+            REQUIRE(WIFEXITED(st));
+            REQUIRE(WEXITSTATUS(st) == 0);
+            break;
+        }
+        REQUIRE(waitExit(pid) == 0);
+        break;
+    }
+    INFO("kills " << kills << ", resumes " << resumes);
+    CHECK(kills >= 1);
+    CHECK(resumes >= 1);
+    REQUIRE(frameFiles(dir) == expected);
+    for (const auto& n : expected) {
+        INFO(n);
+        CHECK(sameFrameFile(ref + "/" + n, dir + "/" + n));
+    }
 }

@@ -265,6 +265,22 @@ GG3D grow(const std::string& preset, int radius, int layers, int steps, int swit
     return a;
 }
 
+/// Side branches along one arm, counted in the mid layer: ring d crosses the six arms in six runs
+/// of ice; where it also crosses a pair of side branches (D6 x mirror: 12 more runs) it has more.
+/// Each maximal stretch of rings d in [from, to] with more than six runs is one side-branch pair
+/// per arm. Returns the number of such stretches.
+int sideBranchPairs(const GG3D& a, int from, int to)
+{
+    int pairs = 0;
+    bool in = false;
+    for (int d = from; d <= to; ++d) {
+        const bool branched = runsOnRing(a, d, a.mirror()) > 6;
+        pairs += branched && !in;
+        in = branched;
+    }
+    return pairs;
+}
+
 double aspect(const GG3D& a) // horizontal radius over vertical half-extent (in cells)
 {
     const double halfZ = 0.5 * (a.crystalZMax() - a.crystalZMin() + 1);
@@ -318,6 +334,108 @@ TEST_CASE("gg3d: presets grow their morphology class on small runs", "[gg3d][fas
         int filled = 0;
         for (const Axial& c : ring(R - 1)) filled += a.attached(c.q, c.r, z);
         CHECK(filled < int(0.9 * 6 * (R - 1)));
+    }
+}
+
+TEST_CASE("gg3d: the classic dendrite has six arms with side branches; a plain star has none",
+          "[gg3d][fast]")
+{
+    // Fig. 14 on a 61-layer domain of radius 90 (the run stops at radius 72, about 8,000 steps):
+    // the vapour above and below the plate feeds side branches from radius ~50 on. With 31 layers
+    // the same preset grows six bare arms (the facts: the vertical extent sets the side branching),
+    // which is the control: the measure can fail.
+    const GG3D a = grow("fig14_classic_dendrite", 90, 61, 20000);
+    const int R = a.crystalRadius();
+    CHECK(a.stopped());
+    CHECK(R >= 70);
+    const int z = a.mirror();
+    CHECK(runsOnRing(a, R - 1, z) == 6); // six arm tips
+    int plateEnd = 0; // the central hexagonal plate: rings completely ice
+    while (plateEnd < R && runsOnRing(a, plateEnd + 1, z) == 0) ++plateEnd;
+    CHECK(plateEnd >= 5);
+    CHECK(plateEnd < R / 2);
+    // Along the arms: six runs (bare arm), then 18 runs where a side-branch pair crosses the ring.
+    int most = 0;
+    for (int d = plateEnd + 1; d < R; ++d) {
+        const int runs = runsOnRing(a, d, z);
+        CHECK(runs % 6 == 0); // D6: every feature comes six (or twelve) times
+        most = std::max(most, runs);
+    }
+    CHECK(most == 18);
+    // The 12 extra runs are side branches separated from their arm by vapour notches.
+    const int pairs = sideBranchPairs(a, plateEnd + 1, R - 1);
+    INFO("side-branch pairs per arm " << pairs << ", radius " << R << ", central plate " << plateEnd);
+    CHECK(pairs >= 2);
+
+    const GG3D bare = grow("fig14_classic_dendrite", 90, 31, 5000);
+    CHECK(runsOnRing(bare, bare.crystalRadius() - 1, bare.mirror()) == 6);
+    CHECK(sideBranchPairs(bare, 1, bare.crystalRadius() - 1) == 0);
+}
+
+/// Largest hex distance of an attached cell in layer z (-1: none).
+int layerRadius(const GG3D& a, int z)
+{
+    int m = -1;
+    const int R = a.crystalRadius();
+    for (int r = -R; r <= R; ++r)
+        for (int q = -R; q <= R; ++q)
+            if (a.attached(q, r, z)) m = std::max(m, hexDistance(q, r));
+    return m;
+}
+
+int layerCells(const GG3D& a, int z)
+{
+    int n = 0;
+    const int R = a.crystalRadius();
+    for (int r = -R; r <= R; ++r)
+        for (int q = -R; q <= R; ++q) n += a.attached(q, r, z);
+    return n;
+}
+
+TEST_CASE("gg3d: sandwich plate, star with needles and capped column grow their form", "[gg3d][fast]")
+{
+    SECTION("Fig. 20 sandwich plate: the rim splits into two plates with vapour between them")
+    {
+        const GG3D a = grow("fig20_sandwich_plate", 60, 41, 12000);
+        CHECK(a.crystalRadius() >= 25);
+        CHECK(aspect(a) > 8.0); // a thin plate ...
+        const int z0 = a.mirror();
+        const int mid = layerCells(a, z0), outer = layerCells(a, z0 + 1);
+        INFO("mid layer " << mid << " cells, the layers beside it " << outer);
+        CHECK(mid < int(0.95 * outer)); // ... whose middle layer lags behind the two beside it
+        int split = 0; // columns with ice above and below the mid layer and vapour in it
+        for (int r = 0; r <= a.crystalRadius(); ++r)
+            for (int q = r; q <= a.crystalRadius(); ++q)
+                split += a.attached(q, r, z0 + 1) && a.attached(q, r, z0 - 1) && !a.attached(q, r, z0);
+        CHECK(split >= 10);
+        CHECK(a.attached(0, 0, z0)); // joined at the centre
+    }
+    SECTION("Fig. 40 star with needles: six vertical blades, nothing between the arms")
+    {
+        const GG3D a = grow("fig40_star_with_needles", 40, 41, 4000);
+        const int R = a.crystalRadius();
+        CHECK(R >= 12);
+        int tallest = 0;
+        for (int d = 2; d <= R; ++d) {
+            int h = 0;
+            for (int z = a.domainZLo(); z <= a.domainZHi(); ++z) h += a.attached(d, 0, z);
+            tallest = std::max(tallest, h);
+        }
+        CHECK(tallest >= 15); // the arms are blades many layers tall (the needles) ...
+        CHECK(tallest > 2 * 3);
+        CHECK(runsOnRing(a, R / 2, a.mirror()) == 6); // ... six of them, with vapour between
+    }
+    SECTION("Fig. 32 capped column (switch scaled to this size): the ends flare after the switch")
+    {
+        const GG3D a = grow("fig32_capped_column", 30, 201, 9000, 3000);
+        const int top = a.crystalZMax();
+        CHECK(top >= 40);
+        const int middle = layerRadius(a, a.mirror());
+        int ends = 0;
+        for (int z = top / 2; z <= top; ++z) ends = std::max(ends, layerRadius(a, z));
+        INFO("radius at the middle " << middle << ", widest near the ends " << ends << ", half height " << top);
+        CHECK(ends >= middle + 3); // 12 against 9 at this size; the scene grows further
+        CHECK(aspect(a) < 1.0); // still a column overall
     }
 }
 

@@ -27,6 +27,14 @@ void prismLayers(int height, int m, int& lo, int& hi)
     lo = m - hi;
 }
 
+void applySwitch(GG3DParams& p, const GG3DSwitch& s)
+{
+    if (s.hasBeta) p.beta = s.beta;
+    if (s.hasKappa) p.kappa = s.kappa;
+    if (s.hasMu) p.mu = s.mu;
+    if (s.phi >= 0.0) p.phi = s.phi;
+}
+
 inline int cfgOf(uint8_t cnt)
 {
     const int nh = cnt & 15, nv = cnt >> 4;
@@ -144,7 +152,7 @@ uint8_t GG3D::flagAt(int q, int r, int z) const
     return in ? mFlags[i] : 0;
 }
 
-void GG3D::resize(int ra, int zlo, int zhi)
+GG3D::Box GG3D::boxFor(int ra, int zlo, int zhi) const
 {
     Box nb;
     if (mWedgeH) {
@@ -160,7 +168,23 @@ void GG3D::resize(int ra, int zlo, int zhi)
     nb.H = nb.r1 - nb.r0 + 1;
     nb.plane = size_t(nb.W) * size_t(nb.H);
     nb.size = nb.plane * size_t(nb.z1 - nb.z0 + 1);
+    return nb;
+}
 
+void GG3D::adoptBox(const Box& nb, int ra, int zlo, int zhi)
+{
+    mBox = nb;
+    mRa = ra;
+    mZlo = mHalfZ ? mM : zlo;
+    mZa = zhi;
+    for (int k = 0; k < 6; ++k) mN[size_t(k)] = int64_t(kNeighbours[size_t(k)].r) * nb.W + kNeighbours[size_t(k)].q;
+    buildRows();
+}
+
+void GG3D::resize(int ra, int zlo, int zhi)
+{
+    if (mHalfZ) zlo = mM;
+    const Box nb = boxFor(ra, zlo, zhi);
     std::vector<double> d(nb.size), b(nb.size, 0.0), t;
     std::vector<uint8_t> f(nb.size, 0), c(nb.size, 0);
     std::vector<int32_t> at(nb.size, -1);
@@ -186,15 +210,36 @@ void GG3D::resize(int ra, int zlo, int zhi)
     t = d;
     mD.swap(d); mB.swap(b); mT.swap(t); mFlags.swap(f); mCnt.swap(c); mAttach.swap(at);
     if (mP.noise > 0.0) mHold.assign(nb.size, 0.0);
-    mBox = nb;
-    mRa = ra;
-    mZlo = zlo;
-    mZa = zhi;
-    for (int k = 0; k < 6; ++k) mN[size_t(k)] = int64_t(kNeighbours[size_t(k)].r) * nb.W + kNeighbours[size_t(k)].q;
-    buildRows();
+    adoptBox(nb, ra, zlo, zhi);
     syncGhosts(mD);
     syncGhosts(mFlags);
     mPeakBytes = std::max(mPeakBytes, bytes() + (had ? 0 : 0));
+}
+
+std::vector<int64_t> GG3D::stateScalars() const
+{
+    return {mStep, mStopped ? 1 : 0, int64_t(mSwitchNext), mRa, mZlo, mZa,
+            mCrystalR, mCrystalZLo, mCrystalZHi, int64_t(mPeakBytes)};
+}
+
+void GG3D::restoreScalars(const std::vector<int64_t>& s)
+{
+    if (s.size() != 10) throw std::runtime_error("gg3d state: expected 10 counters, got " + std::to_string(s.size()));
+    const int ra = int(s[3]), zlo = int(s[4]), zhi = int(s[5]);
+    if (s[0] < 0 || s[2] < 0 || size_t(s[2]) > mCfg.switches.size() || ra < 1 || ra > mCfg.domainRadius ||
+        zlo < mZDomLo || zhi > mZDomHi || zlo > zhi)
+        throw std::runtime_error("gg3d state: counters out of range for this domain (another scene?)");
+    mStep = s[0];
+    mStopped = s[1] != 0;
+    // The parameters in force: the configured ones with the switches passed so far.
+    mP = mCfg.p;
+    mSwitchNext = 0;
+    while (mSwitchNext < size_t(s[2])) applySwitch(mP, mCfg.switches[mSwitchNext++]);
+    adoptBox(boxFor(ra, zlo, zhi), ra, zlo, zhi);
+    mCrystalR = int(s[6]);
+    mCrystalZLo = int(s[7]);
+    mCrystalZHi = int(s[8]);
+    mPeakBytes = uint64_t(s[9]);
 }
 
 uint64_t GG3D::bytes() const
@@ -275,13 +320,8 @@ void GG3D::recount(int q, int r, int z)
 
 void GG3D::applySwitches()
 {
-    while (mSwitchNext < mCfg.switches.size() && mCfg.switches[mSwitchNext].step <= mStep) {
-        const GG3DSwitch& s = mCfg.switches[mSwitchNext++];
-        if (s.hasBeta) mP.beta = s.beta;
-        if (s.hasKappa) mP.kappa = s.kappa;
-        if (s.hasMu) mP.mu = s.mu;
-        if (s.phi >= 0.0) mP.phi = s.phi;
-    }
+    while (mSwitchNext < mCfg.switches.size() && mCfg.switches[mSwitchNext].step <= mStep)
+        applySwitch(mP, mCfg.switches[mSwitchNext++]);
 }
 
 void GG3D::step()

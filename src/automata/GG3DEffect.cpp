@@ -3,6 +3,7 @@
 /// memory estimate, batch flakes. The grids are built in GG3DOutput.cpp.
 #include <frostvdb/automata/GG3DEffect.h>
 #include <frostvdb/core/Random.h>
+#include <frostvdb/core/State.h>
 #include <frostvdb/io/Preview.h>
 
 #include <algorithm>
@@ -303,6 +304,41 @@ void GG3DEffect::step(World&, const StepInfo&)
     const auto t0 = Clock::now();
     for (auto& f : mFlakes) f->step();
     mStepSeconds += since(t0);
+}
+
+void GG3DEffect::saveState(const World&, StateWriter& out) const
+{
+    out.putInt("flakes", int64_t(mFlakes.size()));
+    for (size_t k = 0; k < mFlakes.size(); ++k) {
+        StateWriter w = out.scope("flake" + std::to_string(k));
+        GG3D& f = *mFlakes[k]; // visitArrays hands out references; nothing is changed here
+        w.putArray("counters", f.stateScalars());
+        f.visitArrays([&](const char* name, auto& v) { w.putArray(name, v); });
+    }
+}
+
+void GG3DEffect::loadState(World&, const StateReader& in)
+{
+    if (in.getInt("flakes") != int64_t(mFlakes.size())) in.fail("flakes", "another number of flakes");
+    for (size_t k = 0; k < mFlakes.size(); ++k) {
+        const StateReader r = in.scope("flake" + std::to_string(k));
+        GG3D& f = *mFlakes[k];
+        std::vector<int64_t> counters;
+        r.getArray("counters", counters);
+        try {
+            f.restoreScalars(counters);
+        } catch (const std::exception& e) {
+            r.fail("counters", e.what());
+        }
+        const size_t n = f.storageSize();
+        f.visitArrays([&](const char* name, auto& v) {
+            r.getArray(name, v);
+            // the noise hold exists only with noise
+            const size_t want = std::string(name) != "hold" || f.params().noise > 0.0 ? n : 0;
+            if (v.size() != want)
+                r.fail(name, "holds " + std::to_string(v.size()) + " cells, expected " + std::to_string(want));
+        });
+    }
 }
 
 std::vector<std::pair<std::string, double>> GG3DEffect::timings() const

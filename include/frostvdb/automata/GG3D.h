@@ -124,6 +124,28 @@ public:
     /// Cells updated by the last step (the reduced domain's count in wedge mode).
     uint64_t cellsPerStep() const;
 
+    /// Checkpoints: the counters a step carries over (step, stop flag, switches applied, active
+    /// box, crystal extent, peak bytes) ...
+    std::vector<int64_t> stateScalars() const;
+    /// ... and back: rebuilds the active box's layout and re-applies the switches already passed;
+    /// then visitArrays refills the arrays. Throws std::runtime_error on values from another set-up.
+    void restoreScalars(const std::vector<int64_t>& s);
+    /// The state arrays of the active box (scratch T and the noise hold included: the box's
+    /// outer layers keep what the last regrowth wrote there), fn(name, std::vector<T>&).
+    template <typename Fn>
+    void visitArrays(Fn&& fn)
+    {
+        fn("d", mD);
+        fn("t", mT);
+        fn("b", mB);
+        fn("hold", mHold);
+        fn("flags", mFlags);
+        fn("count", mCnt);
+        fn("attach", mAttach);
+    }
+    /// Cells of the active box's storage (each array of visitArrays has this many, hold 0 or this).
+    size_t storageSize() const { return mBox.size; }
+
 private:
     struct Box {
         int q0 = 0, q1 = 0, r0 = 0, r1 = 0, z0 = 0, z1 = 0; // inclusive storage bounds
@@ -142,6 +164,9 @@ private:
 
     void applySwitches();
     void resize(int ra, int zlo, int zhi);
+    Box boxFor(int ra, int zlo, int zhi) const;
+    /// Makes @a nb the active box (radius @a ra, layers [zlo, zhi]): neighbour offsets, rows, ghosts.
+    void adoptBox(const Box& nb, int ra, int zlo, int zhi);
     void buildRows();
     void syncGhosts(std::vector<double>& v);
     void syncGhosts(std::vector<uint8_t>& v);

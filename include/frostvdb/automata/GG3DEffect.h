@@ -64,6 +64,10 @@ public:
     void addToFrame(World& world, Frame& frame) override;
     bool writePreview(World& world, const Frame& frame, const std::string& pngPath) override;
     std::vector<std::pair<std::string, double>> timings() const override;
+    /// Checkpoints: each flake's counters and active-box arrays (GG3D::stateScalars, visitArrays).
+    bool supportsCheckpoint() const override { return true; }
+    void saveState(const World& world, StateWriter& out) const override;
+    void loadState(World& world, const StateReader& in) override;
 
     const std::vector<std::unique_ptr<GG3D>>& flakes() const { return mFlakes; }
     /// Batch flake @a k's configuration (k = 0: @a base unchanged).
