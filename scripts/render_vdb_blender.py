@@ -23,6 +23,8 @@ Options (all optional):
                        faint glass, placed as the scene places it:
     --mesh-scale S, --mesh-rotate X,Y,Z (degrees about x, then y, then z), --mesh-translate X,Y,Z
                        the scene's constraint_scale / _rotate / _translate (applied in that order)
+    --cut              --as surface: cut away the quarter x > centre, y < centre (a Boolean), to show
+                       the inside (hollow cores, the gap of a sandwich plate)
     --color R,G,B      surface / volume colour (default ice blue 0.70,0.82,0.95)
     --background R,G,B world colour (default 0.02,0.025,0.035)
 
@@ -44,7 +46,7 @@ def parse_args(argv):
     opts = {"grid": None, "as": "surface", "threshold": None, "density": 20.0, "samples": 64,
             "res": (960, 720), "view": "iso", "engine": "cycles", "color": (0.70, 0.82, 0.95),
             "background": (0.02, 0.025, 0.035), "mesh": None, "mesh-scale": 1.0,
-            "mesh-rotate": (0.0, 0.0, 0.0), "mesh-translate": (0.0, 0.0, 0.0)}
+            "mesh-rotate": (0.0, 0.0, 0.0), "mesh-translate": (0.0, 0.0, 0.0), "cut": False}
     pos = []
     i = 0
 
@@ -56,6 +58,10 @@ def parse_args(argv):
 
     while i < len(args):
         a = args[i]
+        if a == "--cut":  # a flag
+            opts["cut"] = True
+            i += 1
+            continue
         if a.startswith("--"):
             key = a[2:]
             if key not in opts or i + 1 >= len(args):
@@ -361,6 +367,17 @@ def main():
         mod.use_smooth_shade = True
         surf.data.materials.append(ice_material(opts["color"]))
         vol_obj.hide_render = True
+        if opts["cut"]:  # the object is normalised to [-1, 1]: remove the quarter x > 0, y < 0
+            bpy.ops.mesh.primitive_cube_add(size=1.0)
+            cutter = bpy.context.active_object
+            cutter.scale = (1.2, 1.2, 2.4)
+            cutter.location = (0.6, -0.6, 0.0)
+            cutter.hide_render = True
+            cutter.display_type = "WIRE"
+            cut = surf.modifiers.new("cut", "BOOLEAN")
+            cut.operation = "DIFFERENCE"
+            cut.object = cutter
+            cut.solver = "EXACT"
         lo, hi, pts = evaluated_bounds(surf)
         bpy.context.view_layer.update()
         ev = surf.evaluated_get(bpy.context.evaluated_depsgraph_get())
