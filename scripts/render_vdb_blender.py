@@ -19,6 +19,12 @@ Options (all optional):
     --engine cycles|eevee
                        default cycles (CPU, denoising off: Debian's Blender has no OpenImageDenoise);
                        EEVEE is tried when Cycles fails and needs an OpenGL context
+    --mesh FILE        also show a mesh (OBJ, STL, PLY; e.g. the [dla3d] or shell constraint mesh) as
+                       faint glass, placed as the scene places it:
+    --mesh-scale S, --mesh-rotate X,Y,Z (degrees about x, then y, then z), --mesh-translate X,Y,Z
+                       the scene's constraint_scale / _rotate / _translate (applied in that order)
+    --cut              --as surface: cut away the quarter x > centre, y < centre (a Boolean), to show
+                       the inside (hollow cores, the gap of a sandwich plate)
     --color R,G,B      surface / volume colour (default ice blue 0.70,0.82,0.95)
     --background R,G,B world colour (default 0.02,0.025,0.035)
 
@@ -39,7 +45,8 @@ def parse_args(argv):
     args = argv[argv.index("--") + 1:] if "--" in argv else []
     opts = {"grid": None, "as": "surface", "threshold": None, "density": 20.0, "samples": 64,
             "res": (960, 720), "view": "iso", "engine": "cycles", "color": (0.70, 0.82, 0.95),
-            "background": (0.02, 0.025, 0.035)}
+            "background": (0.02, 0.025, 0.035), "mesh": None, "mesh-scale": 1.0,
+            "mesh-rotate": (0.0, 0.0, 0.0), "mesh-translate": (0.0, 0.0, 0.0), "cut": False}
     pos = []
     i = 0
 
@@ -51,6 +58,10 @@ def parse_args(argv):
 
     while i < len(args):
         a = args[i]
+        if a == "--cut":  # a flag
+            opts["cut"] = True
+            i += 1
+            continue
         if a.startswith("--"):
             key = a[2:]
             if key not in opts or i + 1 >= len(args):
@@ -60,12 +71,12 @@ def parse_args(argv):
             try:
                 if key in ("samples",):
                     opts[key] = int(val)
-                elif key in ("threshold", "density"):
+                elif key in ("threshold", "density", "mesh-scale"):
                     opts[key] = float(val)
                 elif key == "res":
                     w, h = val.lower().split("x")
                     opts[key] = (int(w), int(h))
-                elif key in ("color", "background"):
+                elif key in ("color", "background", "mesh-rotate", "mesh-translate"):
                     opts[key] = triple(val)
                 else:
                     opts[key] = val
@@ -188,8 +199,44 @@ def normalise(obj, lo, hi):
         die("the grid is empty (no active voxels, or zero extent)")
     s = 2.0 / size
     centre = (lo + hi) * 0.5
-    obj.matrix_world = Matrix.Diagonal((s, s, s, 1.0)) @ Matrix.Translation(-centre) @ obj.matrix_world
-    return s
+    norm = Matrix.Diagonal((s, s, s, 1.0)) @ Matrix.Translation(-centre)
+    obj.matrix_world = norm @ obj.matrix_world
+    return norm
+
+
+def import_mesh(path, opts, norm):
+    """The mesh file as a faint glass object, with the scene's placement and the normalisation."""
+    if not os.path.isfile(path):
+        die("no such mesh file: " + path)
+    before = set(bpy.data.objects)
+    ext = os.path.splitext(path)[1].lower()
+    if ext == ".obj":  # as written: no Y-up conversion (frostvdb reads OBJ through Assimp as is)
+        bpy.ops.wm.obj_import(filepath=path, forward_axis="Y", up_axis="Z")
+    elif ext == ".stl":
+        bpy.ops.import_mesh.stl(filepath=path, axis_forward="Y", axis_up="Z")
+    elif ext == ".ply":
+        bpy.ops.import_mesh.ply(filepath=path, axis_forward="Y", axis_up="Z")
+    else:
+        die("--mesh: OBJ, STL or PLY expected: " + path)
+    new = [o for o in bpy.data.objects if o not in before and o.type == "MESH"]
+    if not new:
+        die("--mesh: no mesh in " + path)
+    rx, ry, rz = (math.radians(a) for a in opts["mesh-rotate"])
+    k = opts["mesh-scale"]
+    place = (Matrix.Translation(Vector(opts["mesh-translate"])) @ Matrix.Rotation(rz, 4, "Z") @
+             Matrix.Rotation(ry, 4, "Y") @ Matrix.Rotation(rx, 4, "X") @ Matrix.Diagonal((k, k, k, 1.0)))
+    m = bpy.data.materials.new("glass")
+    m.use_nodes = True
+    m.blend_method = "BLEND"
+    bsdf = m.node_tree.nodes["Principled BSDF"]
+    bsdf.inputs["Base Color"].default_value = (0.55, 0.6, 0.65, 1.0)
+    bsdf.inputs["Roughness"].default_value = 0.1
+    bsdf.inputs["Alpha"].default_value = 0.18  # see-through without transmission noise
+    for o in new:
+        o.matrix_world = norm @ place @ o.matrix_world
+        o.data.materials.clear()
+        o.data.materials.append(m)
+    return new
 
 
 def place_camera(lo, hi, pts, view, aspect):
@@ -303,7 +350,7 @@ def main():
     vol_obj, grid = load_volume(in_vdb, opts["grid"], prefer)
     gname = grid.name
     lo, hi, _ = evaluated_bounds(vol_obj)
-    normalise(vol_obj, lo, hi)
+    norm = normalise(vol_obj, lo, hi)
 
     if opts["as"] == "surface":
         level_set = is_level_set(in_vdb, gname)
@@ -320,6 +367,17 @@ def main():
         mod.use_smooth_shade = True
         surf.data.materials.append(ice_material(opts["color"]))
         vol_obj.hide_render = True
+        if opts["cut"]:  # the object is normalised to [-1, 1]: remove the quarter x > 0, y < 0
+            bpy.ops.mesh.primitive_cube_add(size=1.0)
+            cutter = bpy.context.active_object
+            cutter.scale = (1.2, 1.2, 2.4)
+            cutter.location = (0.6, -0.6, 0.0)
+            cutter.hide_render = True
+            cutter.display_type = "WIRE"
+            cut = surf.modifiers.new("cut", "BOOLEAN")
+            cut.operation = "DIFFERENCE"
+            cut.object = cutter
+            cut.solver = "EXACT"
         lo, hi, pts = evaluated_bounds(surf)
         bpy.context.view_layer.update()
         ev = surf.evaluated_get(bpy.context.evaluated_depsgraph_get())
@@ -332,6 +390,13 @@ def main():
         lo, hi, pts = evaluated_bounds(vol_obj)
         print("render_vdb_blender: %s '%s' as volume" % (os.path.basename(in_vdb), gname))
 
+    if opts["mesh"]:  # framed together with the ice
+        import numpy as np
+        for o in import_mesh(os.path.abspath(opts["mesh"]), opts, norm):
+            mlo, mhi, mpts = evaluated_bounds(o)
+            pts = np.vstack([np.asarray(pts, dtype=float), np.asarray(mpts, dtype=float)])
+            lo = Vector(np.minimum(np.array(lo), np.array(mlo)))
+            hi = Vector(np.maximum(np.array(hi), np.array(mhi)))
     aspect = opts["res"][0] / opts["res"][1]
     _, view_dir, dist = place_camera(lo, hi, pts, opts["view"], aspect)
     add_lights((lo + hi) * 0.5, view_dir, dist)

@@ -438,8 +438,10 @@ TEST_CASE("Gravner-Griffeath 3D: kill -9 mid-run, resume: every frame bit-identi
             const std::string frame = dir + (kills == 0 ? "/gg.0002.vdb" : "/gg.0004.vdb");
             int st = 0;
             bool exited = false;
-            while (!fs::exists(frame))
+            while (!fs::exists(frame)) {
                 if (waitpid(pid, &st, WNOHANG) == pid) { exited = true; break; }
+                std::this_thread::sleep_for(std::chrono::microseconds(100));
+            }
             if (!exited) {
                 std::this_thread::sleep_for(std::chrono::milliseconds(2));
                 kill(pid, SIGKILL);

@@ -502,3 +502,28 @@ TEST_CASE("gg3d: the shipped scenes load (one per family)", "[gg3d][fast]")
         CHECK_NOTHROW(Simulation(Scene::load(std::string(FROSTVDB_SOURCE_DIR) + "/scenes/" + s + ".toml")));
     }
 }
+
+TEST_CASE("gg3d: the time-switched preset follows the facts table (Fig. 32)", "[gg3d][fast]")
+{
+    // facts: "Fig. 32: beta10 2.25 -> 1.15 at t = 8,000"; beta20 follows beta10 (completed).
+    const GG3DPreset* p = findGG3DPreset("fig32_capped_column");
+    REQUIRE(p);
+    REQUIRE(p->switches.size() == 1);
+    const GG3DSwitch& s = p->switches[0];
+    CHECK(s.step == 8000);
+    CHECK(p->p.beta[1] == 2.25);
+    CHECK(p->p.beta[2] == 2.25);
+    REQUIRE(s.hasBeta);
+    CHECK(s.beta[1] == 1.15);
+    CHECK(s.beta[2] == 1.15);
+    for (size_t k : {0u, 3u, 4u, 5u, 6u}) CHECK(s.beta[k] == p->p.beta[k]); // only beta10/20 switch
+    // A run applies it at exactly that step (scaled to 6 here).
+    GG3DConfig c = presetConfig("fig32_capped_column", 12, 41);
+    c.switches[0].step = 6;
+    GG3D a(c);
+    for (int k = 0; k < 6; ++k) a.step();
+    CHECK(a.params().beta[1] == 2.25); // steps 0..5 ran with the old value
+    a.step();
+    CHECK(a.params().beta[1] == 1.15);
+    CHECK(a.params().beta[2] == 1.15);
+}
