@@ -1,6 +1,8 @@
 #include <frostvdb/ice/PhaseFieldEffect.h>
 #include <frostvdb/core/Error.h>
 #include <frostvdb/ice/IceState.h>
+#include <frostvdb/shell/ShellDomain.h>
+#include <frostvdb/shell/ShellGrids.h>
 
 #include <openvdb/tools/Prune.h>
 #include <openvdb/tools/ValueTransformer.h>
@@ -60,6 +62,11 @@ std::unique_ptr<Effect> PhaseFieldEffect::create(ParamDict& d, const World& worl
     k.farTemperature = d.getFloat("far_temperature", 0.0, -10.0, 10.0, "",
                                   "initial and far-field temperature T_inf (undercooling is T_e - T_inf)");
     k.noise = d.getFloat("noise", 0.0, 0.0, 0.1, "", "amplitude a of Kobayashi's interface noise (0: none)");
+    fx->mOnShell = bool(shell::bandOf(world.domain));
+    if (fx->mOnShell) { // the closest-point solver: Euler, no noise, yet
+        if (!euler) d.fail("scheme", "lw_cn is not available on shell domains yet (allowed: euler)");
+        if (k.noise != 0.0) d.fail("noise", "interface noise is not available on shell domains yet (allowed: 0)");
+    }
     const double limit = k.stabilityLimit(world.domain.stencil(), !world.domain.flat());
     fx->mStabilityLimit = limit;
     fx->mSubsteps = 1;
@@ -88,6 +95,7 @@ FieldDeclaration PhaseFieldEffect::declaration() const
         .use(ice::kFreezeTime, kInitialises | kWrites)
         .use(ice::kMelt, kReads);
     d.output(out::kIce).output(out::kIceTemperature).output(out::kGrowth).output(out::kFreezeTime);
+    if (mOnShell) d.output(out::kIceSdf);
     return d;
 }
 
@@ -103,12 +111,53 @@ void PhaseFieldEffect::initialize(World& world)
     ice::requireIceFields(world);
     KobayashiParams solverParams = mParams;
     solverParams.dt = mParams.dt / mSubsteps;
-    mSolver = std::make_unique<PhaseFieldSolver>(solverParams, world.domain, world.region);
     mTime = 0.0;
+    if (auto band = shell::bandOf(world.domain)) {
+        mShell = std::make_unique<shell::ShellPhaseField>(band, solverParams, world.domain.lattice().spacing());
+        gatherShell(world);
+        mShell->extendAll(); // seeds were stamped in 3D: make them closest-point data
+        scatterShell(world);
+        return;
+    }
+    mSolver = std::make_unique<PhaseFieldSolver>(solverParams, world.domain, world.region);
+}
+
+void PhaseFieldEffect::gatherShell(World& world)
+{
+    const shell::ShellBand& band = mShell->band();
+    shell::fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kPhase), mShell->p());
+    shell::fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kTemperature), mShell->T());
+    std::vector<float> v;
+    shell::fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kGrowth), v);
+    mShell->growthValues() = v;
+    shell::fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kFreezeTime), v);
+    mShell->freezeValues() = v;
+    if (auto melt = world.fields.get<openvdb::FloatGrid>(ice::kMelt)) {
+        shell::fromGrid(band, *melt, v);
+        mShell->setMelt(v);
+    }
+}
+
+void PhaseFieldEffect::scatterShell(World& world)
+{
+    const shell::ShellBand& band = mShell->band();
+    world.fields.replace(ice::kPhase, shell::toGrid(band, mShell->p(), 0.f, ice::kPhase.name));
+    world.fields.replace(ice::kTemperature,
+                         shell::toGrid(band, mShell->T(), float(mParams.farTemperature), ice::kTemperature.name));
+    world.fields.replace(ice::kGrowth, shell::toGrid(band, mShell->growthValues(), 0.f, ice::kGrowth.name));
+    world.fields.replace(ice::kFreezeTime, shell::toGrid(band, mShell->freezeValues(), 0.f, ice::kFreezeTime.name));
 }
 
 void PhaseFieldEffect::step(World& world, const StepInfo& info)
 {
+    if (mShell) {
+        gatherShell(world); // another effect may have written p or T
+        const double subDt = mParams.dt / mSubsteps;
+        for (int s = 0; s < mSubsteps; ++s) mShell->step(mTime + (s + 1) * subDt, &mShellStats);
+        scatterShell(world);
+        mTime += mParams.dt;
+        return;
+    }
     auto p = world.fields.get<openvdb::FloatGrid>(ice::kPhase);
     auto T = world.fields.get<openvdb::FloatGrid>(ice::kTemperature);
     auto growth = world.fields.get<openvdb::FloatGrid>(ice::kGrowth);
@@ -125,13 +174,23 @@ void PhaseFieldEffect::step(World& world, const StepInfo& info)
     mTime += mParams.dt;
 }
 
-void PhaseFieldEffect::addToFrame(World& world, Frame& frame) { ice::addIceOutputs(world, frame); }
+void PhaseFieldEffect::addToFrame(World& world, Frame& frame)
+{
+    ice::addIceOutputs(world, frame);
+    if (!mShell) return;
+    // On a shell, `ice` is the frost layer grown outward along the normal (not p on the band).
+    auto fog = shell::frostFog(mShell->band(), mShell->p(), mShell->growthValues());
+    for (auto& g : frame.grids)
+        if (g->getName() == out::kIce.name) g = fog;
+    frame.add(shell::frostLevelSet(*fog));
+}
 
 // p, T, growth_acc and freeze_time are World fields (saved by the driver); the clock and the
 // scheme's history grids are ours. The noise is keyed by the step index: no stream to save.
 void PhaseFieldEffect::saveState(const World& world, StateWriter& out) const
 {
     out.putDouble("time", mTime);
+    if (mShell) return; // explicit: the band fields are World fields, no history
     for (auto& [name, grid] : mSolver->historyGrids()) out.putGrid(name, *grid);
     out.putDouble("last_step_dt", mSolver->lastStepDt());
     const auto cadence = mSolver->cadenceState(*world.fields.get<openvdb::FloatGrid>(ice::kPhase),
@@ -150,6 +209,10 @@ bool PhaseFieldEffect::atCheckpointBoundary() const
 void PhaseFieldEffect::loadState(World& world, const StateReader& in)
 {
     mTime = in.getDouble("time");
+    if (mShell) {
+        gatherShell(world);
+        return;
+    }
     for (auto& [name, grid] : mSolver->historyGrids()) *grid = in.getGrid<openvdb::FloatGrid>(name);
     mSolver->lastStepDt() = in.getDouble("last_step_dt");
     PhaseFieldSolver::CadenceState cadence;
@@ -163,6 +226,10 @@ void PhaseFieldEffect::loadState(World& world, const StateReader& in)
 
 std::vector<std::pair<std::string, double>> PhaseFieldEffect::timings() const
 {
+    if (mShell)
+        return {{"kernel", mShellStats.kernelSeconds}, {"extend", mShellStats.extendSeconds},
+                {"voxel_updates", double(mShellStats.voxelUpdates)}, {"substeps", double(mSubsteps)},
+                {"stability_limit_dt", mStabilityLimit}};
     std::vector<std::pair<std::string, double>> t{
         {"region", mStats.regionSeconds}, {"kernel", mStats.kernelSeconds}, {"truncate", mStats.truncateSeconds},
         {"region_rebuilds", double(mStats.rebuilds)}};

@@ -7,6 +7,7 @@
 /// the paper's displacement map) and `freeze_time` (time p first exceeded 1/2).
 #include <frostvdb/core/Effect.h>
 #include <frostvdb/ice/PhaseFieldSolver.h>
+#include <frostvdb/shell/ShellPhaseField.h>
 
 #include <memory>
 
@@ -45,6 +46,12 @@ private:
     int mSubsteps = 1; ///< solver steps per scene step (substeps = auto above the limit)
     std::unique_ptr<PhaseFieldSolver> mSolver;
     PhaseFieldStepStats mStats;
+    /// On a shell domain (a band around a mesh) the closest-point solver runs instead.
+    std::unique_ptr<shell::ShellPhaseField> mShell;
+    bool mOnShell = false;
+    shell::ShellStepStats mShellStats;
+    void gatherShell(World& world);
+    void scatterShell(World& world);
 };
 
 } // namespace frostvdb
