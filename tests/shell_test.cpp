@@ -15,6 +15,8 @@
 #include <tbb/global_control.h>
 
 #include <cstring>
+#include <filesystem>
+#include <fstream>
 #include <functional>
 
 #include <cmath>
@@ -287,4 +289,49 @@ TEST_CASE("Shell heat decay rate against R and dt (measurement, not a check)", "
             }
         }
     }
+}
+
+TEST_CASE("Shell domain: a missing, empty or unreadable mesh is a one-line error naming the file", "[fast][shell]")
+{
+    const std::string missing = test::errorOf("[domain]\nkind = \"shell\"\nmesh = \"no_such_glass.obj\"\n[phase_field]\n");
+    CHECK(missing.find("domain.mesh") != std::string::npos);
+    CHECK(missing.find("no_such_glass.obj") != std::string::npos);
+    CHECK(missing.find('\n') == std::string::npos);
+    const auto dir = std::filesystem::temp_directory_path();
+    const std::string empty = (dir / "frostvdb_shell_empty.obj").string();
+    std::ofstream(empty) << "# no faces\nv 0 0 0\nv 1 0 0\n";
+    const std::string e1 = test::errorOf("[domain]\nkind = \"shell\"\nmesh = \"" + empty + "\"\n[phase_field]\n");
+    CHECK(e1.find(empty) != std::string::npos);
+    const std::string junk = (dir / "frostvdb_shell_junk.ply").string();
+    std::ofstream(junk) << "ply\nthis is not a mesh\n";
+    const std::string e2 = test::errorOf("[domain]\nkind = \"shell\"\nmesh = \"" + junk + "\"\n[phase_field]\n");
+    CHECK(e2.find(junk) != std::string::npos);
+    CHECK(e2.find('\n') == std::string::npos);
+    std::filesystem::remove(empty);
+    std::filesystem::remove(junk);
+    // what the shell's phase field does not have yet is refused by name
+    const std::string lw = test::errorOf("[domain]\nkind = \"shell\"\nsphere_radius = 0.001\n[phase_field]\nscheme = \"lw_cn\"\n");
+    CHECK(lw.find("phase_field.scheme") != std::string::npos);
+}
+
+TEST_CASE("Shell domain: the support is the band, the frame follows the surface", "[fast][shell][domain]")
+{
+    auto sim = test::makeSim("[domain]\nkind = \"shell\"\nvoxel_size = 0.0001\nsphere_radius = 0.001\n[phase_field]\n");
+    const Domain& dom = sim.world().domain;
+    CHECK(dom.kind() == "shell");
+    CHECK(dom.intrinsicDimension() == 2);
+    CHECK(!dom.flat());
+    auto band = shell::bandOf(dom);
+    REQUIRE(band);
+    CHECK(dom.voxelCount() == band->size());
+    CHECK(dom.contains(openvdb::Coord(0, 0, 10)));  // on the sphere (radius 10 voxels)
+    CHECK(!dom.contains(openvdb::Coord(0, 0, 0)));  // its centre is not in the band
+    const VoxelFrame f = dom.frame(openvdb::Coord(10, 0, 0));
+    CHECK(f.normal.x() > 0.99);                        // outward
+    CHECK(std::fabs(f.tangent.dot(f.normal)) < 1e-9);
+    // the active region is clipped to the band
+    openvdb::MaskTree m;
+    m.fill(openvdb::CoordBBox(openvdb::Coord(-20), openvdb::Coord(20)), true);
+    dom.clipToSupport(m);
+    CHECK(m.activeVoxelCount() == band->size());
 }

@@ -141,9 +141,12 @@ void PhaseFieldEffect::gatherShell(World& world)
 void PhaseFieldEffect::scatterShell(World& world)
 {
     const shell::ShellBand& band = mShell->band();
-    world.fields.replace(ice::kPhase, shell::toGrid(band, mShell->p(), 0.f, ice::kPhase.name));
-    world.fields.replace(ice::kTemperature,
-                         shell::toGrid(band, mShell->T(), float(mParams.farTemperature), ice::kTemperature.name));
+    auto p = shell::toGrid(band, mShell->p(), 0.f, ice::kPhase.name);
+    auto T = shell::toGrid(band, mShell->T(), float(mParams.farTemperature), ice::kTemperature.name);
+    mShellP = p;
+    mShellT = T;
+    world.fields.replace(ice::kPhase, p);
+    world.fields.replace(ice::kTemperature, T);
     world.fields.replace(ice::kGrowth, shell::toGrid(band, mShell->growthValues(), 0.f, ice::kGrowth.name));
     world.fields.replace(ice::kFreezeTime, shell::toGrid(band, mShell->freezeValues(), 0.f, ice::kFreezeTime.name));
 }
@@ -151,7 +154,10 @@ void PhaseFieldEffect::scatterShell(World& world)
 void PhaseFieldEffect::step(World& world, const StepInfo& info)
 {
     if (mShell) {
-        gatherShell(world); // another effect may have written p or T
+        // another effect may have written p or T since we scattered them: read them back
+        if (world.fields.get<openvdb::FloatGrid>(ice::kPhase) != mShellP ||
+            world.fields.get<openvdb::FloatGrid>(ice::kTemperature) != mShellT)
+            gatherShell(world);
         const double subDt = mParams.dt / mSubsteps;
         for (int s = 0; s < mSubsteps; ++s) mShell->step(mTime + (s + 1) * subDt, &mShellStats);
         scatterShell(world);

@@ -18,9 +18,11 @@ openvdb::FloatGrid::Ptr toGrid(const ShellBand& band, const std::vector<float>& 
     grid->setName(name);
     grid->tree().topologyUnion(band.mask().tree());
     openvdb::tree::LeafManager<openvdb::FloatTree> leaves(grid->tree());
+    const openvdb::Int32Tree& index = band.indexGrid().tree();
     leaves.foreach([&](openvdb::FloatTree::LeafNodeType& leaf, size_t) {
+        const auto* il = index.probeConstLeaf(leaf.origin()); // same topology, same leaves
         for (auto it = leaf.beginValueOn(); it; ++it) {
-            const int32_t i = band.indexOf(it.getCoord());
+            const int32_t i = il ? il->getValue(it.pos()) : -1;
             it.setValue(i >= 0 ? values[size_t(i)] : background);
         }
     });
@@ -30,8 +32,13 @@ openvdb::FloatGrid::Ptr toGrid(const ShellBand& band, const std::vector<float>& 
 void fromGrid(const ShellBand& band, const openvdb::FloatGrid& grid, std::vector<float>& values)
 {
     values.resize(band.size());
-    auto acc = grid.getConstAccessor();
-    for (size_t i = 0; i < band.size(); ++i) values[i] = acc.getValue(band.coord(i));
+    openvdb::tree::LeafManager<const openvdb::Int32Tree> leaves(band.indexGrid().tree());
+    leaves.foreach([&](const openvdb::Int32Tree::LeafNodeType& il, size_t) {
+        const auto* fl = grid.tree().probeConstLeaf(il.origin());
+        auto acc = grid.getConstAccessor();
+        for (auto it = il.cbeginValueOn(); it; ++it)
+            values[size_t(*it)] = fl ? fl->getValue(it.pos()) : acc.getValue(it.getCoord());
+    });
 }
 
 openvdb::FloatGrid::Ptr frostFog(const ShellBand& band, const std::vector<float>& p, const std::vector<float>& growth)

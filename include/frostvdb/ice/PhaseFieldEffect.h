@@ -49,6 +49,8 @@ private:
     /// On a shell domain (a band around a mesh) the closest-point solver runs instead.
     std::unique_ptr<shell::ShellPhaseField> mShell;
     bool mOnShell = false;
+    /// The p and T grids scatterShell last wrote (held, so a new grid never reuses the address).
+    openvdb::FloatGrid::Ptr mShellP, mShellT;
     shell::ShellStepStats mShellStats;
     void gatherShell(World& world);
     void scatterShell(World& world);

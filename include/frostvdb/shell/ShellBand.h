@@ -74,6 +74,8 @@ public:
     bool inCoefficientSet(size_t i) const { return mDistance[i] <= kCoefficientRadius; }
     /// Band index of voxel @a c, or -1.
     int32_t indexOf(const openvdb::Coord& c) const;
+    /// Band index per voxel (background -1): the same topology as mask().
+    const openvdb::Int32Grid& indexGrid() const { return *mIndex; }
     /// The band's voxels as a mask (for the domain's support).
     const openvdb::MaskGrid& mask() const { return *mMask; }
     double voxelSize() const { return mVoxelSize; }

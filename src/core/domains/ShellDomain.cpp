@@ -105,6 +105,9 @@ Domain readShell(ParamDict& d, const DomainCommon& c)
     bs.crystalAxis = vec3(axis);
     if (bs.crystalAxis.length() < 1e-12) d.fail("crystal_axis", "must not be the zero vector");
     bs.crystalAxis.normalize();
+    bs.frostThickness = d.getFloat("frost_thickness", 2.0, 0.0, 4.5, "voxels",
+        "thickness of the output frost layer (ice, ice_sdf) where the accumulated growth has reached 1; it grows "
+        "outward along the mesh's normals (at most 4.5: the band's half-width less one)");
     // secondary axis: perpendicular to the first, fixed by it alone
     Vec3d sec = std::fabs(bs.crystalAxis.z()) < 0.9 ? Vec3d(0, 0, 1) : Vec3d(0, 1, 0);
     bs.secondaryAxis = sec.cross(bs.crystalAxis).unit();
