@@ -151,7 +151,7 @@ TEST_CASE("Shell band: memory follows the surface, closest points lie on it", "[
 
 TEST_CASE("Shell heat: a zonal harmonic on a sphere decays at l(l+1)/R^2 within 2 %", "[fast][shell]")
 {
-    // R = 20 voxels, dt = 0.1 h^2 (the phase field's ratio); measured -0.1 % .. +0.6 % (docs/shells.md)
+    // R = 20 voxels, dt = 0.1 h^2 (the phase field's ratio); measured -0.06 %, +0.50 %, +0.61 % (docs/shells.md)
     const double R = 20.0;
     shell::BandSettings bs;
     bs.voxelSize = 1.0;
@@ -194,8 +194,10 @@ TEST_CASE("Shell phase field: a plate at 0, 30 and 45 degrees grows the same cry
         areas.push_back(iceArea(p, L));
         INFO("angle " << angle << " area " << areas.back() << " plane " << planeArea);
         // Measured (docs/shells.md): 0 deg -0.1 %, 30 deg +8.5 %, 45 deg +8.6 % against the
-        // plane. The issue asks for 5 %; the tilted plates grow faster because every step's
-        // tricubic re-extension adds a little diffusion to a front only a couple of voxels wide.
+        // plane; the issue asks for 5 %. Not the time step (half dt: +8.5 %, +7.8 %) nor the
+        // Laplacian's isotropy (a 19-point stencil: the same spread): the Kobayashi interface is
+        // narrower than a voxel (eps / h = 0.2) and a front aligned with the grid is slowed by it,
+        // a tilted one is not, so 30 and 45 degrees agree closely and 0 degrees sits with the plane.
         CHECK(std::fabs(areas.back() / planeArea - 1.0) < 0.10);
         // the crystal's mirror symmetry about the plate's axes survives the tilt
         const double r = 0.45 * std::sqrt(planeArea);
@@ -203,7 +205,7 @@ TEST_CASE("Shell phase field: a plate at 0, 30 and 45 degrees grows the same cry
         CHECK(std::fabs(p(0.0, r) - p(0.0, -r)) < 0.05);
     }
     CHECK(std::fabs(areas[0] / planeArea - 1.0) < 0.02); // grid-aligned: the plane's stencil
-    CHECK(std::fabs(areas[2] / areas[1] - 1.0) < 0.03);  // 30 and 45 degrees agree
+    CHECK(std::fabs(areas[2] / areas[1] - 1.0) < 0.03);  // 30 and 45 degrees agree (measured 0.2 %)
 }
 
 TEST_CASE("Shell phase field: bit-identical at 1 and 2 threads", "[fast][shell]")
@@ -280,7 +282,7 @@ TEST_CASE("Shell heat decay rate against R and dt (measurement, not a check)", "
         shell::BandSettings bs;
         bs.voxelSize = 1.0;
         auto band = shell::ShellBand::build(makeIcosphere(R, sub), bs);
-        for (int l : {2, 3}) {
+        for (int l : {1, 2, 3}) {
             const double expected = l * (l + 1) / (R * R);
             for (double dt : {0.1, 0.15}) {
                 const int steps = int(std::ceil(0.5 / expected / dt));
