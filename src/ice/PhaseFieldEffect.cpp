@@ -2,6 +2,7 @@
 #include <frostvdb/core/Error.h>
 #include <frostvdb/ice/IceState.h>
 #include <frostvdb/shell/ShellDomain.h>
+#include <frostvdb/io/Mesh.h>
 #include <frostvdb/shell/ShellGrids.h>
 
 #include <openvdb/tools/Prune.h>
@@ -63,6 +64,10 @@ std::unique_ptr<Effect> PhaseFieldEffect::create(ParamDict& d, const World& worl
                                   "initial and far-field temperature T_inf (undercooling is T_e - T_inf)");
     k.noise = d.getFloat("noise", 0.0, 0.0, 0.1, "", "amplitude a of Kobayashi's interface noise (0: none)");
     fx->mOnShell = bool(shell::bandOf(world.domain));
+    fx->mFrostMesh = d.getString("frost_mesh", "none", {"none", "obj", "ply"},
+        "shell domains: also write the frost layer (ice's 0.5 iso-surface, OpenVDB volume-to-mesh) as a polygon "
+        "mesh beside each preview (<scene>.<frame>.obj/ply), for DCC tools that prefer geometry");
+    d.onlyWhen(fx->mOnShell, "frost_mesh", "[domain] kind = \"" + world.domain.kind() + "\"");
     if (fx->mOnShell) { // the closest-point solver: Euler, no noise, yet
         if (!euler) d.fail("scheme", "lw_cn is not available on shell domains yet (allowed: euler)");
         if (k.noise != 0.0) d.fail("noise", "interface noise is not available on shell domains yet (allowed: 0)");
@@ -189,6 +194,22 @@ void PhaseFieldEffect::addToFrame(World& world, Frame& frame)
     for (auto& g : frame.grids)
         if (g->getName() == out::kIce.name) g = fog;
     frame.add(shell::frostLevelSet(*fog));
+}
+
+bool PhaseFieldEffect::writePreview(World&, const Frame& frame, const std::string& pngPath)
+{
+    if (!mShell || mFrostMesh == "none") return false;
+    for (const auto& g : frame.grids) {
+        if (g->getName() != out::kIce.name) continue;
+        std::vector<openvdb::Vec3s> points;
+        std::vector<openvdb::Vec3I> tris;
+        std::vector<openvdb::Vec4I> quads;
+        shell::frostMesh(*openvdb::gridConstPtrCast<openvdb::FloatGrid>(g), points, tris, quads);
+        const std::string base = pngPath.substr(0, pngPath.size() - 4);
+        if (mFrostMesh == "obj") writeObj(base + ".obj", points, tris, quads);
+        else writePly(base + ".ply", points, tris, quads);
+    }
+    return false; // the driver still draws `ice`
 }
 
 // p, T, growth_acc and freeze_time are World fields (saved by the driver); the clock and the

@@ -22,6 +22,8 @@ public:
     void initialize(World& world) override;
     void step(World& world, const StepInfo& info) override;
     void addToFrame(World& world, Frame& frame) override;
+    /// On a shell with frost_mesh set: writes the frost layer as OBJ/PLY beside the preview.
+    bool writePreview(World& world, const Frame& frame, const std::string& pngPath) override;
     double time() const override { return mTime; }
     std::vector<std::pair<std::string, double>> timings() const override;
     /// PhaseFieldSolver keeps about 21 float arrays over the active region: the whole domain in
@@ -49,6 +51,7 @@ private:
     /// On a shell domain (a band around a mesh) the closest-point solver runs instead.
     std::unique_ptr<shell::ShellPhaseField> mShell;
     bool mOnShell = false;
+    std::string mFrostMesh = "none"; ///< shells: none, obj or ply
     /// The p and T grids scatterShell last wrote (held, so a new grid never reuses the address).
     openvdb::FloatGrid::Ptr mShellP, mShellT;
     shell::ShellStepStats mShellStats;

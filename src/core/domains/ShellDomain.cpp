@@ -4,6 +4,7 @@
 /// method (shell/ShellPhaseField.h). Memory follows the mesh's area, never its bounding box.
 #include <frostvdb/shell/ShellDomain.h>
 
+#include <frostvdb/core/Budget.h>
 #include <frostvdb/io/Mesh.h>
 
 #include <filesystem>
@@ -121,6 +122,14 @@ Domain readShell(ParamDict& d, const DomainCommon& c)
         } else {
             mesh = loadMesh(path, m);
         }
+        // Refuse before allocating: the band holds about 11.5 voxels per surface voxel at about
+        // 600 bytes each (measured, docs/shells.md), plus the solver's arrays.
+        const double estimate = mesh.totalArea() / (c.voxelSize * c.voxelSize) * 11.5 * 660.0;
+        const double available = double(availableMemoryBytes());
+        if (available > 0 && estimate > available)
+            d.fail("voxel_size", "the shell band would need about " + formatBytes(estimate) + " (mesh area / voxel_size^2 x "
+                                 "11.5 band voxels x 660 bytes), more than the " + formatBytes(available) +
+                                 " available; raise voxel_size or scale the mesh down");
         auto band = shell::ShellBand::build(mesh, bs);
         openvdb::CoordBBox bb;
         for (const auto& cc : band->coords()) bb.expand(cc);
