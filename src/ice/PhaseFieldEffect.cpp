@@ -68,6 +68,11 @@ std::unique_ptr<Effect> PhaseFieldEffect::create(ParamDict& d, const World& worl
         "shell domains: also write the frost layer (ice's 0.5 iso-surface, OpenVDB volume-to-mesh) as a polygon "
         "mesh beside each preview (<scene>.<frame>.obj/ply), for DCC tools that prefer geometry");
     d.onlyWhen(fx->mOnShell, "frost_mesh", "[domain] kind = \"" + world.domain.kind() + "\"");
+    const auto wind = d.getFloatArray("wind", {0, 0, 0}, {3}, -1e4, 1e4, "cells of h per unit ice time",
+        "shell domains: a prescribed wind (world direction and speed) projected on each tangent plane, "
+        "advecting the heat (first-order upwind; on a plane use [fluid])");
+    fx->mWind = openvdb::Vec3d(wind[0], wind[1], wind[2]);
+    d.onlyWhen(fx->mOnShell, "wind", "[domain] kind = \"" + world.domain.kind() + "\"");
     if (fx->mOnShell) { // the closest-point solver: Euler, no noise, yet
         if (!euler) d.fail("scheme", "lw_cn is not available on shell domains yet (allowed: euler)");
         if (k.noise != 0.0) d.fail("noise", "interface noise is not available on shell domains yet (allowed: 0)");
@@ -85,6 +90,16 @@ std::unique_ptr<Effect> PhaseFieldEffect::create(ParamDict& d, const World& worl
                << ") and epsilon/delta/tau; lower dt or set substeps = \"auto\"";
             d.fail("dt", os.str());
         }
+    }
+    if (fx->mOnShell) {
+        // dt (6 / h^2 + |v|_1 / h) <= 1 (ShellPhaseField::windStabilityLimit, before projection)
+        const double h = world.domain.lattice().spacing();
+        const double v1 = std::fabs(wind[0]) + std::fabs(wind[1]) + std::fabs(wind[2]);
+        const double windLimit = 1.0 / (6.0 / (h * h) + v1 / h);
+        if (v1 > 0 && k.dt / fx->mSubsteps > windLimit)
+            d.fail("wind", "with dt " + std::to_string(k.dt / fx->mSubsteps) + " the wind's upwind heat step needs dt <= " +
+                               std::to_string(windLimit) + " (|v|_1 <= " + std::to_string((fx->mSubsteps / k.dt - 6.0 / (h * h)) * h) +
+                               " at this dt)");
     }
     return fx;
 }
@@ -119,6 +134,7 @@ void PhaseFieldEffect::initialize(World& world)
     mTime = 0.0;
     if (auto band = shell::bandOf(world.domain)) {
         mShell = std::make_unique<shell::ShellPhaseField>(band, solverParams, world.domain.lattice().spacing());
+        mShell->setWind(mWind);
         gatherShell(world);
         mShell->extendAll(); // seeds were stamped in 3D: make them closest-point data
         scatterShell(world);

@@ -61,6 +61,25 @@ ShellPhaseField::ShellPhaseField(std::shared_ptr<const ShellBand> band, const Ko
     for (size_t i = 0; i < n; ++i) mUpdateCount += mBand->inUpdateSet(i) ? 1 : 0;
 }
 
+void ShellPhaseField::setWind(const openvdb::Vec3d& wind)
+{
+    mWind.clear();
+    if (wind.lengthSqr() == 0.0) return;
+    mWind.resize(mBand->size());
+    for (size_t i = 0; i < mBand->size(); ++i) {
+        const openvdb::Vec3d& n = mBand->frame(i).normal;
+        mWind[i] = openvdb::Vec3f(wind - n * wind.dot(n));
+    }
+}
+
+double ShellPhaseField::windStabilityLimit() const
+{
+    double vmax = 0;
+    for (const auto& v : mWind) vmax = std::max(vmax, double(std::fabs(v.x()) + std::fabs(v.y()) + std::fabs(v.z())));
+    // dt (6 / h^2 + sum |v_a| / h) <= 1: the upwind heat update stays a positive combination
+    return 1.0 / (6.0 / (mH * mH) + vmax / mH);
+}
+
 void ShellPhaseField::extendAll()
 {
     mBand->extendPhase(mP, mPn, mA);
@@ -109,7 +128,14 @@ void ShellPhaseField::step(double time, ShellStepStats* stats)
         const double reaction = p0 * (1.0 - p0) * (p0 - 0.5 + m);
         const double dp = k.dt / k.tau * (div + divC + reaction);
         mPn[i] = float(p0 + dp);
-        mTn[i] = float(t0v + k.dt * lapT + k.latentHeat * dp);
+        double adv = 0; // v . grad T, upwind
+        if (!mWind.empty())
+            for (int a = 0; a < 3; ++a) {
+                const double v = mWind[i][a];
+                if (v > 0) adv += v * (t0v - double(mT[size_t(b.neighbour(i, 2 * a))])) * invH;
+                else if (v < 0) adv += v * (double(mT[size_t(b.neighbour(i, 2 * a + 1))]) - t0v) * invH;
+            }
+        mTn[i] = float(t0v + k.dt * (lapT - adv) + k.latentHeat * dp);
     });
     const auto t1 = Clock::now();
     // Re-extension: p through its sharp-profile variant (ShellBand::extendPhase), T plain.

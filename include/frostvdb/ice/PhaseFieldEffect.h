@@ -52,6 +52,7 @@ private:
     std::unique_ptr<shell::ShellPhaseField> mShell;
     bool mOnShell = false;
     std::string mFrostMesh = "none"; ///< shells: none, obj or ply
+    openvdb::Vec3d mWind{0, 0, 0};   ///< shells: prescribed wind advecting the heat
     /// The p and T grids scatterShell last wrote (held, so a new grid never reuses the address).
     openvdb::FloatGrid::Ptr mShellP, mShellT;
     shell::ShellStepStats mShellStats;

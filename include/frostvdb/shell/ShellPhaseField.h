@@ -4,7 +4,9 @@
 /// 2008): a Cartesian 3D step in the band's update set, then the closest-point re-extension
 /// u(x) = interp(u, cp(x)) with tricubic interpolation (ShellBand::extend).
 ///
-/// Heat: u' = u + dt lap u (7-point Laplacian), re-extended.
+/// Heat: u' = u + dt lap u (7-point Laplacian), re-extended. Wind (optional): a prescribed
+/// direction projected on each tangent plane advects T (first-order upwind), as [fluid]'s flow
+/// does on a plane.
 ///
 /// Phase field: Kobayashi's eqs. 1-2 on the surface, written as
 ///   tau dp/dt = div_S(eps^2 grad_S p + eps eps' (n x grad_S p)) + n(p, T),
@@ -49,6 +51,11 @@ public:
     std::vector<float>& T() { return mT; }
     std::vector<float>& growthValues() { return mGrowth; }
     std::vector<float>& freezeValues() { return mFreeze; }
+    /// A prescribed wind (PDE units: cells of spacing h per unit of ice time) that advects the
+    /// heat; each voxel uses its projection on the tangent plane (first-order upwind).
+    void setWind(const openvdb::Vec3d& wind);
+    /// Largest dt at which the upwind advection with the diffusion stays a positive combination.
+    double windStabilityLimit() const;
     /// Per-voxel melt temperature scale in [0, 1] (empty: 1 everywhere).
     void setMelt(std::vector<float> melt) { mMelt = std::move(melt); }
 
@@ -65,6 +72,7 @@ private:
     std::vector<float> mP, mT, mPn, mTn, mPOld, mGrowth, mFreeze, mMelt;
     uint64_t mUpdateCount = 0; ///< voxels in the update set
     std::vector<float> mA, mCx, mCy, mCz, mGx, mGy, mGz;
+    std::vector<openvdb::Vec3f> mWind; ///< tangential wind per voxel (empty: none)
 };
 
 } // namespace frostvdb::shell
