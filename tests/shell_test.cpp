@@ -393,3 +393,55 @@ TEST_CASE("Shell wind: a wind along the plate carries the heat downwind, the ice
         diff = std::max(diff, double(std::fabs(normal.pf->p()[i] - calm.pf->p()[i])));
     CHECK(diff < 1e-3); // (the float mesh's normals leave a ~1e-6 tangential part)
 }
+
+TEST_CASE("Shell seeds: vertex colours, the open mesh's border, points on the surface", "[fast][shell]")
+{
+    // a 3 x 3 cm plate of 3 x 3 vertices as ASCII PLY with colours: the left column white
+    const std::string ply = (std::filesystem::temp_directory_path() / "frostvdb_shell_colours.ply").string();
+    {
+        std::ofstream f(ply);
+        f << "ply\nformat ascii 1.0\nelement vertex 9\nproperty float x\nproperty float y\nproperty float z\n"
+             "property uchar red\nproperty uchar green\nproperty uchar blue\nelement face 8\n"
+             "property list uchar int vertex_indices\nend_header\n";
+        for (int j = 0; j < 3; ++j)
+            for (int i = 0; i < 3; ++i) {
+                const int c = i == 0 ? 255 : 0;
+                f << 0.015 * (i - 1) << " " << 0.015 * (j - 1) << " 0 " << c << " " << c << " " << c << "\n";
+            }
+        for (int j = 0; j < 2; ++j)
+            for (int i = 0; i < 2; ++i) {
+                const int a = j * 3 + i, b = a + 1, c = a + 3, d = c + 1;
+                f << "3 " << a << " " << b << " " << d << "\n3 " << a << " " << d << " " << c << "\n";
+            }
+    }
+    const std::string head = "[scene]\nframes = 1\nsteps_per_frame = 1\n[domain]\nkind = \"shell\"\nmesh = \"" + ply +
+                             "\"\nvoxel_size = 0.001\n";
+    {
+        auto sim = test::makeSim(head + "vertex_colours = \"seed\"\n[[crystal.seed]]\nshape = \"point\"\n"
+                                        "position = [0.9, 0.9, 0.5]\nradius = 2\n[phase_field]\n");
+        RunOptions ro;
+        ro.progress = false;
+        ro.outDir = test::tempDir("shell_colours");
+        sim.run(ro);
+        auto p = sim.world().fields.get<openvdb::FloatGrid>("p");
+        auto acc = p->getConstAccessor();
+        CHECK(acc.getValue(openvdb::Coord(-13, 0, 0)) > 0.5f); // white: a seed
+        CHECK(acc.getValue(openvdb::Coord(-2, 0, 0)) < 0.1f);  // black: none
+        CHECK(acc.getValue(openvdb::Coord(14, 14, 0)) > 0.5f); // the point seed, moved onto the surface
+    }
+    {
+        auto sim = test::makeSim(head + "[[crystal.seed]]\nshape = \"edge\"\nedges = \"border\"\nwidth = 2\n[phase_field]\n");
+        RunOptions ro;
+        ro.progress = false;
+        ro.outDir = test::tempDir("shell_border");
+        sim.run(ro);
+        auto acc = sim.world().fields.get<openvdb::FloatGrid>("p")->getConstAccessor();
+        CHECK(acc.getValue(openvdb::Coord(-14, 0, 0)) > 0.5f); // at the border
+        CHECK(acc.getValue(openvdb::Coord(0, 14, 0)) > 0.5f);
+        CHECK(acc.getValue(openvdb::Coord(0, 0, 0)) < 0.1f);   // the middle is bare
+    }
+    const std::string none = test::errorOf(head + "vertex_colours = \"seed\"\n[phase_field]\n");
+    INFO(none);
+    CHECK(none.empty());
+    std::filesystem::remove(ply);
+}

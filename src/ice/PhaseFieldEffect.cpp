@@ -136,6 +136,10 @@ void PhaseFieldEffect::initialize(World& world)
         mShell = std::make_unique<shell::ShellPhaseField>(band, solverParams, world.domain.lattice().spacing());
         mShell->setWind(mWind);
         gatherShell(world);
+        const auto& lum = band->colourLuminance();
+        if (band->colourUse() == shell::BandSettings::ColourUse::Seed) // ice where the colour is bright
+            for (size_t i = 0; i < lum.size(); ++i)
+                if (lum[i] > 0.5f) mShell->p()[i] = 1.f;
         mShell->extendAll(); // seeds were stamped in 3D: make them closest-point data
         scatterShell(world);
         return;
@@ -153,9 +157,14 @@ void PhaseFieldEffect::gatherShell(World& world)
     mShell->growthValues() = v;
     shell::fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kFreezeTime), v);
     mShell->freezeValues() = v;
+    const bool colourMelt = band.colourUse() == shell::BandSettings::ColourUse::Melt;
     if (auto melt = world.fields.get<openvdb::FloatGrid>(ice::kMelt)) {
         shell::fromGrid(band, *melt, v);
+        if (colourMelt) // both: the product
+            for (size_t i = 0; i < v.size(); ++i) v[i] *= band.colourLuminance()[i];
         mShell->setMelt(v);
+    } else if (colourMelt) {
+        mShell->setMelt(band.colourLuminance());
     }
 }
 

@@ -65,6 +65,7 @@ std::shared_ptr<const ShellBand> ShellBand::build(const TriangleMesh& mesh, cons
     const double h = settings.voxelSize;
     b.mVoxelSize = h;
     b.mFrostThickness = settings.frostThickness;
+    b.mColourUse = settings.colourUse;
     b.mTransform = openvdb::math::Transform::createLinearTransform(h);
 
     // Index-space copy of the mesh (meshToVolume's adapter works in index space).
@@ -146,6 +147,7 @@ std::shared_ptr<const ShellBand> ShellBand::build(const TriangleMesh& mesh, cons
     b.mMask->tree().topologyUnion(b.mIndex->tree());
 
     b.mFrames.resize(n);
+    if (mesh.colours.size() == mesh.points.size()) b.mLuminance.resize(n);
     b.mNormalOffset.resize(n);
     b.mLateral.resize(n);
     b.mNeighbours.resize(6 * n);
@@ -162,6 +164,14 @@ std::shared_ptr<const ShellBand> ShellBand::build(const TriangleMesh& mesh, cons
             if (nrm.length() < 1e-9) nrm = mesh.normal(b.mTriangle[i]);
             nrm.normalize();
             b.mFrames[i] = frameFor(nrm, settings);
+            if (!b.mLuminance.empty()) {
+                double l = 0;
+                for (int v = 0; v < 3; ++v) {
+                    const auto& c = mesh.colours[f[v]];
+                    l += bc[v] * (0.2126 * c.x() + 0.7152 * c.y() + 0.0722 * c.z());
+                }
+                b.mLuminance[i] = float(std::clamp(l, 0.0, 1.0));
+            }
             const Vec3d off = Vec3d(c.x(), c.y(), c.z()) - b.mCp[i];
             const double s = off.dot(nrm);
             b.mNormalOffset[i] = float(s);

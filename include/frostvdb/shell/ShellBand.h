@@ -47,6 +47,9 @@ struct BandSettings {
     openvdb::Vec3d secondaryAxis{0, 1, 0};
     /// Thickness of the output frost layer where growth has reached 1, in voxels (<= 4.5: the band).
     double frostThickness = 2.0;
+    /// What the mesh's vertex colours (their luminance, interpolated at cp) control: nothing,
+    /// seeds (ice where the luminance exceeds 1/2) or the melt map (T_e scale = luminance).
+    enum class ColourUse { None, Seed, Melt } colourUse = ColourUse::None;
 };
 
 class ShellBand {
@@ -92,6 +95,9 @@ public:
 
     /// The band's closest point nearest to index position @a p (first in band order on ties).
     openvdb::Vec3d nearestSurfacePoint(const openvdb::Vec3d& p) const;
+    /// Vertex-colour luminance at cp (barycentric), or empty when the mesh has no colours.
+    const std::vector<float>& colourLuminance() const { return mLuminance; }
+    BandSettings::ColourUse colourUse() const { return mColourUse; }
     /// Frost layer thickness of the outputs, in voxels (BandSettings::frostThickness).
     double frostThickness() const { return mFrostThickness; }
 
@@ -114,6 +120,8 @@ private:
     ShellBand() = default;
     double mVoxelSize = 1;
     double mFrostThickness = 2;
+    BandSettings::ColourUse mColourUse = BandSettings::ColourUse::None;
+    std::vector<float> mLuminance;
     double mSurfaceVoxels = 0;
     openvdb::math::Transform::Ptr mTransform;
     std::vector<openvdb::Coord> mCoords;

@@ -109,6 +109,12 @@ Domain readShell(ParamDict& d, const DomainCommon& c)
     bs.frostThickness = d.getFloat("frost_thickness", 2.0, 0.0, 4.5, "voxels",
         "thickness of the output frost layer (ice, ice_sdf) where the accumulated growth has reached 1; it grows "
         "outward along the mesh's normals (at most 4.5: the band's half-width less one)");
+    const std::string colours = d.getString("vertex_colours", "none", {"none", "seed", "melt"},
+        "what the mesh's vertex colours (luminance, interpolated across triangles) control: nothing; seed: ice "
+        "where the luminance exceeds 1/2; melt: the melt map (T_e scale = luminance; 0 keeps a patch clear)");
+    bs.colourUse = colours == "seed"   ? shell::BandSettings::ColourUse::Seed
+                   : colours == "melt" ? shell::BandSettings::ColourUse::Melt
+                                       : shell::BandSettings::ColourUse::None;
     // secondary axis: perpendicular to the first, fixed by it alone
     Vec3d sec = std::fabs(bs.crystalAxis.z()) < 0.9 ? Vec3d(0, 0, 1) : Vec3d(0, 1, 0);
     bs.secondaryAxis = sec.cross(bs.crystalAxis).unit();
@@ -130,6 +136,8 @@ Domain readShell(ParamDict& d, const DomainCommon& c)
             d.fail("voxel_size", "the shell band would need about " + formatBytes(estimate) + " (mesh area / voxel_size^2 x "
                                  "11.5 band voxels x 660 bytes), more than the " + formatBytes(available) +
                                  " available; raise voxel_size or scale the mesh down");
+        if (colours != "none" && mesh.colours.empty())
+            d.fail("vertex_colours", path + ": the mesh has no vertex colours (allowed: none)");
         auto band = shell::ShellBand::build(mesh, bs);
         openvdb::CoordBBox bb;
         for (const auto& cc : band->coords()) bb.expand(cc);
