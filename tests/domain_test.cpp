@@ -54,7 +54,7 @@ TEST_CASE("Domain kinds come from the registry and read their own keys", "[fast]
 {
     std::vector<std::string> kinds;
     for (auto* k : DomainRegistry::all()) kinds.push_back(k->kind);
-    CHECK(kinds == std::vector<std::string>{"box", "plane"});
+    CHECK(kinds == std::vector<std::string>{"box", "plane", "shell"});
 
     auto plane = makeSim("[domain]\nsize = [40, 30]\norigin = [0.001, -0.002]\n[phase_field]\n").world().domain;
     CHECK(plane.kind() == "plane");

@@ -1,6 +1,9 @@
 #include <frostvdb/ice/PhaseFieldEffect.h>
 #include <frostvdb/core/Error.h>
 #include <frostvdb/ice/IceState.h>
+#include <frostvdb/shell/ShellDomain.h>
+#include <frostvdb/io/Mesh.h>
+#include <frostvdb/shell/ShellGrids.h>
 
 #include <openvdb/tools/Prune.h>
 #include <openvdb/tools/ValueTransformer.h>
@@ -60,6 +63,20 @@ std::unique_ptr<Effect> PhaseFieldEffect::create(ParamDict& d, const World& worl
     k.farTemperature = d.getFloat("far_temperature", 0.0, -10.0, 10.0, "",
                                   "initial and far-field temperature T_inf (undercooling is T_e - T_inf)");
     k.noise = d.getFloat("noise", 0.0, 0.0, 0.1, "", "amplitude a of Kobayashi's interface noise (0: none)");
+    fx->mOnShell = bool(shell::bandOf(world.domain));
+    fx->mFrostMesh = d.getString("frost_mesh", "none", {"none", "obj", "ply"},
+        "shell domains: also write the frost layer (ice's 0.5 iso-surface, OpenVDB volume-to-mesh) as a polygon "
+        "mesh beside each preview (<scene>.<frame>.obj/ply), for DCC tools that prefer geometry");
+    d.onlyWhen(fx->mOnShell, "frost_mesh", "[domain] kind = \"" + world.domain.kind() + "\"");
+    const auto wind = d.getFloatArray("wind", {0, 0, 0}, {3}, -1e4, 1e4, "cells of h per unit ice time",
+        "shell domains: a prescribed wind (world direction and speed) projected on each tangent plane, "
+        "advecting the heat (first-order upwind; on a plane use [fluid])");
+    fx->mWind = openvdb::Vec3d(wind[0], wind[1], wind[2]);
+    d.onlyWhen(fx->mOnShell, "wind", "[domain] kind = \"" + world.domain.kind() + "\"");
+    if (fx->mOnShell) { // the closest-point solver: Euler, no noise, yet
+        if (!euler) d.fail("scheme", "lw_cn is not available on shell domains yet (allowed: euler)");
+        if (k.noise != 0.0) d.fail("noise", "interface noise is not available on shell domains yet (allowed: 0)");
+    }
     const double limit = k.stabilityLimit(world.domain.stencil(), !world.domain.flat());
     fx->mStabilityLimit = limit;
     fx->mSubsteps = 1;
@@ -73,6 +90,16 @@ std::unique_ptr<Effect> PhaseFieldEffect::create(ParamDict& d, const World& worl
                << ") and epsilon/delta/tau; lower dt or set substeps = \"auto\"";
             d.fail("dt", os.str());
         }
+    }
+    if (fx->mOnShell) {
+        // dt (6 / h^2 + |v|_1 / h) <= 1 (ShellPhaseField::windStabilityLimit, before projection)
+        const double h = world.domain.lattice().spacing();
+        const double v1 = std::fabs(wind[0]) + std::fabs(wind[1]) + std::fabs(wind[2]);
+        const double windLimit = 1.0 / (6.0 / (h * h) + v1 / h);
+        if (v1 > 0 && k.dt / fx->mSubsteps > windLimit)
+            d.fail("wind", "with dt " + std::to_string(k.dt / fx->mSubsteps) + " the wind's upwind heat step needs dt <= " +
+                               std::to_string(windLimit) + " (|v|_1 <= " + std::to_string((fx->mSubsteps / k.dt - 6.0 / (h * h)) * h) +
+                               " at this dt)");
     }
     return fx;
 }
@@ -88,6 +115,7 @@ FieldDeclaration PhaseFieldEffect::declaration() const
         .use(ice::kFreezeTime, kInitialises | kWrites)
         .use(ice::kMelt, kReads);
     d.output(out::kIce).output(out::kIceTemperature).output(out::kGrowth).output(out::kFreezeTime);
+    if (mOnShell) d.output(out::kIceSdf);
     return d;
 }
 
@@ -103,12 +131,69 @@ void PhaseFieldEffect::initialize(World& world)
     ice::requireIceFields(world);
     KobayashiParams solverParams = mParams;
     solverParams.dt = mParams.dt / mSubsteps;
-    mSolver = std::make_unique<PhaseFieldSolver>(solverParams, world.domain, world.region);
     mTime = 0.0;
+    if (auto band = shell::bandOf(world.domain)) {
+        mShell = std::make_unique<shell::ShellPhaseField>(band, solverParams, world.domain.lattice().spacing());
+        mShell->setWind(mWind);
+        gatherShell(world);
+        const auto& lum = band->colourLuminance();
+        if (band->colourUse() == shell::BandSettings::ColourUse::Seed) // ice where the colour is bright
+            for (size_t i = 0; i < lum.size(); ++i)
+                if (lum[i] > 0.5f) mShell->p()[i] = 1.f;
+        mShell->extendAll(); // seeds were stamped in 3D: make them closest-point data
+        scatterShell(world);
+        return;
+    }
+    mSolver = std::make_unique<PhaseFieldSolver>(solverParams, world.domain, world.region);
+}
+
+void PhaseFieldEffect::gatherShell(World& world)
+{
+    const shell::ShellBand& band = mShell->band();
+    shell::fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kPhase), mShell->p());
+    shell::fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kTemperature), mShell->T());
+    std::vector<float> v;
+    shell::fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kGrowth), v);
+    mShell->growthValues() = v;
+    shell::fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kFreezeTime), v);
+    mShell->freezeValues() = v;
+    const bool colourMelt = band.colourUse() == shell::BandSettings::ColourUse::Melt;
+    if (auto melt = world.fields.get<openvdb::FloatGrid>(ice::kMelt)) {
+        shell::fromGrid(band, *melt, v);
+        if (colourMelt) // both: the product
+            for (size_t i = 0; i < v.size(); ++i) v[i] *= band.colourLuminance()[i];
+        mShell->setMelt(v);
+    } else if (colourMelt) {
+        mShell->setMelt(band.colourLuminance());
+    }
+}
+
+void PhaseFieldEffect::scatterShell(World& world)
+{
+    const shell::ShellBand& band = mShell->band();
+    auto p = shell::toGrid(band, mShell->p(), 0.f, ice::kPhase.name);
+    auto T = shell::toGrid(band, mShell->T(), float(mParams.farTemperature), ice::kTemperature.name);
+    mShellP = p;
+    mShellT = T;
+    world.fields.replace(ice::kPhase, p);
+    world.fields.replace(ice::kTemperature, T);
+    world.fields.replace(ice::kGrowth, shell::toGrid(band, mShell->growthValues(), 0.f, ice::kGrowth.name));
+    world.fields.replace(ice::kFreezeTime, shell::toGrid(band, mShell->freezeValues(), 0.f, ice::kFreezeTime.name));
 }
 
 void PhaseFieldEffect::step(World& world, const StepInfo& info)
 {
+    if (mShell) {
+        // another effect may have written p or T since we scattered them: read them back
+        if (world.fields.get<openvdb::FloatGrid>(ice::kPhase) != mShellP ||
+            world.fields.get<openvdb::FloatGrid>(ice::kTemperature) != mShellT)
+            gatherShell(world);
+        const double subDt = mParams.dt / mSubsteps;
+        for (int s = 0; s < mSubsteps; ++s) mShell->step(mTime + (s + 1) * subDt, &mShellStats);
+        scatterShell(world);
+        mTime += mParams.dt;
+        return;
+    }
     auto p = world.fields.get<openvdb::FloatGrid>(ice::kPhase);
     auto T = world.fields.get<openvdb::FloatGrid>(ice::kTemperature);
     auto growth = world.fields.get<openvdb::FloatGrid>(ice::kGrowth);
@@ -125,13 +210,39 @@ void PhaseFieldEffect::step(World& world, const StepInfo& info)
     mTime += mParams.dt;
 }
 
-void PhaseFieldEffect::addToFrame(World& world, Frame& frame) { ice::addIceOutputs(world, frame); }
+void PhaseFieldEffect::addToFrame(World& world, Frame& frame)
+{
+    ice::addIceOutputs(world, frame);
+    if (!mShell) return;
+    // On a shell, `ice` is the frost layer grown outward along the normal (not p on the band).
+    auto fog = shell::frostFog(mShell->band(), mShell->p(), mShell->growthValues());
+    for (auto& g : frame.grids)
+        if (g->getName() == out::kIce.name) g = fog;
+    frame.add(shell::frostLevelSet(*fog));
+}
+
+bool PhaseFieldEffect::writePreview(World&, const Frame& frame, const std::string& pngPath)
+{
+    if (!mShell || mFrostMesh == "none") return false;
+    for (const auto& g : frame.grids) {
+        if (g->getName() != out::kIce.name) continue;
+        std::vector<openvdb::Vec3s> points;
+        std::vector<openvdb::Vec3I> tris;
+        std::vector<openvdb::Vec4I> quads;
+        shell::frostMesh(*openvdb::gridConstPtrCast<openvdb::FloatGrid>(g), points, tris, quads);
+        const std::string base = pngPath.substr(0, pngPath.size() - 4);
+        if (mFrostMesh == "obj") writeObj(base + ".obj", points, tris, quads);
+        else writePly(base + ".ply", points, tris, quads);
+    }
+    return false; // the driver still draws `ice`
+}
 
 // p, T, growth_acc and freeze_time are World fields (saved by the driver); the clock and the
 // scheme's history grids are ours. The noise is keyed by the step index: no stream to save.
 void PhaseFieldEffect::saveState(const World& world, StateWriter& out) const
 {
     out.putDouble("time", mTime);
+    if (mShell) return; // explicit: the band fields are World fields, no history
     for (auto& [name, grid] : mSolver->historyGrids()) out.putGrid(name, *grid);
     out.putDouble("last_step_dt", mSolver->lastStepDt());
     const auto cadence = mSolver->cadenceState(*world.fields.get<openvdb::FloatGrid>(ice::kPhase),
@@ -150,6 +261,10 @@ bool PhaseFieldEffect::atCheckpointBoundary() const
 void PhaseFieldEffect::loadState(World& world, const StateReader& in)
 {
     mTime = in.getDouble("time");
+    if (mShell) {
+        gatherShell(world);
+        return;
+    }
     for (auto& [name, grid] : mSolver->historyGrids()) *grid = in.getGrid<openvdb::FloatGrid>(name);
     mSolver->lastStepDt() = in.getDouble("last_step_dt");
     PhaseFieldSolver::CadenceState cadence;
@@ -163,6 +278,10 @@ void PhaseFieldEffect::loadState(World& world, const StateReader& in)
 
 std::vector<std::pair<std::string, double>> PhaseFieldEffect::timings() const
 {
+    if (mShell)
+        return {{"kernel", mShellStats.kernelSeconds}, {"extend", mShellStats.extendSeconds},
+                {"voxel_updates", double(mShellStats.voxelUpdates)}, {"substeps", double(mSubsteps)},
+                {"stability_limit_dt", mStabilityLimit}};
     std::vector<std::pair<std::string, double>> t{
         {"region", mStats.regionSeconds}, {"kernel", mStats.kernelSeconds}, {"truncate", mStats.truncateSeconds},
         {"region_rebuilds", double(mStats.rebuilds)}};

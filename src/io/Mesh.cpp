@@ -6,7 +6,9 @@
 #include <assimp/postprocess.h>
 #include <assimp/scene.h>
 
+#include <algorithm>
 #include <cmath>
+#include <map>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -65,6 +67,101 @@ void TriangleMesh::transform(const MeshPlacement& placement)
     const auto& s = placement.scale;
     if (s.x() * s.y() * s.z() < 0)
         for (auto& f : triangles) std::swap(f[1], f[2]);
+}
+
+std::vector<openvdb::Vec3d> TriangleMesh::vertexNormals() const
+{
+    std::vector<openvdb::Vec3d> n(points.size(), openvdb::Vec3d(0.0));
+    for (size_t t = 0; t < triangles.size(); ++t) {
+        const auto& f = triangles[t];
+        const openvdb::Vec3d a(points[f[0]]), b(points[f[1]]), c(points[f[2]]);
+        const openvdb::Vec3d w = (b - a).cross(c - a); // length = 2 area: area weighting
+        for (int v = 0; v < 3; ++v) n[f[v]] += w;
+    }
+    for (auto& v : n) {
+        const double l = v.length();
+        v = l > 0 ? v / l : openvdb::Vec3d(0, 0, 1);
+    }
+    return n;
+}
+
+std::vector<std::pair<uint32_t, uint32_t>> TriangleMesh::boundaryEdges() const
+{
+    std::vector<std::pair<uint32_t, uint32_t>> edges;
+    edges.reserve(triangles.size() * 3);
+    for (const auto& f : triangles)
+        for (int e = 0; e < 3; ++e) {
+            const uint32_t a = f[e], b = f[(e + 1) % 3];
+            edges.emplace_back(std::min(a, b), std::max(a, b));
+        }
+    std::sort(edges.begin(), edges.end());
+    std::vector<std::pair<uint32_t, uint32_t>> border;
+    for (size_t i = 0; i < edges.size();) {
+        size_t j = i;
+        while (j < edges.size() && edges[j] == edges[i]) ++j;
+        if (j - i == 1) border.push_back(edges[i]);
+        i = j;
+    }
+    return border;
+}
+
+std::vector<std::vector<uint32_t>> TriangleMesh::vertexTriangles() const
+{
+    std::vector<std::vector<uint32_t>> vt(points.size());
+    for (uint32_t t = 0; t < triangles.size(); ++t)
+        for (int v = 0; v < 3; ++v) vt[triangles[t][v]].push_back(t);
+    return vt;
+}
+
+TriangleMesh makeIcosphere(double radius, int subdivisions)
+{
+    using V = openvdb::Vec3d;
+    const double g = (1.0 + std::sqrt(5.0)) / 2.0;
+    std::vector<V> p = {{-1, g, 0}, {1, g, 0}, {-1, -g, 0}, {1, -g, 0}, {0, -1, g}, {0, 1, g},
+                        {0, -1, -g}, {0, 1, -g}, {g, 0, -1}, {g, 0, 1}, {-g, 0, -1}, {-g, 0, 1}};
+    std::vector<openvdb::Vec3I> f = {{0, 11, 5}, {0, 5, 1}, {0, 1, 7}, {0, 7, 10}, {0, 10, 11}, {1, 5, 9}, {5, 11, 4},
+                                     {11, 10, 2}, {10, 7, 6}, {7, 1, 8}, {3, 9, 4}, {3, 4, 2}, {3, 2, 6}, {3, 6, 8},
+                                     {3, 8, 9}, {4, 9, 5}, {2, 4, 11}, {6, 2, 10}, {8, 6, 7}, {9, 8, 1}};
+    for (auto& v : p) v.normalize();
+    for (int s = 0; s < subdivisions; ++s) {
+        std::map<std::pair<uint32_t, uint32_t>, uint32_t> mid;
+        auto midpoint = [&](uint32_t a, uint32_t b) {
+            const auto key = std::make_pair(std::min(a, b), std::max(a, b));
+            auto it = mid.find(key);
+            if (it != mid.end()) return it->second;
+            V m = p[a] + p[b];
+            m.normalize();
+            p.push_back(m);
+            return mid[key] = uint32_t(p.size() - 1);
+        };
+        std::vector<openvdb::Vec3I> next;
+        for (const auto& t : f) {
+            const uint32_t a = midpoint(t[0], t[1]), b = midpoint(t[1], t[2]), c = midpoint(t[2], t[0]);
+            next.insert(next.end(), {{t[0], a, c}, {t[1], b, a}, {t[2], c, b}, {a, b, c}});
+        }
+        f.swap(next);
+    }
+    TriangleMesh mesh;
+    mesh.source = "icosphere";
+    for (const auto& v : p) mesh.points.emplace_back(v * radius);
+    mesh.triangles = f;
+    return mesh;
+}
+
+TriangleMesh makePlate(double size, int n)
+{
+    TriangleMesh mesh;
+    mesh.source = "plate";
+    for (int j = 0; j <= n; ++j)
+        for (int i = 0; i <= n; ++i)
+            mesh.points.emplace_back(float(size * (double(i) / n - 0.5)), float(size * (double(j) / n - 0.5)), 0.f);
+    for (int j = 0; j < n; ++j)
+        for (int i = 0; i < n; ++i) {
+            const uint32_t a = uint32_t(j * (n + 1) + i), b = a + 1, c = a + uint32_t(n + 1), d = c + 1;
+            mesh.triangles.emplace_back(a, b, d);
+            mesh.triangles.emplace_back(a, d, c);
+        }
+    return mesh;
 }
 
 TriangleMesh loadMesh(const std::string& path, const MeshPlacement& placement)

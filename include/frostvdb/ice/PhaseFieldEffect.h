@@ -7,6 +7,7 @@
 /// the paper's displacement map) and `freeze_time` (time p first exceeded 1/2).
 #include <frostvdb/core/Effect.h>
 #include <frostvdb/ice/PhaseFieldSolver.h>
+#include <frostvdb/shell/ShellPhaseField.h>
 
 #include <memory>
 
@@ -21,6 +22,8 @@ public:
     void initialize(World& world) override;
     void step(World& world, const StepInfo& info) override;
     void addToFrame(World& world, Frame& frame) override;
+    /// On a shell with frost_mesh set: writes the frost layer as OBJ/PLY beside the preview.
+    bool writePreview(World& world, const Frame& frame, const std::string& pngPath) override;
     double time() const override { return mTime; }
     std::vector<std::pair<std::string, double>> timings() const override;
     /// PhaseFieldSolver keeps about 21 float arrays over the active region: the whole domain in
@@ -45,6 +48,16 @@ private:
     int mSubsteps = 1; ///< solver steps per scene step (substeps = auto above the limit)
     std::unique_ptr<PhaseFieldSolver> mSolver;
     PhaseFieldStepStats mStats;
+    /// On a shell domain (a band around a mesh) the closest-point solver runs instead.
+    std::unique_ptr<shell::ShellPhaseField> mShell;
+    bool mOnShell = false;
+    std::string mFrostMesh = "none"; ///< shells: none, obj or ply
+    openvdb::Vec3d mWind{0, 0, 0};   ///< shells: prescribed wind advecting the heat
+    /// The p and T grids scatterShell last wrote (held, so a new grid never reuses the address).
+    openvdb::FloatGrid::Ptr mShellP, mShellT;
+    shell::ShellStepStats mShellStats;
+    void gatherShell(World& world);
+    void scatterShell(World& world);
 };
 
 } // namespace frostvdb

@@ -38,7 +38,22 @@ struct TriangleMesh {
     double totalArea() const;
     /// Applies a placement to the points.
     void transform(const MeshPlacement& placement);
+    /// Per-vertex unit normals: the area-weighted mean of the adjacent triangles' normals (smooth
+    /// shading normals; the shell's frame interpolates them across a triangle).
+    std::vector<openvdb::Vec3d> vertexNormals() const;
+    /// Edges used by exactly one triangle (an open mesh's border, e.g. a glass's rim), as vertex
+    /// index pairs in a fixed order (sorted).
+    std::vector<std::pair<uint32_t, uint32_t>> boundaryEdges() const;
+    /// For each vertex, the triangles that use it (sorted).
+    std::vector<std::vector<uint32_t>> vertexTriangles() const;
 };
+
+/// A closed icosphere of @a radius about the origin, @a subdivisions times subdivided (20 * 4^s
+/// triangles), outward winding. The shell domain's default mesh and the tests' sphere.
+TriangleMesh makeIcosphere(double radius, int subdivisions);
+/// An open square plate [-size/2, size/2]^2 in the z = 0 plane of n x n cells (2 n^2 triangles),
+/// normal +z.
+TriangleMesh makePlate(double size, int n);
 
 /// Reads a triangle mesh and applies @a placement. Throws std::runtime_error with one line
 /// naming the file when it is missing, unreadable or has no triangles.

@@ -1,0 +1,173 @@
+/// @file ShellDomain.cpp
+/// @brief `[domain] kind = "shell"`: frost on objects. The support is a narrow band of voxels
+/// around a triangle mesh (shell/ShellBand.h); surface operators run there by the closest point
+/// method (shell/ShellPhaseField.h). Memory follows the mesh's area, never its bounding box.
+#include <frostvdb/shell/ShellDomain.h>
+
+#include <frostvdb/core/Budget.h>
+#include <frostvdb/io/Mesh.h>
+
+#include <filesystem>
+#include <stdexcept>
+
+namespace frostvdb {
+namespace {
+
+using openvdb::Vec3d;
+
+class ShellDomain : public DomainImpl {
+public:
+    ShellDomain(std::shared_ptr<const shell::ShellBand> band, double spacing, const openvdb::CoordBBox& bounds)
+        : DomainImpl(Lattice(LatticeKind::Square, spacing), bounds, band->voxelSize(), /*withZ=*/true),
+          mBand(std::move(band))
+    {
+        mTransform = mBand->transform();
+    }
+
+    const std::shared_ptr<const shell::ShellBand>& band() const { return mBand; }
+
+    std::string kind() const override { return "shell"; }
+    bool contains(const openvdb::Coord& c) const override { return mBand->indexOf(c) >= 0; }
+    uint64_t voxelCount() const override { return mBand->size(); }
+    void clipToSupport(openvdb::MaskTree& mask) const override { mask.topologyIntersection(mBand->mask().tree()); }
+    void fillSupport(openvdb::MaskTree& mask) const override { mask.topologyUnion(mBand->mask().tree()); }
+    bool flat() const override { return false; }
+    int intrinsicDimension() const override { return 2; }
+    std::vector<openvdb::Coord> walkerNeighbours() const override
+    {
+        return {openvdb::Coord(-1, 0, 0), openvdb::Coord(1, 0, 0), openvdb::Coord(0, -1, 0),
+                openvdb::Coord(0, 1, 0),  openvdb::Coord(0, 0, -1), openvdb::Coord(0, 0, 1)};
+    }
+    bool hasFrame() const override { return true; }
+    VoxelFrame frame(const openvdb::Coord& c) const override
+    {
+        const int32_t i = mBand->indexOf(c);
+        return i >= 0 ? mBand->frame(size_t(i)) : VoxelFrame{};
+    }
+    /// Fractions of the band's bounds (x, y, z), moved to the nearest closest point on the surface.
+    int parameterDimension() const override { return 3; }
+    Vec3d parameterToIndex(const std::vector<double>& u) const override
+    {
+        Vec3d p;
+        for (int a = 0; a < 3; ++a) {
+            const double f = size_t(a) < u.size() ? u[size_t(a)] : 0.5;
+            p[a] = mBounds.min()[a] + f * (mBounds.max()[a] - mBounds.min()[a]);
+        }
+        return mBand->nearestSurfacePoint(p);
+    }
+    /// "border": an open mesh's boundary edges (a glass's rim); a closed mesh has none.
+    std::vector<std::string> boundaryNames() const override { return {"border"}; }
+    void forEachBoundaryVoxel(const std::string& name, int width,
+                              const std::function<void(const openvdb::Coord&)>& fn) const override
+    {
+        if (name != "border") return;
+        for (size_t i : mBand->nearBorder(double(width))) fn(mBand->coord(i));
+    }
+    // No post-step hook: the shell's phase field re-extends its own fields each step (on its
+    // band arrays, ShellPhaseField::step), so the driver has nothing left to do.
+
+private:
+    std::shared_ptr<const shell::ShellBand> mBand;
+};
+
+Vec3d vec3(const std::vector<double>& v) { return Vec3d(v[0], v[1], v[2]); }
+
+/// A mesh path as written, or relative to the folder of the scene file that names it.
+std::string resolveMeshPath(const std::string& file, const ParamOrigin* origin)
+{
+    namespace fs = std::filesystem;
+    if (file.empty() || fs::path(file).is_absolute() || !origin) return file;
+    const fs::path beside = fs::path(origin->file).parent_path() / file;
+    if (fs::exists(beside)) return beside.string();
+    return file;
+}
+
+Domain readShell(ParamDict& d, const DomainCommon& c)
+{
+    const std::string file = d.getString("mesh", "", {},
+        "mesh file (OBJ, STL, PLY, ... through Assimp), relative to the scene file; open or closed. Empty: a "
+        "built-in icosphere of radius sphere_radius");
+    const double radius = d.getFloat("sphere_radius", 0.002, 1e-6, 1e3, "m",
+                                     "radius of the built-in icosphere (mesh = \"\")");
+    d.onlyWhen(file.empty(), "sphere_radius", "mesh = \"" + file + "\"");
+    MeshPlacement m;
+    const auto s = d.getFloatArray("mesh_scale", {1.0}, {1, 3}, -1e6, 1e6, "",
+                                   "scale of the mesh (one factor or x, y, z), applied first");
+    m.scale = s.size() == 1 ? Vec3d(s[0]) : vec3(s);
+    m.rotateDegrees = vec3(d.getFloatArray("mesh_rotate", {0, 0, 0}, {3}, -3600, 3600, "deg",
+                                           "rotation of the mesh about x, then y, then z"));
+    m.translate = vec3(d.getFloatArray("mesh_translate", {0, 0, 0}, {3}, -1e6, 1e6, "m",
+                                       "translation of the mesh, applied last"));
+    shell::BandSettings bs;
+    bs.voxelSize = c.voxelSize;
+    const auto axis = d.getFloatArray("crystal_axis", {1, 0, 0}, {3}, -1e6, 1e6, "",
+        "world direction of the crystal axis (theta = 0 of the anisotropy), projected on each tangent plane; "
+        "where it is within 3 degrees of the normal, the next axis (crystal_axis x normal's dominant axis) is used");
+    bs.crystalAxis = vec3(axis);
+    if (bs.crystalAxis.length() < 1e-12) d.fail("crystal_axis", "must not be the zero vector");
+    bs.crystalAxis.normalize();
+    bs.frostThickness = d.getFloat("frost_thickness", 2.0, 0.0, 4.5, "voxels",
+        "thickness of the output frost layer (ice, ice_sdf) where the accumulated growth has reached 1; it grows "
+        "outward along the mesh's normals (at most 4.5: the band's half-width less one)");
+    const std::string colours = d.getString("vertex_colours", "none", {"none", "seed", "melt"},
+        "what the mesh's vertex colours (luminance, interpolated across triangles) control: nothing; seed: ice "
+        "where the luminance exceeds 1/2; melt: the melt map (T_e scale = luminance; 0 keeps a patch clear)");
+    bs.colourUse = colours == "seed"   ? shell::BandSettings::ColourUse::Seed
+                   : colours == "melt" ? shell::BandSettings::ColourUse::Melt
+                                       : shell::BandSettings::ColourUse::None;
+    // secondary axis: perpendicular to the first, fixed by it alone
+    Vec3d sec = std::fabs(bs.crystalAxis.z()) < 0.9 ? Vec3d(0, 0, 1) : Vec3d(0, 1, 0);
+    bs.secondaryAxis = sec.cross(bs.crystalAxis).unit();
+
+    TriangleMesh mesh;
+    const std::string path = resolveMeshPath(file, d.origin("mesh"));
+    try {
+        if (file.empty()) {
+            mesh = makeIcosphere(radius, 5);
+            mesh.transform(m);
+        } else {
+            mesh = loadMesh(path, m);
+        }
+        // Refuse before allocating: the band holds about 11.5 voxels per surface voxel at about
+        // 600 bytes each (measured, docs/shells.md), plus the solver's arrays.
+        const double estimate = mesh.totalArea() / (c.voxelSize * c.voxelSize) * 11.5 * 660.0;
+        const double available = double(availableMemoryBytes());
+        if (available > 0 && estimate > available)
+            d.fail("voxel_size", "the shell band would need about " + formatBytes(estimate) + " (mesh area / voxel_size^2 x "
+                                 "11.5 band voxels x 660 bytes), more than the " + formatBytes(available) +
+                                 " available; raise voxel_size or scale the mesh down");
+        if (colours != "none" && mesh.colours.empty())
+            d.fail("vertex_colours", path + ": the mesh has no vertex colours (allowed: none)");
+        auto band = shell::ShellBand::build(mesh, bs);
+        openvdb::CoordBBox bb;
+        for (const auto& cc : band->coords()) bb.expand(cc);
+        return Domain(std::make_shared<ShellDomain>(band, c.spacing, bb));
+    } catch (const std::runtime_error& e) {
+        d.fail("mesh", e.what());
+    }
+}
+
+} // namespace
+
+namespace shell {
+
+std::shared_ptr<const ShellBand> bandOf(const Domain& domain)
+{
+    if (!domain) return nullptr;
+    const auto* s = dynamic_cast<const ShellDomain*>(&domain.impl());
+    return s ? s->band() : nullptr;
+}
+
+Domain makeShellDomain(const TriangleMesh& mesh, const BandSettings& settings, double spacing)
+{
+    auto band = ShellBand::build(mesh, settings);
+    openvdb::CoordBBox bb;
+    for (const auto& cc : band->coords()) bb.expand(cc);
+    return Domain(std::make_shared<ShellDomain>(band, spacing, bb));
+}
+
+} // namespace shell
+
+FROSTVDB_REGISTER_DOMAIN(shell, "shell", "a narrow band of voxels around a mesh: frost on objects", readShell);
+
+} // namespace frostvdb

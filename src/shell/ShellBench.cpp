@@ -1,0 +1,122 @@
+// `frostvdb bench shell`: the cost of frost on objects. For spheres of growing radius and a large
+// tilted panel: band build time, band memory, time per phase-field step, and the frosted area
+// after the run; then the shell step's update rate per surface voxel against the plane's dense
+// loop of the same equations on the same number of surface cells (same run).
+#include <frostvdb/core/Bench.h>
+#include <frostvdb/ice/PhaseFieldSolver.h>
+#include <frostvdb/shell/ShellPhaseField.h>
+
+#include <tbb/global_control.h>
+
+#include <sys/resource.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace frostvdb {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
+
+double peakRssMiB()
+{
+    rusage u{};
+    getrusage(RUSAGE_SELF, &u);
+    return double(u.ru_maxrss) / 1024.0;
+}
+
+struct ShellResult {
+    std::string what;
+    size_t bandVoxels = 0;
+    double surfaceVoxels = 0, buildSeconds = 0, stepSeconds = 0, bandMiB = 0, frostedVoxels2 = 0, rssMiB = 0;
+};
+
+/// Seeds a disc of radius 3 voxels at @a seed (index space, on the surface), runs @a steps.
+ShellResult runShell(const std::string& what, const TriangleMesh& mesh, const openvdb::Vec3d& seed, int steps)
+{
+    ShellResult r;
+    r.what = what;
+    shell::BandSettings bs;
+    bs.voxelSize = 1.0;
+    auto t0 = Clock::now();
+    auto band = shell::ShellBand::build(mesh, bs);
+    r.buildSeconds = since(t0);
+    r.bandVoxels = band->size();
+    r.surfaceVoxels = band->surfaceVoxels();
+    KobayashiParams k;
+    shell::ShellPhaseField pf(band, k, 3.0 / 64.0);
+    for (size_t i = 0; i < band->size(); ++i) {
+        const double d = (band->closestPoint(i) - seed).length();
+        pf.p()[i] = d > 6 ? 0.f : float(0.5 * (1.0 - std::tanh((d - 3.0) / 0.7)));
+    }
+    t0 = Clock::now();
+    for (int s = 0; s < steps; ++s) pf.step((s + 1) * k.dt);
+    r.stepSeconds = since(t0) / steps;
+    // band arrays: the band's own plus the solver's 15 float arrays
+    r.bandMiB = (double(band->memoryBytes()) + 15.0 * 4.0 * double(band->size())) / (1024.0 * 1024.0);
+    size_t frosted = 0, update = 0;
+    for (size_t i = 0; i < band->size(); ++i)
+        if (band->inUpdateSet(i)) {
+            ++update;
+            frosted += pf.p()[i] > 0.5f ? 1 : 0;
+        }
+    r.frostedVoxels2 = update ? r.surfaceVoxels * double(frosted) / double(update) : 0.0;
+    r.rssMiB = peakRssMiB();
+    return r;
+}
+
+int benchShell(const BenchArgs& a)
+{
+    std::unique_ptr<tbb::global_control> threads;
+    if (a.threads > 0)
+        threads = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism, size_t(a.threads));
+    const int steps = a.quick ? 20 : 200;
+    std::vector<ShellResult> rows;
+    for (double R : a.quick ? std::vector<double>{12, 24} : std::vector<double>{16, 32, 64}) {
+        TriangleMesh sphere = makeIcosphere(R, 5);
+        rows.push_back(runShell("sphere R " + std::to_string(int(R)), sphere, openvdb::Vec3d(0, 0, R), steps));
+    }
+    const int S = a.quick ? 96 : 384;
+    TriangleMesh panel = makePlate(S, S / 4);
+    MeshPlacement m;
+    m.rotateDegrees = openvdb::Vec3d(30, 30, 0);
+    panel.transform(m);
+    rows.push_back(runShell("panel " + std::to_string(S) + "^2 at 30/30 deg", panel, openvdb::Vec3d(0), steps));
+
+    std::printf("%-26s %10s %12s %9s %10s %10s %12s %9s\n", "shell", "band vox", "surface vox", "build s",
+                "step ms", "band MiB", "frosted vox", "RSS MiB");
+    for (const auto& r : rows)
+        std::printf("%-26s %10zu %12.0f %9.2f %10.2f %10.1f %12.0f %9.0f\n", r.what.c_str(), r.bandVoxels,
+                    r.surfaceVoxels, r.buildSeconds, 1e3 * r.stepSeconds, r.bandMiB, r.frostedVoxels2, r.rssMiB);
+
+    // The plane's dense loop on as many cells as the largest sphere's surface, same equations.
+    const ShellResult& big = rows[rows.size() - 2];
+    const int n = int(std::sqrt(big.surfaceVoxels));
+    DensePhaseField plane(KobayashiParams{}, Lattice(LatticeKind::Square, 3.0 / 64.0), n, n);
+    for (int j = 0; j < n; ++j)
+        for (int i = 0; i < n; ++i) {
+            const double d = std::hypot(i + 0.5 - n / 2.0, j + 0.5 - n / 2.0);
+            plane.p()[plane.index(i, j)] = d > 6 ? 0.f : float(0.5 * (1.0 - std::tanh((d - 3.0) / 0.7)));
+        }
+    auto t0 = Clock::now();
+    for (int s = 0; s < steps; ++s) plane.step();
+    const double planeStep = since(t0) / steps;
+    const double planeRate = double(n) * n / planeStep, shellRate = big.surfaceVoxels / big.stepSeconds;
+    std::printf("\nupdate rate per surface cell: plane %dx%d %.1f M/s, %s %.1f M/s (%.1fx slower); "
+                "per band voxel %.1f M/s\n", n, n, planeRate * 1e-6, big.what.c_str(), shellRate * 1e-6,
+                planeRate / shellRate, double(big.bandVoxels) / big.stepSeconds * 1e-6);
+    return 0;
+}
+
+} // namespace
+
+FROSTVDB_REGISTER_BENCH(shell, "shell",
+    "frost on objects: band size, memory and time per phase-field step for spheres and a tilted panel, "
+    "and the shell's update rate against the plane's", benchShell);
+
+} // namespace frostvdb
