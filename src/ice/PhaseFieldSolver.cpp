@@ -320,8 +320,9 @@ struct LeafKernel {
         const bool plane = domain.flat();
         const int z0 = domain.bbox().min().z();
         const Block proto(plane);
-        const FlatStencil st(domain.stencil(), proto.bx, std::ptrdiff_t(proto.bx) * proto.by);
+        FlatStencil st(domain.stencil(), proto.bx, std::ptrdiff_t(proto.bx) * proto.by);
         const Anisotropy an(k);
+        useD6Forms(st, an);
         const float tn1 = float(tNext);
         tbb::enumerable_thread_specific<Block> blocks([plane] { return Block(plane); });
         tbb::parallel_for(tbb::blocked_range<size_t>(0, groups.count(), 1), [&](const tbb::blocked_range<size_t>& r) {
@@ -701,9 +702,21 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
     }
 
     // Write back, record growth and freezing, remember this step's start values.
-    auto lastDp = openvdb::FloatGrid::create(p.background()), lastDt = openvdb::FloatGrid::create(T.background());
-    lastDp->tree().topologyUnion(pLeaves.tree());
-    lastDt->tree().topologyUnion(pLeaves.tree());
+    // Into last step's start-value grids when nobody else holds them (a checkpoint being written
+    // may), else fresh ones: only active voxels are written, off voxels keep the background.
+    auto startGrid = [&](openvdb::FloatGrid::Ptr& old, const openvdb::FloatGrid* ours, float background) {
+        openvdb::FloatGrid::Ptr g;
+        if (old && old.get() == ours && old.use_count() == 1 && old->treePtr().use_count() == 2) g = old;
+        if (!g) {
+            g = openvdb::FloatGrid::create(background);
+            g->tree().topologyUnion(pLeaves.tree());
+        } else if (mLastInGeneration != mGeneration) {
+            matchTopology(*g, *mRegionMask);
+        }
+        return g;
+    };
+    auto lastDp = startGrid(mLastInP, mLastInOwned, p.background());
+    auto lastDt = startGrid(mLastInT, mLastInOwnedT, T.background());
     openvdb::tree::LeafManager<openvdb::FloatTree> dpLeaves(lastDp->tree()), dtLeaves(lastDt->tree());
     const float tn1 = float(tNext);
     tbb::parallel_for(tbb::blocked_range<size_t>(0, pLeaves.leafCount(), 16), [&](const tbb::blocked_range<size_t>& r) {
@@ -735,6 +748,9 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
     acc.apply();
     mLastInP = lastDp;
     mLastInT = lastDt;
+    mLastInOwned = mLastInP.get();
+    mLastInOwnedT = mLastInT.get();
+    mLastInGeneration = mGeneration;
     mLastStepDt = k.dt;
 }
 
@@ -763,8 +779,9 @@ DensePhaseField::DensePhaseField(const KobayashiParams& params, const Lattice& l
 
 void DensePhaseField::step()
 {
-    const FlatStencil st(mStencil, std::ptrdiff_t(mStride), 0);
+    FlatStencil st(mStencil, std::ptrdiff_t(mStride), 0);
     const Anisotropy an(mParams);
+    useD6Forms(st, an);
     const int W = mNx + 2 * kHalo;
     // Pass 1 on every cell with a full ring of neighbours, pass 2 on the domain cells; the halo
     // keeps the far-field values (Dirichlet), as the sparse solver's reads outside the domain do.

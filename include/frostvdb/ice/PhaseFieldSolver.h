@@ -132,6 +132,10 @@ private:
     uint64_t mLayoutGeneration = 0;
     /// The second-order scheme's memory for its midpoint coefficients.
     openvdb::FloatGrid::Ptr mLastInP, mLastInT; ///< p and T at the start of the last step
+    /// The start-value grids as this solver left them (a restored checkpoint replaces them) and
+    /// the region generation of their topology: they are reused as the next step's buffers.
+    const openvdb::FloatGrid *mLastInOwned = nullptr, *mLastInOwnedT = nullptr;
+    uint64_t mLastInGeneration = 0;
     double mLastStepDt = 0; ///< the last step's dt
     double mTheta = 0.5;    ///< implicit weight: 1/2 Crank-Nicolson, 1 in the start-up half-steps
 };
