@@ -662,17 +662,20 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
     auto t0 = Clock::now();
     const LinearSolverKind kind = k.useBiCGSTAB ? LinearSolverKind::BiCGSTAB : LinearSolverKind::GaussSeidel;
     const SolveReport rp = ps.solve(kind, k.solverTolerance, k.solverMaxIterations);
-    // The advection and diffusion keep p within [0, 1] (positive coefficients). The linearised
-    // reaction still overshoots next to cells a walker froze since the last step (p 1.013 with
-    // H 400 on 96^2, 1.05 in the Figure 7 snowflake at step 5): until that is fixed, p is clipped
-    // back within [-0.25, 1.25] (the latent heat below uses the clipped change) and counted.
+    // Each row is a convex combination of in-bound values (positive coefficients, the bounded
+    // reaction split, Kobayashi.h), and so is every Gauss-Seidel sweep from the bounded
+    // predictor: p' leaves [0, 1] only by the rounding of that combination (1 + 2e-16, set back
+    // silently), or where a solve is not a positive scheme (BiCGSTAB stopped early): such p is
+    // clipped back within [-0.25, 1.25] and counted (the latent heat below uses the clipped change);
+    // beyond that the guard stops the run.
+    constexpr double kRounding = 1e-12;
     std::atomic<int64_t> outside{0};
     tbb::parallel_for(tbb::blocked_range<size_t>(0, ps.rows(), 4096), [&](const tbb::blocked_range<size_t>& r) {
         int64_t local = 0;
         for (size_t s = r.begin(); s != r.end(); ++s) {
             double& v = ps.x[s];
-            if (v < 0.0 && v >= -0.25) v = 0.0, ++local;
-            else if (v > 1.0 && v <= 1.25) v = 1.0, ++local;
+            if (v < 0.0 && v >= -0.25) local += v < -kRounding, v = 0.0;
+            else if (v > 1.0 && v <= 1.25) local += v > 1.0 + kRounding, v = 1.0;
         }
         outside += local;
     });

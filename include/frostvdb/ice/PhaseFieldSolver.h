@@ -32,8 +32,8 @@ struct PhaseFieldStepStats {
     double heatSeconds = 0; ///< the T system alone (latent heat + Crank-Nicolson solve)
     int64_t solves = 0, solverIterationsP = 0, solverIterationsT = 0, unconverged = 0;
     double lastResidual = 0;
-    /// lw_cn: voxel-steps whose p left [0, 1] and was clipped back (only next to walker-frozen
-    /// cells now, see PhaseFieldSolver.cpp).
+    /// lw_cn: voxel-steps whose p left [0, 1] by more than rounding and was clipped back (only
+    /// a solve that is not a positive scheme does that now, see PhaseFieldSolver.cpp).
     int64_t clippedVoxels = 0;
     int64_t rebuilds = 0;      ///< region rebuilds (every k steps, or when another effect wrote p or T)
 };
