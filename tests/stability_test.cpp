@@ -573,3 +573,27 @@ TEST_CASE("3D box: anisotropic growth stays bounded and D4-symmetric in the plan
         CHECK(err <= 1e-6);
     }
 }
+
+TEST_CASE("lw_cn next to walker-frozen cells stays in [0, 1] without clipping (Figure 7 at 256^2)", "[stability][dla]")
+{
+    // scenes/snowflake.toml as `bench snowflake --quick` runs it (256^2 hexagonal, the same walker
+    // density, lw_cn at RP), 100 steps. The tangent reaction pushed p to 1.065 at cells a walker
+    // had frozen; those voxels were clipped and counted (32 here, 4,312 in the full Figure 7).
+    Scene scene = Scene::load(std::string(FROSTVDB_SOURCE_DIR) + "/scenes/snowflake.toml");
+    for (const char* o : {"domain.size=[256,256]", "dla.humidity=3750", "scene.frames=1", "scene.steps_per_frame=100"})
+        scene.applyOverride(o);
+    Simulation sim(std::move(scene));
+    RunOptions ro;
+    ro.progress = false;
+    ro.writeFiles = false;
+    const RunSummary sum = sim.run(ro);
+    double clipped = -1;
+    for (auto& [k, v] : sum.detailSeconds)
+        if (k == "phase_field.clipped_voxels") clipped = v;
+    CHECK(clipped == 0);
+    auto p = sim.world().fields.get<openvdb::FloatGrid>("p");
+    float lo = 0, hi = 0;
+    p->evalMinMax(lo, hi);
+    CHECK(lo >= 0.f);
+    CHECK(hi <= 1.f);
+}
