@@ -255,7 +255,7 @@ TEST_CASE("dt at the stability limit runs stable, 10% above is refused unless su
         auto probe = makeSim(baseScene(49, "square", phase));
         double limit = 0;
         probe.initialize();
-        for (auto& [k, v] : probe.effect("phase_field")->timings())
+        for (auto& [k, v] : probe.effect("phase_field")->counters())
             if (k == "stability_limit_dt") limit = v;
         REQUIRE(limit > 0);
         INFO(scheme << " stability limit " << limit);
@@ -292,7 +292,7 @@ TEST_CASE("dt at the stability limit runs stable, 10% above is refused unless su
         CHECK(o.symErr <= 1e-6);
         auto sim = makeSim(c.scene, c.overrides);
         sim.initialize();
-        for (auto& [k, v] : sim.effect("phase_field")->timings())
+        for (auto& [k, v] : sim.effect("phase_field")->counters())
             if (k == "substeps") CHECK(v == 2);
     }
 }
@@ -588,7 +588,7 @@ TEST_CASE("lw_cn next to walker-frozen cells stays in [0, 1] without clipping (F
     ro.writeFiles = false;
     const RunSummary sum = sim.run(ro);
     double clipped = -1;
-    for (auto& [k, v] : sum.detailSeconds)
+    for (auto& [k, v] : sum.detailCounts)
         if (k == "phase_field.clipped_voxels") clipped = v;
     CHECK(clipped == 0);
     auto p = sim.world().fields.get<openvdb::FloatGrid>("p");

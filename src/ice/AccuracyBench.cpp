@@ -109,7 +109,7 @@ Result run(const Config& c, double tEnd)
     for (int i = 0; i < r.steps; ++i) sim.step();
     r.seconds = since(t0);
     if (Effect* fx = sim.effect("phase_field"))
-        for (auto& [k, v] : fx->timings()) {
+        for (auto& [k, v] : fx->counters()) {
             if (k == "mean_iterations_p") r.itersP = v;
             if (k == "mean_iterations_T") r.itersT = v;
             if (k == "unconverged_solves") r.unconverged = v;
@@ -412,7 +412,7 @@ int benchAccuracy(const BenchArgs& args)
                                            "<bench accuracy>"));
         probe.initialize();
         double limit = 0;
-        for (auto& [k, v] : probe.effect("phase_field")->timings())
+        for (auto& [k, v] : probe.effect("phase_field")->counters())
             if (k == "stability_limit_dt") limit = v;
         return tEnd / std::ceil(tEnd / (limit * (1.0 - 1e-6)));
     };

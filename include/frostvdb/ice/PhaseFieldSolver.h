@@ -62,6 +62,12 @@ public:
     uint64_t kernelOnly(const openvdb::MaskGrid& region, const openvdb::FloatGrid& p, const openvdb::FloatGrid& T,
                         openvdb::FloatGrid& pOut, openvdb::FloatGrid& tOut) const;
 
+    /// True when no other writer changes p or T between steps (the scene declares no other
+    /// effect that writes them): the solver then knows its last outputs are this step's inputs
+    /// when the grid pointers match, without fingerprinting both grids twice per step (~13% of
+    /// the Euler kernel's instructions).
+    void setSoleWriter(bool sole) { mSoleWriter = sole; }
+
     /// The melt map (field `melt`, values in [0,1]); null for none. Not owned.
     void setMeltMap(const openvdb::FloatGrid* melt) { mMelt = melt; }
 
@@ -124,6 +130,7 @@ private:
     const openvdb::FloatGrid *mOutP = nullptr, *mOutT = nullptr; ///< what the last step returned
     uint64_t mPrintP = 0, mPrintT = 0, mOutGeneration = 0;      ///< their fingerprints, topology
     bool mInputsTruncated = true; ///< the last outputs were truncated (or are the initial state)
+    bool mSoleWriter = false;     ///< see setSoleWriter
     openvdb::FloatGrid::Ptr mSpareP, mSpareT; ///< last step's inputs: this step's output buffers
     uint64_t mSpareGeneration = 0;
     std::unique_ptr<LeafGroups> mGroups;      ///< the region's leaves in kernel blocks
