@@ -25,6 +25,7 @@
 /// dense-array reference loop run literally the same code.
 #include <frostvdb/core/Lattice.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
@@ -363,8 +364,8 @@ inline double kobayashiEuler(const float* p, const float* T, const float* a, con
     double lo = p0, hi = p0;
     for (int q = 0; q < st.n; ++q) {
         const double v = p[i + st.off[q]];
-        lo = std::fmin(lo, v);
-        hi = std::fmax(hi, v);
+        lo = std::min(lo, v); // std::min/max inline; fmin/fmax are libm calls (NaN rules)
+        hi = std::max(hi, v);
     }
     const double lapP = eulerLaplacian(p, i, st), lapT = eulerLaplacian(T, i, st);
     double rest; // the anisotropic part
@@ -394,7 +395,7 @@ inline double kobayashiEuler(const float* p, const float* T, const float* a, con
     const double reaction = p0 * (1.0 - p0) * (p0 - 0.5 + m + k.noise * chi);
     const double r = k.dt / k.tau;
     const double pMono = p0 + r * (a0 * lapP + reaction);
-    const double pNew = std::fmin(std::fmax(pMono, hi), std::fmax(std::fmin(pMono, lo), pMono + r * rest));
+    const double pNew = std::min(std::max(pMono, hi), std::max(std::min(pMono, lo), pMono + r * rest));
     const double dp = pNew - p0;
     pOut = float(pNew + 0.0); // + 0.0: an exact zero is +0, as kobayashiEulerHeatOnly writes
     tOut = float(t0 + k.dt * lapT + k.latentHeat * dp);
