@@ -203,8 +203,13 @@ TEST_CASE("Explicit stability limit is reported and a larger dt is refused", "[f
 TEST_CASE("A solver that leaves its bounds stops naming field, voxel, step and time, and writes no file",
           "[fast][phase_field][guard]")
 {
-    auto sim = makeSim(kSmallScene, {"phase_field.delta=0.5", "phase_field.latent_heat=5", "phase_field.dt=0.00022",
-                                     "scene.frames=3"});
+    // Forward Euler is bounded below its limit (kobayashiEuler's limiter), and so is lw_cn with
+    // its Gauss-Seidel solve (positive rows); BiCGSTAB stopped at tolerance 1 is not a positive
+    // scheme: at delta 0.5, K 5 p reaches -0.26 in step 363.
+    auto sim = makeSim(kSmallScene, {"phase_field.delta=0.5", "phase_field.latent_heat=5", "phase_field.scheme=\"lw_cn\"",
+                                     "phase_field.solver=\"bicgstab\"", "phase_field.precision=\"custom\"",
+                                     "phase_field.solver_tolerance=1.0", "phase_field.max_iterations=1",
+                                     "phase_field.dt=0.0009", "scene.frames=1", "scene.steps_per_frame=400"});
     RunOptions ro;
     ro.progress = false;
     ro.outDir = tempDir("guard");
@@ -223,4 +228,42 @@ TEST_CASE("A solver that leaves its bounds stops naming field, voxel, step and t
     const std::string json = readFile(ro.outDir + "/run.json");
     CHECK(json.find("\"status\": \"failed\"") != std::string::npos);
     CHECK(json.find("\"files\": [\n  ]") != std::string::npos);
+}
+
+TEST_CASE("Hexagonal D6 forms of eps and eps' equal the trigonometric ones", "[fast][phase_field]")
+{
+    // hexEpsilonD6 evaluates cos and sin of 6 theta from the projections of the gradient on the
+    // three lattice directions; it must be the same function as Anisotropy's for any gradient.
+    KobayashiParams k;
+    k.anisotropyMode = 6;
+    k.delta = 0.2;
+    const Anisotropy an(k);
+    const Lattice lat(LatticeKind::Hexagonal, 0.03);
+    const int W = 8;
+    FlatStencil st(lat.stencil(false), W, 0);
+    useD6Forms(st, an);
+    REQUIRE(st.d6);
+    std::vector<float> u(size_t(W) * W, 0.f);
+    const size_t i = size_t(3) * W + 3;
+    double worst = 0;
+    for (int trial = 0; trial < 200; ++trial) {
+        const double gx = std::cos(0.1 * trial * 1.7) * (1 + trial % 5), gy = std::sin(0.1 * trial * 2.3) * (2 - trial % 3);
+        // A linear field in axial coordinates: value at (a, b) = g . (a + b/2, b sqrt3/2) h.
+        for (int b = -1; b <= 1; ++b)
+            for (int a = -1; a <= 1; ++a)
+                u[i + size_t(b * W + a)] = float((gx * (a + 0.5 * b) + gy * b * std::sqrt(3.0) / 2.0) * 0.03);
+        double U[3], e1, p1, e2, p2;
+        hexProjections(u.data(), i, st, U);
+        hexEpsilonD6(U, st, an, e1, p1);
+        // The same gradient as the generic central difference sees it.
+        double sx = 0, sy = 0;
+        for (int q = 0; q < st.n; ++q) {
+            const double d = st.wGrad[q] * (double(u[i + st.off[q]]) - u[i]);
+            sx += d * st.ex[q];
+            sy += d * st.ey[q];
+        }
+        an(sx, sy, e2, p2);
+        worst = std::max({worst, std::fabs(e1 - e2), std::fabs(p1 - p2)});
+    }
+    CHECK(worst < 1e-12);
 }

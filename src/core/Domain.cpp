@@ -74,8 +74,11 @@ Domain Domain::fromParams(ParamDict& d)
     }
     DomainCommon c;
     c.kind = d.getString("kind", "plane", kinds, doc);
-    c.voxelSize = d.getFloat("voxel_size", 0.0001, 1e-9, 1e3, "m",
-        "world size of one cell in metres (what DCC tools see)");
+    // OpenVDB refuses a transform whose cell volume is below 3e-15 (Maps.h): 1.44e-5 m on the
+    // square lattice, 1.51e-5 m on the hexagonal one (volume sqrt(3)/2 voxel_size^3).
+    c.voxelSize = d.getFloat("voxel_size", 0.0001, 1.6e-5, 1e3, "m",
+        "world size of one cell in metres (what DCC tools see); OpenVDB's transforms need at least "
+        "about 1.5e-5 m (a cell volume of 3e-15 m^3): scale smaller subjects in the DCC tool");
     c.spacing = d.getFloat("spacing", 3.0 / 64.0, 1e-4, 10.0, "",
         "dimensionless grid spacing h of the PDEs (the ice paper uses 3/64)");
     const DomainInfo* info = DomainRegistry::find(c.kind);

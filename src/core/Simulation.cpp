@@ -1,4 +1,5 @@
 #include <frostvdb/core/Simulation.h>
+#include <frostvdb/core/FieldWriters.h>
 #include <frostvdb/core/Error.h>
 #include <frostvdb/core/Progress.h>
 #include <frostvdb/io/AtomicFile.h>
@@ -237,6 +238,11 @@ Simulation::Simulation(Scene scene) : mScene(std::move(scene))
     std::vector<DeclaredEffect> declared;
     for (auto& e : mEffects) declared.push_back({e->name(), e->declaration()});
     mOrder = deriveEffectOrder(declared, mScene.label());
+    FieldWriters& writers = mWorld.state<FieldWriters>();
+    writers.count.clear();
+    for (const auto& d : declared)
+        for (const auto& u : d.declaration.uses)
+            if (u.key->role == FieldRole::Field && (u.access & kWrites)) writers.count[u.key->name] += 1;
     for (const auto& d : declared)
         for (const auto& u : d.declaration.uses)
             if (u.key->role == FieldRole::Field && (u.access & kWrites) &&
@@ -658,9 +664,11 @@ void Simulation::finishSummary(RunSummary& sum) const
     sum.steps = mStep;
     sum.effectSeconds.clear();
     sum.detailSeconds.clear();
+    sum.detailCounts.clear();
     for (size_t i = 0; i < mEffects.size(); ++i) {
         sum.effectSeconds.emplace_back(mEffects[i]->name(), mEffectSeconds[i]);
         for (auto& [k, v] : mEffects[i]->timings()) sum.detailSeconds.emplace_back(mEffects[i]->name() + "." + k, v);
+        for (auto& [k, v] : mEffects[i]->counters()) sum.detailCounts.emplace_back(mEffects[i]->name() + "." + k, v);
     }
     sum.fields = mWorld.fields.names();
     sum.peakRssBytes = peakRss();
@@ -738,6 +746,9 @@ std::string RunSummary::toJson() const
     os << "},\n  \"detail_seconds\": {";
     for (size_t i = 0; i < detailSeconds.size(); ++i)
         os << (i ? ", " : "") << "\"" << jsonEscape(detailSeconds[i].first) << "\": " << detailSeconds[i].second;
+    os << "},\n  \"detail_counts\": {";
+    for (size_t i = 0; i < detailCounts.size(); ++i)
+        os << (i ? ", " : "") << "\"" << jsonEscape(detailCounts[i].first) << "\": " << detailCounts[i].second;
     os << "},\n  \"active_voxels\": [";
     for (size_t i = 0; i < activeVoxels.size(); ++i)
         os << (i ? ", " : "") << "[" << activeVoxels[i].first << ", " << activeVoxels[i].second << "]";
@@ -761,6 +772,7 @@ std::string RunSummary::toText() const
     os << "\n";
     for (auto& [k, v] : effectSeconds) os << "  " << k << ": " << v << " s\n";
     for (auto& [k, v] : detailSeconds) os << "    " << k << ": " << v << " s\n";
+    for (auto& [k, v] : detailCounts) os << "    " << k << ": " << std::defaultfloat << v << std::fixed << "\n";
     os << "  output: " << outputSeconds << " s\n";
     if (resumedFromStep >= 0) os << "  resumed from the checkpoint at step " << resumedFromStep << "\n";
     if (checkpoints > 0) os << "  checkpoints written: " << checkpoints << "\n";

@@ -1,4 +1,5 @@
 #include <frostvdb/ice/PhaseFieldEffect.h>
+#include <frostvdb/core/FieldWriters.h>
 #include <frostvdb/core/Error.h>
 #include <frostvdb/ice/IceState.h>
 #include <frostvdb/shell/ShellDomain.h>
@@ -145,6 +146,10 @@ void PhaseFieldEffect::initialize(World& world)
         return;
     }
     mSolver = std::make_unique<PhaseFieldSolver>(solverParams, world.domain, world.region);
+    if (world.hasState<FieldWriters>()) {
+        const FieldWriters& w = world.state<FieldWriters>();
+        mSolver->setSoleWriter(w.of(ice::kPhase.name) == 1 && w.of(ice::kTemperature.name) == 1);
+    }
 }
 
 void PhaseFieldEffect::gatherShell(World& world)
@@ -283,11 +288,18 @@ std::vector<std::pair<std::string, double>> PhaseFieldEffect::timings() const
                 {"voxel_updates", double(mShellStats.voxelUpdates)}, {"substeps", double(mSubsteps)},
                 {"stability_limit_dt", mStabilityLimit}};
     std::vector<std::pair<std::string, double>> t{
-        {"region", mStats.regionSeconds}, {"kernel", mStats.kernelSeconds}, {"truncate", mStats.truncateSeconds},
-        {"region_rebuilds", double(mStats.rebuilds)}};
+        {"region", mStats.regionSeconds}, {"kernel", mStats.kernelSeconds}, {"truncate", mStats.truncateSeconds}};
     if (mParams.scheme == PhaseFieldScheme::SecondOrder) {
         t.push_back({"solve", mStats.solveSeconds});
         t.push_back({"heat", mStats.heatSeconds});
+    }
+    return t;
+}
+
+std::vector<std::pair<std::string, double>> PhaseFieldEffect::counters() const
+{
+    std::vector<std::pair<std::string, double>> t{{"region_rebuilds", double(mStats.rebuilds)}};
+    if (mParams.scheme == PhaseFieldScheme::SecondOrder) {
         const double n = std::max<int64_t>(1, mStats.solves);
         t.push_back({"mean_iterations_p", mStats.solverIterationsP / n});
         t.push_back({"mean_iterations_T", mStats.solverIterationsT / n});

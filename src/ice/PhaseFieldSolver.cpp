@@ -320,8 +320,9 @@ struct LeafKernel {
         const bool plane = domain.flat();
         const int z0 = domain.bbox().min().z();
         const Block proto(plane);
-        const FlatStencil st(domain.stencil(), proto.bx, std::ptrdiff_t(proto.bx) * proto.by);
+        FlatStencil st(domain.stencil(), proto.bx, std::ptrdiff_t(proto.bx) * proto.by);
         const Anisotropy an(k);
+        useD6Forms(st, an);
         const float tn1 = float(tNext);
         tbb::enumerable_thread_specific<Block> blocks([plane] { return Block(plane); });
         tbb::parallel_for(tbb::blocked_range<size_t>(0, groups.count(), 1), [&](const tbb::blocked_range<size_t>& r) {
@@ -403,6 +404,7 @@ PhaseFieldSolver::~PhaseFieldSolver() = default;
 bool PhaseFieldSolver::inputsAreOurs(const openvdb::FloatGrid& p, const openvdb::FloatGrid& T) const
 {
     if (&p != mOutP || &T != mOutT) return false;
+    if (mSoleWriter) return true; // nobody else writes them: no need to look at the values
     return gridFingerprint(p) == mPrintP && gridFingerprint(T) == mPrintT; // T only when p matched
 }
 
@@ -543,8 +545,10 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
     mInputsTruncated = retire || mRegion.dense;
     mOutP = pNew.get();
     mOutT = tNew.get();
-    mPrintP = gridFingerprint(*pNew);
-    mPrintT = gridFingerprint(*tNew);
+    if (!mSoleWriter) {
+        mPrintP = gridFingerprint(*pNew);
+        mPrintT = gridFingerprint(*tNew);
+    }
     mOutGeneration = truncated ? 0 : mGeneration;
     // The inputs become the next step's output buffers (same topology while the region stands).
     mSpareP = p;
@@ -661,17 +665,20 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
     auto t0 = Clock::now();
     const LinearSolverKind kind = k.useBiCGSTAB ? LinearSolverKind::BiCGSTAB : LinearSolverKind::GaussSeidel;
     const SolveReport rp = ps.solve(kind, k.solverTolerance, k.solverMaxIterations);
-    // The advection and diffusion keep p within [0, 1] (positive coefficients). The linearised
-    // reaction still overshoots next to cells a walker froze since the last step (p 1.013 with
-    // H 400 on 96^2, 1.05 in the Figure 7 snowflake at step 5): until that is fixed, p is clipped
-    // back within [-0.25, 1.25] (the latent heat below uses the clipped change) and counted.
+    // Each row is a convex combination of in-bound values (positive coefficients, the bounded
+    // reaction split, Kobayashi.h), and so is every Gauss-Seidel sweep from the bounded
+    // predictor: p' leaves [0, 1] only by the rounding of that combination (1 + 2e-16, set back
+    // silently), or where a solve is not a positive scheme (BiCGSTAB stopped early): such p is
+    // clipped back within [-0.25, 1.25] and counted (the latent heat below uses the clipped change);
+    // beyond that the guard stops the run.
+    constexpr double kRounding = 1e-12;
     std::atomic<int64_t> outside{0};
     tbb::parallel_for(tbb::blocked_range<size_t>(0, ps.rows(), 4096), [&](const tbb::blocked_range<size_t>& r) {
         int64_t local = 0;
         for (size_t s = r.begin(); s != r.end(); ++s) {
             double& v = ps.x[s];
-            if (v < 0.0 && v >= -0.25) v = 0.0, ++local;
-            else if (v > 1.0 && v <= 1.25) v = 1.0, ++local;
+            if (v < 0.0 && v >= -0.25) local += v < -kRounding, v = 0.0;
+            else if (v > 1.0 && v <= 1.25) local += v > 1.0 + kRounding, v = 1.0;
         }
         outside += local;
     });
@@ -701,9 +708,21 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
     }
 
     // Write back, record growth and freezing, remember this step's start values.
-    auto lastDp = openvdb::FloatGrid::create(p.background()), lastDt = openvdb::FloatGrid::create(T.background());
-    lastDp->tree().topologyUnion(pLeaves.tree());
-    lastDt->tree().topologyUnion(pLeaves.tree());
+    // Into last step's start-value grids when nobody else holds them (a checkpoint being written
+    // may), else fresh ones: only active voxels are written, off voxels keep the background.
+    auto startGrid = [&](openvdb::FloatGrid::Ptr& old, const openvdb::FloatGrid* ours, float background) {
+        openvdb::FloatGrid::Ptr g;
+        if (old && old.get() == ours && old.use_count() == 1 && old->treePtr().use_count() == 2) g = old;
+        if (!g) {
+            g = openvdb::FloatGrid::create(background);
+            g->tree().topologyUnion(pLeaves.tree());
+        } else if (mLastInGeneration != mGeneration) {
+            matchTopology(*g, *mRegionMask);
+        }
+        return g;
+    };
+    auto lastDp = startGrid(mLastInP, mLastInOwned, p.background());
+    auto lastDt = startGrid(mLastInT, mLastInOwnedT, T.background());
     openvdb::tree::LeafManager<openvdb::FloatTree> dpLeaves(lastDp->tree()), dtLeaves(lastDt->tree());
     const float tn1 = float(tNext);
     tbb::parallel_for(tbb::blocked_range<size_t>(0, pLeaves.leafCount(), 16), [&](const tbb::blocked_range<size_t>& r) {
@@ -735,6 +754,9 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
     acc.apply();
     mLastInP = lastDp;
     mLastInT = lastDt;
+    mLastInOwned = mLastInP.get();
+    mLastInOwnedT = mLastInT.get();
+    mLastInGeneration = mGeneration;
     mLastStepDt = k.dt;
 }
 
@@ -763,8 +785,9 @@ DensePhaseField::DensePhaseField(const KobayashiParams& params, const Lattice& l
 
 void DensePhaseField::step()
 {
-    const FlatStencil st(mStencil, std::ptrdiff_t(mStride), 0);
+    FlatStencil st(mStencil, std::ptrdiff_t(mStride), 0);
     const Anisotropy an(mParams);
+    useD6Forms(st, an);
     const int W = mNx + 2 * kHalo;
     // Pass 1 on every cell with a full ring of neighbours, pass 2 on the domain cells; the halo
     // keeps the far-field values (Dirichlet), as the sparse solver's reads outside the domain do.

@@ -73,6 +73,7 @@ int runOne(int n, const BenchArgs& args, const std::string& report)
     std::map<std::string, double> eff, detail;
     for (auto& [k, v] : sum.effectSeconds) eff[k] = v;
     for (auto& [k, v] : sum.detailSeconds) detail[k] = v;
+    for (auto& [k, v] : sum.detailCounts) detail[k] = v;
     uint64_t ice = 0;
     if (auto p = sim.world().fields.get<openvdb::FloatGrid>("p"))
         for (auto it = p->cbeginValueOn(); it; ++it) ice += *it > 0.5f ? 1 : 0;

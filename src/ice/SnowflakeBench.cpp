@@ -41,6 +41,7 @@ int benchSnowflake(const BenchArgs& args)
     std::map<std::string, double> eff, detail;
     for (auto& [k, v] : sum.effectSeconds) eff[k] = v;
     for (auto& [k, v] : sum.detailSeconds) detail[k] = v;
+    for (auto& [k, v] : sum.detailCounts) detail[k] = v;
     const double heat = detail["phase_field.heat"];
     const double walkers = eff["dla"], phase = eff["phase_field"] - heat;
     std::printf("\nSnowflake (scenes/snowflake.toml%s): %lld steps, %lld frames written\n\n",

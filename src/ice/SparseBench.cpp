@@ -68,6 +68,7 @@ RealisticResult realistic(int n, int steps, int rebuildEvery)
     rs.tolerance = 0.0;
     rs.rebuildEvery = rebuildEvery;
     PhaseFieldSolver solver(k, dom, rs);
+    solver.setSoleWriter(true); // as in a scene whose only writer of p and T is [phase_field]
     DensePhaseField ref(k, lat, n, n);
     auto p = openvdb::FloatGrid::create(0.f);
     auto T = openvdb::FloatGrid::create(float(k.farTemperature));

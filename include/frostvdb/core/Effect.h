@@ -150,6 +150,9 @@ public:
     virtual MemoryEstimate memoryEstimate(const World& world) const { return {}; }
     /// Named sub-timings (seconds) for the run summary, e.g. {"kernel", 1.2}.
     virtual std::vector<std::pair<std::string, double>> timings() const { return {}; }
+    /// Named counts and other figures that are not seconds (iterations, rebuilds, a dt), printed
+    /// without a unit and written to run.json's "detail_counts".
+    virtual std::vector<std::pair<std::string, double>> counters() const { return {}; }
 
     /// True when saveState/loadState capture everything this effect carries from step to step
     /// beyond World's fields. Default: only effects without history (their frames are pure

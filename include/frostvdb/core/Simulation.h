@@ -65,6 +65,7 @@ struct RunSummary {
     double totalSeconds = 0, outputSeconds = 0;
     std::vector<std::pair<std::string, double>> effectSeconds;          ///< per effect step()
     std::vector<std::pair<std::string, double>> detailSeconds;          ///< effect sub-timings
+    std::vector<std::pair<std::string, double>> detailCounts;           ///< effect counters (no unit)
     std::vector<std::pair<int64_t, uint64_t>> activeVoxels;             ///< (step, voxels) per frame
     uint64_t peakRssBytes = 0;
     std::vector<std::string> files;      ///< complete files only (each listed after its rename)

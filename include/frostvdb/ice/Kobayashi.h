@@ -25,6 +25,7 @@
 /// dense-array reference loop run literally the same code.
 #include <frostvdb/core/Lattice.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
@@ -135,6 +136,9 @@ struct FlatStencil {
     /// e_{2k} . e_{2l} for the opposite-tap pairs k, l (taps come as +e, -e), rounded to the
     /// exact multiple of 1/2 it is on the square and hexagonal lattices.
     double pairDot[kMaxTaps / 2][kMaxTaps / 2] = {};
+    /// Forward Euler evaluates eq. 1 by the D6-invariant hexagonal forms (kobayashiAux): set by
+    /// useD6Forms() for the hexagonal plane with j = 6 and arms on lattice directions.
+    bool d6 = false;
 
     /// @a strideY, @a strideZ: distance between rows and slices of the layout.
     FlatStencil(const Stencil& s, std::ptrdiff_t strideY, std::ptrdiff_t strideZ)
@@ -208,72 +212,6 @@ struct Anisotropy {
     }
 };
 
-/// Pass 1 at cell i: the gradient of p and the anisotropic coefficients the update needs at
-/// the neighbours: a = eps^2, cx = eps eps' p_x, cy = eps eps' p_y.
-inline void kobayashiAux(const float* p, std::size_t i, const FlatStencil& st, const Anisotropy& an,
-                         float* a, float* cx, float* cy, float* gx, float* gy, float* gz)
-{
-    const double p0 = p[i];
-    double sx = 0, sy = 0, sz = 0;
-    for (int q = 0; q < st.n; ++q) {
-        const double d = st.wGrad[q] * (double(p[i + st.off[q]]) - p0);
-        sx += d * st.ex[q];
-        sy += d * st.ey[q];
-        sz += d * st.ez[q];
-    }
-    double eps, epsPrime;
-    an(sx, sy, eps, epsPrime);
-    a[i] = float(eps * eps);
-    cx[i] = float(eps * epsPrime * sx);
-    cy[i] = float(eps * epsPrime * sy);
-    gx[i] = float(sx);
-    gy[i] = float(sy);
-    gz[i] = float(sz);
-}
-
-/// Pass 2 at cell i: forward-Euler update of p and T (eqs. 1-2). @a Te is the local melt
-/// temperature, @a chi the noise draw in [-1/2, 1/2] (ignored when noise is 0). Returns dp.
-inline double kobayashiEuler(const float* p, const float* T, const float* a, const float* cx, const float* cy,
-                             const float* gx, const float* gy, const float* gz, std::size_t i,
-                             const FlatStencil& st, const KobayashiParams& k, double Te, double chi,
-                             float& pOut, float& tOut)
-{
-    const double p0 = p[i], t0 = T[i], a0 = a[i], cx0 = cx[i], cy0 = cy[i];
-    double lapP = 0, lapT = 0, dax = 0, day = 0, daz = 0, cross = 0;
-    for (int q = 0; q < st.n; ++q) {
-        const std::size_t j = i + st.off[q];
-        lapP += st.wLap[q] * (double(p[j]) - p0);
-        lapT += st.wLap[q] * (double(T[j]) - t0);
-        const double da = st.wGrad[q] * (double(a[j]) - a0);
-        dax += da * st.ex[q];
-        day += da * st.ey[q];
-        daz += da * st.ez[q];
-        cross += st.wGrad[q] * (-st.ex[q] * (double(cy[j]) - cy0) + st.ey[q] * (double(cx[j]) - cx0));
-    }
-    const double div = a0 * lapP + dax * gx[i] + day * gy[i] + daz * gz[i];
-    const double m = k.alpha / M_PI * std::atan(k.gamma * (Te - t0));
-    const double reaction = p0 * (1.0 - p0) * (p0 - 0.5 + m + k.noise * chi);
-    const double dp = k.dt / k.tau * (div + cross + reaction);
-    pOut = float(p0 + dp);
-    tOut = float(t0 + k.dt * lapT + k.latentHeat * dp);
-    return dp;
-}
-
-/// kobayashiEuler at a cell whose p is exactly 0 at every cell within two stencil steps (the
-/// whole neighbourhood pass 1 and 2 read): there the anisotropy coefficients are constants, every
-/// term of dp is an exact zero, so p stays 0 and T takes the plain heat step; the same
-/// operations in the same order give the same bits. Keep in step with kobayashiEuler's T update.
-inline void kobayashiEulerHeatOnly(const float* T, std::size_t i, const FlatStencil& st, const KobayashiParams& k,
-                                   float& pOut, float& tOut)
-{
-    const double t0 = T[i];
-    double lapT = 0;
-    for (int q = 0; q < st.n; ++q) lapT += st.wLap[q] * (double(T[i + st.off[q]]) - t0);
-    const double dp = 0.0;
-    pOut = 0.f;
-    tOut = float(t0 + k.dt * lapT + k.latentHeat * dp);
-}
-
 /// Sum of up to kMaxTaps values in an order fixed by the values alone (ascending), so that a
 /// cell and its rotated or mirrored image, whose terms are the same values in another order,
 /// get bit-identical sums. Only for terms that symmetries permute without changing their sign
@@ -296,6 +234,186 @@ inline double symmetricTapSum(const float* u, std::size_t i, const FlatStencil& 
     for (int k = 0; k < np; ++k)
         pair[k] = w[2 * k] * (double(u[i + st.off[2 * k]]) - u0) + w[2 * k + 1] * (double(u[i + st.off[2 * k + 1]]) - u0);
     return canonicalSum(pair, np);
+}
+
+/// Enables the D6-invariant forms of forward Euler where the lattice allows them: the hexagonal
+/// plane (6 taps) with an integer mode j = 6 and sin(j theta0) = 0 (arms on lattice directions).
+inline void useD6Forms(FlatStencil& st, const Anisotropy& an)
+{
+    st.d6 = st.hexagonal && st.n == 6 && an.integerMode == 6 && an.sj0 == 0.0;
+}
+
+/// Product of three values in an order fixed by their magnitudes, so that values a symmetry
+/// permutes and negates give the same bits up to the sign.
+inline double canonicalProduct3(double a, double b, double c)
+{
+    double v[3] = {a, b, c};
+    for (int x = 1; x < 3; ++x)
+        for (int y = x; y > 0 && std::fabs(v[y]) < std::fabs(v[y - 1]); --y) std::swap(v[y], v[y - 1]);
+    return (v[0] * v[1]) * v[2];
+}
+
+/// Hexagonal plane: the central gradient of @a u at cell i projected on the three lattice
+/// directions (0, 60, -60 degrees; taps 0/1, 2/3, 4/5), in units of wGrad: g . e_k = wGrad U[k].
+/// From the pair differences D_k alone (exact weights 1 and 1/2), so that a 60-degree rotation
+/// or a mirror of the field permutes and negates the U[k] bit for bit.
+inline void hexProjections(const float* u, std::size_t i, const FlatStencil& st, double U[3])
+{
+    double D[3];
+    for (int k = 0; k < 3; ++k) D[k] = double(u[i + st.off[2 * k]]) - double(u[i + st.off[2 * k + 1]]);
+    U[0] = D[0] + (0.5 * D[1] + 0.5 * D[2]);
+    U[1] = D[1] + (0.5 * D[0] - 0.5 * D[2]);
+    U[2] = D[2] + (0.5 * D[0] - 0.5 * D[1]);
+}
+
+/// eps and eps' (Anisotropy's convention) from the projections U of the gradient, j = 6, by
+/// functions that rotations leave bit-identical and mirrors negate exactly (eps' is odd):
+/// with n_k = U_k / |U| (|U|^2 = sum U_k^2),
+///   cos 6 theta = 108 (n0 n1 n2)^2 - 1,
+///   sin 6 theta = 2 cos 3 theta sin 3 theta = 12 sqrt(3) (n0 n1 n2) ((n1 - n2)(n0 + n2)(n0 + n1)),
+/// (the second triple are the projections on the directions at 90, -30 and 30 degrees, times
+/// sqrt 3). theta is 0 where there is no gradient, as in Anisotropy.
+inline void hexEpsilonD6(const double U[3], const FlatStencil& st, const Anisotropy& an, double& eps,
+                         double& epsPrime)
+{
+    double sq[3] = {U[0] * U[0], U[1] * U[1], U[2] * U[2]};
+    for (int x = 1; x < 3; ++x)
+        for (int y = x; y > 0 && sq[y] < sq[y - 1]; --y) std::swap(sq[y], sq[y - 1]);
+    const double S = (sq[0] + sq[1]) + sq[2];
+    double c6 = 1.0, s6 = 0.0;
+    if ((2.0 / 3.0) * (st.wGrad[0] * st.wGrad[0]) * S > 1e-30) {
+        const double inv = 1.0 / std::sqrt(S);
+        const double n0 = U[0] * inv, n1 = U[1] * inv, n2 = U[2] * inv;
+        const double P = canonicalProduct3(n0, n1, n2);
+        const double Q = canonicalProduct3(n1 - n2, n0 + n2, n0 + n1);
+        c6 = 108.0 * (P * P) - 1.0;
+        s6 = (12.0 * std::sqrt(3.0) * P) * Q;
+    }
+    eps = an.epsBar * (1.0 + an.delta * (an.cj0 * c6));
+    epsPrime = an.epsBar * an.delta * 6.0 * -(an.cj0 * s6);
+}
+
+/// Laplacian sum_q w_q (u_q - u_i): in tap order, or on the hexagonal plane in canonical pair
+/// order (symmetricTapSum), so that rotated images get the same bits.
+inline double eulerLaplacian(const float* u, std::size_t i, const FlatStencil& st)
+{
+    if (st.hexagonal && st.n == 6) return symmetricTapSum(u, i, st, st.wLap);
+    const double u0 = u[i];
+    double s = 0;
+    for (int q = 0; q < st.n; ++q) s += st.wLap[q] * (double(u[i + st.off[q]]) - u0);
+    return s;
+}
+
+/// Pass 1 at cell i: the gradient of p and the anisotropic coefficients the update needs at
+/// the neighbours: a = eps^2, cx = eps eps' p_x, cy = eps eps' p_y.
+inline void kobayashiAux(const float* p, std::size_t i, const FlatStencil& st, const Anisotropy& an,
+                         float* a, float* cx, float* cy, float* gx, float* gy, float* gz)
+{
+    if (st.d6) {
+        // D6 forms: a = eps^2 and b = eps eps' (in cx); pass 2 takes the gradients itself.
+        double U[3], eps, epsPrime;
+        hexProjections(p, i, st, U);
+        hexEpsilonD6(U, st, an, eps, epsPrime);
+        a[i] = float(eps * eps);
+        cx[i] = float(eps * epsPrime);
+        return;
+    }
+    const double p0 = p[i];
+    double sx = 0, sy = 0, sz = 0;
+    for (int q = 0; q < st.n; ++q) {
+        const double d = st.wGrad[q] * (double(p[i + st.off[q]]) - p0);
+        sx += d * st.ex[q];
+        sy += d * st.ey[q];
+        sz += d * st.ez[q];
+    }
+    double eps, epsPrime;
+    an(sx, sy, eps, epsPrime);
+    a[i] = float(eps * eps);
+    cx[i] = float(eps * epsPrime * sx);
+    cy[i] = float(eps * epsPrime * sy);
+    gx[i] = float(sx);
+    gy[i] = float(sy);
+    gz[i] = float(sz);
+}
+
+/// Pass 2 at cell i: forward-Euler update of p and T (eqs. 1-2). @a Te is the local melt
+/// temperature, @a chi the noise draw in [-1/2, 1/2] (ignored when noise is 0). Returns dp.
+///
+/// Bounded: the update splits into a monotone part, eps^2 lap p + n(p, T) (positive weights, and
+/// below explicitStabilityLimit a convex combination of the neighbourhood plus the reaction), and
+/// the anisotropic rest, grad(eps^2) . grad p plus the cross terms of eq. 1, whose central
+/// differences have weights of either sign: at a sharp seed they pushed p to -0.012 next to the
+/// seed (delta 0.2, square). The rest is limited so that it creates no new extremum: the new p
+/// stays within the range of p over the cell and its taps, widened to include the monotone
+/// update itself (the reaction may grow a cell past its neighbours). Where the fields are smooth
+/// the limiter is inactive (a convex combination stays inside its neighbours' range); at an
+/// extremum it keeps the monotone part. With p in [0, 1] and dt below the limit, p stays in [0, 1].
+///
+/// On the hexagonal plane with j = 6 (st.d6) every term is a D6-invariant form of the pair
+/// differences, summed in canonical order, so rotated and mirrored cells get the same bits:
+///   grad a . grad p = 2/3 wGrad^2 sum_k U_k(a) U_k(p),
+///   cross terms     = grad p x grad b (b = eps eps'; eq. 1's mixed derivatives cancel)
+///                   = 2/(3 sqrt 3) wGrad^2 (t_01 + t_20 + t_21),  t_kl = U_k(p) U_l(b) - U_l(p) U_k(b),
+/// each t_kl being (grad p x grad b)(e_k x e_l) / wGrad^2 with e_k x e_l = sqrt(3)/2.
+inline double kobayashiEuler(const float* p, const float* T, const float* a, const float* cx, const float* cy,
+                             const float* gx, const float* gy, const float* gz, std::size_t i,
+                             const FlatStencil& st, const KobayashiParams& k, double Te, double chi,
+                             float& pOut, float& tOut)
+{
+    const double p0 = p[i], t0 = T[i], a0 = a[i];
+    double lo = p0, hi = p0;
+    for (int q = 0; q < st.n; ++q) {
+        const double v = p[i + st.off[q]];
+        lo = std::min(lo, v); // std::min/max inline; fmin/fmax are libm calls (NaN rules)
+        hi = std::max(hi, v);
+    }
+    const double lapP = eulerLaplacian(p, i, st), lapT = eulerLaplacian(T, i, st);
+    double rest; // the anisotropic part
+    if (st.d6) {
+        double Up[3], Ua[3], Ub[3];
+        hexProjections(p, i, st, Up);
+        hexProjections(a, i, st, Ua);
+        hexProjections(cx, i, st, Ub);
+        double dot[3] = {Ua[0] * Up[0], Ua[1] * Up[1], Ua[2] * Up[2]};
+        double t[3] = {Up[0] * Ub[1] - Up[1] * Ub[0], Up[2] * Ub[0] - Up[0] * Ub[2], Up[2] * Ub[1] - Up[1] * Ub[2]};
+        const double w2 = st.wGrad[0] * st.wGrad[0];
+        rest = (2.0 / 3.0) * w2 * canonicalSum(dot, 3) + (2.0 / (3.0 * std::sqrt(3.0))) * w2 * canonicalSum(t, 3);
+    } else {
+        const double cx0 = cx[i], cy0 = cy[i];
+        double dax = 0, day = 0, daz = 0, cross = 0;
+        for (int q = 0; q < st.n; ++q) {
+            const std::size_t j = i + st.off[q];
+            const double da = st.wGrad[q] * (double(a[j]) - a0);
+            dax += da * st.ex[q];
+            day += da * st.ey[q];
+            daz += da * st.ez[q];
+            cross += st.wGrad[q] * (-st.ex[q] * (double(cy[j]) - cy0) + st.ey[q] * (double(cx[j]) - cx0));
+        }
+        rest = dax * gx[i] + day * gy[i] + daz * gz[i] + cross;
+    }
+    const double m = k.alpha / M_PI * std::atan(k.gamma * (Te - t0));
+    const double reaction = p0 * (1.0 - p0) * (p0 - 0.5 + m + k.noise * chi);
+    const double r = k.dt / k.tau;
+    const double pMono = p0 + r * (a0 * lapP + reaction);
+    const double pNew = std::min(std::max(pMono, hi), std::max(std::min(pMono, lo), pMono + r * rest));
+    const double dp = pNew - p0;
+    pOut = float(pNew + 0.0); // + 0.0: an exact zero is +0, as kobayashiEulerHeatOnly writes
+    tOut = float(t0 + k.dt * lapT + k.latentHeat * dp);
+    return dp;
+}
+
+/// kobayashiEuler at a cell whose p is exactly 0 at every cell within two stencil steps (the
+/// whole neighbourhood pass 1 and 2 read): there the anisotropy coefficients are constants, every
+/// term of dp is an exact zero, so p stays 0 and T takes the plain heat step; the same
+/// operations in the same order give the same bits. Keep in step with kobayashiEuler's T update.
+inline void kobayashiEulerHeatOnly(const float* T, std::size_t i, const FlatStencil& st, const KobayashiParams& k,
+                                   float& pOut, float& tOut)
+{
+    const double t0 = T[i];
+    const double lapT = eulerLaplacian(T, i, st);
+    const double dp = 0.0;
+    pOut = 0.f;
+    tOut = float(t0 + k.dt * lapT + k.latentHeat * dp);
 }
 
 /// eps(theta)^2 at cell i for the gradient of @a u: the only anisotropic coefficient of eq. 8.
@@ -412,25 +530,46 @@ struct ReactionPart {
 };
 
 /// Reaction n = p (1 - p) g, g = p - 1/2 + m(T) + a chi, linearised about @a pm (the theta-point
-/// estimate of p) and taken at p_t = theta p' + (1 - theta) p0: n(pm) + n'(pm) (p_t - pm);
-/// plus the latent-heat loop: freezing by dp warms the cell by K dp, which lowers m(T) and slows
+/// estimate of p) and taken at p_t = theta p' + (1 - theta) p0: n(pm) + s (p_t - pm), bounded.
+/// The slope s is the tangent n'(pm), except where the tangent is a relaxation (s < 0) towards a
+/// zero beyond a bound of p: near p = 1 n is concave, and the tangent at pm crosses 0 past 1
+/// (where a walker had frozen a cell and the last step thawed it back to 0.85, pm 0.78 put p' at
+/// 1.065; 4,312 voxels were clipped in the Figure 7 snowflake). There s is the chord to that
+/// bound, which n crosses: -pm g towards 1 (g > 0), (1 - pm) g towards 0 (g < 0). Any slope keeps
+/// the step second order (pm - p_t is O(dt^2), the slope only scales an O(dt^3) local term);
+/// the tangent keeps the error constant where it is bounded (the chord everywhere cost 4x).
+/// A relaxation at rate r |s| (r = dt/tau) is stiff at the paper's dt: the trapezoidal half
+/// (1 - theta) r |s| must fit within @a explicitBudget, the explicit weight the diffusion leaves
+/// to p0 (1 - (1 - theta) r sum C); where it does not, the reaction takes the larger implicit
+/// weight theta_R = 1 - explicitBudget / (r |s|) (stiff cells only). The row is then a convex
+/// combination of p0, its neighbours and the relaxation's target in [0, 1], so p' stays in
+/// [0, 1]. (A growing tangent, s > 0, is bounded by dt <= tau / max n' instead.)
+/// Plus the latent-heat loop: freezing by dp warms the cell by K dp, which lowers m(T) and slows
 /// freezing. With gamma large this loop is stiff (rate ~ p(1-p) |m'(T)| K / tau, 16 per step at
 /// dt 0.0008 with gamma 30, K 2.5); taken only from the extrapolated te it oscillated and
 /// overshot (p 1.044) or thawed frozen arms. T at the theta-point is te plus theta K times the
 /// difference between this step's dp and the one the extrapolation assumed (@a pf - p0), an
-/// O(dt^2) correction that makes the loop implicit: n += w (p' - pf), w = pm (1-pm) m'(T) theta K.
+/// O(dt^2) correction that makes the loop implicit: n += w (p' - pf), w = pm (1-pm) m'(T) theta K
+/// (w <= 0: a relaxation towards pf in [0, 1], bounded too).
 inline ReactionPart kobayashiReactionPart(double p0, double pm, double pf, double x, double noiseChi,
-                                          const KobayashiParams& k, double theta)
+                                          const KobayashiParams& k, double theta, double explicitBudget = 1.0)
 {
     const double r = k.dt / k.tau;
     const double m = k.alpha / M_PI * std::atan(x);
     const double g = pm - 0.5 + m + noiseChi;
-    const double dn = (1.0 - 2.0 * pm) * g + pm * (1.0 - pm);
-    const double react0 = pm * (1.0 - pm) * g - dn * pm, reactDiag = -dn; // n = react0 - reactDiag p_t
+    const double n0 = pm * (1.0 - pm) * g;
+    double s = (1.0 - 2.0 * pm) * g + pm * (1.0 - pm);
+    if (s < 0) {
+        const double zero = pm - n0 / s; // where the tangent vanishes
+        if (zero > 1.0) s = -pm * g;
+        else if (zero < 0.0) s = (1.0 - pm) * g;
+    }
+    double thetaR = theta;
+    if (s < 0 && -(1.0 - theta) * r * s > explicitBudget) thetaR = 1.0 + std::fmax(0.0, explicitBudget) / (r * s);
     const double dmdT = -k.alpha / M_PI * k.gamma / (1.0 + x * x);
     const double w = pm * (1.0 - pm) * dmdT * theta * k.latentHeat; // <= 0
-    // Below the stability limit theta r dn < 1, so the diagonal stays > 0.
-    return {theta * r * reactDiag - r * w, r * (react0 - reactDiag * (1.0 - theta) * p0) - r * w * pf};
+    // n = n0 + s (thetaR p' + (1 - thetaR) p0 - pm); below the stability limit the diagonal stays > 0.
+    return {-thetaR * r * s - r * w, r * (n0 - s * pm + s * (1.0 - thetaR) * p0) - r * w * pf};
 }
 
 inline SecondOrderRow kobayashiSecondOrderRow(const float* p, const float* T, const float* pe, const float* te,
@@ -446,7 +585,8 @@ inline SecondOrderRow kobayashiSecondOrderRow(const float* p, const float* T, co
     const double r = k.dt / k.tau;
     const double x = k.gamma * (Te - double(te[i]));
     for (int q = 0; q < st.n; ++q) row.coef[q] = theta * r * C[q];
-    const ReactionPart rp = kobayashiReactionPart(p0, pe[i], pf[i], x, k.noise * chi, k, theta);
+    const ReactionPart rp =
+        kobayashiReactionPart(p0, pe[i], pf[i], x, k.noise * chi, k, theta, 1.0 - (1.0 - theta) * r * sumC);
     row.diag = 1.0 + theta * r * sumC + rp.diag;
     row.rhs = p0 + (1.0 - theta) * r * Lp + rp.rhs;
     // Forward Euler guess, kept in [0, 1] so that even a loosely converged solve starts inside

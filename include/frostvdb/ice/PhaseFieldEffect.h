@@ -26,6 +26,7 @@ public:
     bool writePreview(World& world, const Frame& frame, const std::string& pngPath) override;
     double time() const override { return mTime; }
     std::vector<std::pair<std::string, double>> timings() const override;
+    std::vector<std::pair<std::string, double>> counters() const override;
     /// PhaseFieldSolver keeps about 21 float arrays over the active region: the whole domain in
     /// region.dense mode; the sparse region's size is not known before the run.
     MemoryEstimate memoryEstimate(const World& world) const override

@@ -28,7 +28,7 @@ BlockKeys readBlockKeys(ParamDict& d, const DomainCommon& c, size_t dims)
     try { // OpenVDB refuses near-singular maps: say so in scene terms, not as an exception deep inside
         xf = k.lattice.transform(c.voxelSize);
     } catch (const std::exception&) {
-        d.fail("voxel_size", "too small for an OpenVDB transform (it needs roughly 3e-5 m or more); scale the volume in the DCC tool instead");
+        d.fail("voxel_size", "too small for an OpenVDB transform (it needs a cell volume of at least 3e-15 m^3, about 1.5e-5 m); scale the volume in the DCC tool instead");
     }
     k.size = openvdb::Coord(int(size[0]), int(size[1]), box ? int(size[2]) : 1);
     const openvdb::Vec3d o(origin[0], origin[1], origin.size() > 2 ? origin[2] : 0.0);
