@@ -439,6 +439,26 @@ TEST_CASE("gg3d: sandwich plate, star with needles and capped column grow their 
     }
 }
 
+TEST_CASE("gg3d: with a vapour reservoir the sandwich plate is two plates on a narrower core", "[gg3d][fast]")
+{
+    // Fig. 20 with walls = reservoir (the scene's choice; the closed domain starves the plate at
+    // radius ~45): radius 70, 41 layers, until it stops at radius 56 (about 13,000 steps). The
+    // outer layers lead, the middle ones lag: the mid layer is much narrower than the top one.
+    GG3DConfig c = presetConfig("fig20_sandwich_plate", 70, 41);
+    c.walls = GG3DWalls::Reservoir;
+    GG3D a(c);
+    for (int s = 0; s < 20000 && !a.stopped(); ++s) a.step();
+    CHECK(a.stopped());
+    CHECK(a.crystalRadius() >= 50);
+    const int z0 = a.mirror(), top = a.crystalZMax();
+    CHECK(top - z0 >= 2); // several layers: a plate on each side of the mid layer
+    const int mid = layerRadius(a, z0), outer = layerRadius(a, top);
+    INFO("radius of the mid layer " << mid << ", of the top layer " << outer);
+    CHECK(mid <= int(0.85 * outer)); // measured 42 against 56
+    CHECK(aspect(a) > 6.0);          // still a thin plate overall
+    CHECK(a.attached(0, 0, z0));     // joined at the centre
+}
+
 TEST_CASE("[output] world_scale multiplies the world size of written grids and meshes", "[gg3d][fast]")
 {
     namespace fs = std::filesystem;
