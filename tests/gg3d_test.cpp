@@ -459,6 +459,32 @@ TEST_CASE("gg3d: with a vapour reservoir the sandwich plate is two plates on a n
     CHECK(a.attached(0, 0, z0));     // joined at the centre
 }
 
+TEST_CASE("gg3d: with a vapour reservoir the capped column grows broad end plates", "[gg3d][fast]")
+{
+    // Fig. 32 with walls = reservoir (the scene's choice), the switch scaled to this size (3,000):
+    // radius 40, 201 layers, until it stops at radius 32 (about 5,800 steps). In the closed domain
+    // the vapour is down to a third of rho by the switch and the ends only flare (ribbed caps 1.5x
+    // the middle); fed from the reservoir the ends grow plates much wider than the column.
+    GG3DConfig c = presetConfig("fig32_capped_column", 40, 201);
+    c.walls = GG3DWalls::Reservoir;
+    for (auto& s : c.switches) s.step = 3000;
+    GG3D a(c);
+    for (int s = 0; s < 12000 && !a.stopped(); ++s) a.step();
+    CHECK(a.stopped());
+    const int top = a.crystalZMax(), middle = layerRadius(a, a.mirror());
+    int ends = 0, endZ = 0;
+    for (int z = a.mirror() + 1; z <= top; ++z)
+        if (layerRadius(a, z) > ends) ends = layerRadius(a, z), endZ = z;
+    INFO("radius at the middle " << middle << ", end plate " << ends << " at layer " << endZ << ", half height " << top);
+    CHECK(ends >= 1.5 * middle); // measured 32 against 19
+    CHECK(layerRadius(a, -endZ) == ends); // the same plate at the other end
+    CHECK(endZ >= top / 3);               // near the end, not a bulge in the middle
+    CHECK(top > 2 * ends);                // still a column between the plates
+    // A plate, not a cone: 12 layers above and below it the crystal is under 2/3 as wide.
+    CHECK(3 * layerRadius(a, endZ + 12) < 2 * ends);
+    CHECK(3 * layerRadius(a, endZ - 12) < 2 * ends);
+}
+
 TEST_CASE("[output] world_scale multiplies the world size of written grids and meshes", "[gg3d][fast]")
 {
     namespace fs = std::filesystem;
