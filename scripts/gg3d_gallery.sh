@@ -25,7 +25,7 @@ if [ "$mode" = scenes ]; then
         /usr/bin/time -f "%e %M" -o "$out/time" "$bin" run "$scene" --out "$out/$name" --quiet > /dev/null 2>&1
         read -r sec kb < "$out/time"
         vdb=$(ls "$out/$name"/*.vdb | tail -1)
-        case $name in *column*|*needle*|*sandwich*|*star*) view=iso ;; *) view=high ;; esac # flat flakes from higher up
+        case $name in *sandwich*) view=low ;; *column*|*needle*|*star*) view=iso ;; *) view=high ;; esac # flat flakes from higher up, the sandwich edge-on
         /usr/bin/time -f "%e %M" -o "$out/btime" blender -b -P scripts/render_vdb_blender.py -- "$vdb" \
             "docs/images/$name.png" --samples "${SAMPLES:-24}" --res 640x480 --view "$view" > "$out/blender.log" 2>&1 ||
             { cat "$out/blender.log" >&2; exit 1; }
