@@ -6,6 +6,8 @@
 #   scripts/gg3d_gallery.sh --scenes [build/bin/frostvdb] the family scenes (scenes/gg3d_*.toml) rendered
 #                                                         with Blender (scripts/render_vdb_blender.py;
 #                                                         optional package): docs/images/gg3d_<scene>.png
+#                                                         (the two vapour-reservoir scenes, sandwich plate
+#                                                         and capped column, take minutes each)
 # Each prints a table row per run: wall time and peak memory of the frostvdb run (and of the render).
 set -euo pipefail
 mode=presets
