@@ -6,6 +6,8 @@
 #   scripts/gg3d_gallery.sh --scenes [build/bin/frostvdb] the family scenes (scenes/gg3d_*.toml) rendered
 #                                                         with Blender (scripts/render_vdb_blender.py;
 #                                                         optional package): docs/images/gg3d_<scene>.png
+#                                                         (the two vapour-reservoir scenes, sandwich plate
+#                                                         and capped column, take minutes each)
 # Each prints a table row per run: wall time and peak memory of the frostvdb run (and of the render).
 set -euo pipefail
 mode=presets
@@ -25,7 +27,7 @@ if [ "$mode" = scenes ]; then
         /usr/bin/time -f "%e %M" -o "$out/time" "$bin" run "$scene" --out "$out/$name" --quiet > /dev/null 2>&1
         read -r sec kb < "$out/time"
         vdb=$(ls "$out/$name"/*.vdb | tail -1)
-        case $name in *column*|*needle*|*sandwich*|*star*) view=iso ;; *) view=high ;; esac # flat flakes from higher up
+        case $name in *sandwich*) view=low ;; *column*|*needle*|*star*) view=iso ;; *) view=high ;; esac # flat flakes from higher up, the sandwich edge-on
         /usr/bin/time -f "%e %M" -o "$out/btime" blender -b -P scripts/render_vdb_blender.py -- "$vdb" \
             "docs/images/$name.png" --samples "${SAMPLES:-24}" --res 640x480 --view "$view" > "$out/blender.log" 2>&1 ||
             { cat "$out/blender.log" >&2; exit 1; }

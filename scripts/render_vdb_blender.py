@@ -13,9 +13,10 @@ Options (all optional):
     --density K        density multiplier for --as volume (default 20, relative to a unit-size object)
     --samples N        render samples (default 64)
     --res WxH          image size (default 960x720)
-    --view iso|high|top|side|front
+    --view iso|high|low|top|side|front
                        camera direction (default iso: 35 degrees above the horizon; high: 65 degrees,
-                       for flat flakes)
+                       for flat flakes; low: 12 degrees, to see a plate's rim edge-on, e.g. the two
+                       plates of a sandwich plate)
     --engine cycles|eevee
                        default cycles (CPU, denoising off: Debian's Blender has no OpenImageDenoise);
                        EEVEE is tried when Cycles fails and needs an OpenGL context
@@ -89,8 +90,8 @@ def parse_args(argv):
         die("usage: blender -b -P scripts/render_vdb_blender.py -- IN.vdb OUT.png [--grid NAME] [--samples N] ...")
     if opts["as"] not in ("surface", "volume"):
         die("--as must be surface or volume")
-    if opts["view"] not in ("iso", "high", "top", "side", "front"):
-        die("--view must be iso, high, top, side or front")
+    if opts["view"] not in ("iso", "high", "low", "top", "side", "front"):
+        die("--view must be iso, high, low, top, side or front")
     if opts["engine"] not in ("cycles", "eevee"):
         die("--engine must be cycles or eevee")
     return os.path.abspath(pos[0]), os.path.abspath(pos[1]), opts
@@ -244,7 +245,7 @@ def place_camera(lo, hi, pts, view, aspect):
     centre = (lo + hi) * 0.5
     dirs = {"iso": (math.radians(-50), math.radians(35)), "top": (0.0, math.radians(89.9)),
             "side": (0.0, 0.0), "front": (math.radians(-90), 0.0),
-            "high": (math.radians(-50), math.radians(65))}
+            "high": (math.radians(-50), math.radians(65)), "low": (math.radians(-50), math.radians(12))}
     az, el = dirs[view]
     d = Vector((math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)))
     cam_data = bpy.data.cameras.new("cam")

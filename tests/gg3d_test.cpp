@@ -439,6 +439,52 @@ TEST_CASE("gg3d: sandwich plate, star with needles and capped column grow their 
     }
 }
 
+TEST_CASE("gg3d: with a vapour reservoir the sandwich plate is two plates on a narrower core", "[gg3d][fast]")
+{
+    // Fig. 20 with walls = reservoir (the scene's choice; the closed domain starves the plate at
+    // radius ~45): radius 70, 41 layers, until it stops at radius 56 (about 13,000 steps). The
+    // outer layers lead, the middle ones lag: the mid layer is much narrower than the top one.
+    GG3DConfig c = presetConfig("fig20_sandwich_plate", 70, 41);
+    c.walls = GG3DWalls::Reservoir;
+    GG3D a(c);
+    for (int s = 0; s < 20000 && !a.stopped(); ++s) a.step();
+    CHECK(a.stopped());
+    CHECK(a.crystalRadius() >= 50);
+    const int z0 = a.mirror(), top = a.crystalZMax();
+    CHECK(top - z0 >= 2); // several layers: a plate on each side of the mid layer
+    const int mid = layerRadius(a, z0), outer = layerRadius(a, top);
+    INFO("radius of the mid layer " << mid << ", of the top layer " << outer);
+    CHECK(mid <= int(0.85 * outer)); // measured 42 against 56
+    CHECK(aspect(a) > 6.0);          // still a thin plate overall
+    CHECK(a.attached(0, 0, z0));     // joined at the centre
+}
+
+TEST_CASE("gg3d: with a vapour reservoir the capped column grows broad end plates", "[gg3d][fast]")
+{
+    // Fig. 32 with walls = reservoir (the scene's choice), the switch scaled to this size (3,000):
+    // radius 40, 201 layers, until it stops at radius 32 (about 5,800 steps). In the closed domain
+    // the vapour is down to a third of rho by the switch and the ends only flare (ribbed caps 1.5x
+    // the middle); fed from the reservoir the ends grow plates much wider than the column.
+    GG3DConfig c = presetConfig("fig32_capped_column", 40, 201);
+    c.walls = GG3DWalls::Reservoir;
+    for (auto& s : c.switches) s.step = 3000;
+    GG3D a(c);
+    for (int s = 0; s < 12000 && !a.stopped(); ++s) a.step();
+    CHECK(a.stopped());
+    const int top = a.crystalZMax(), middle = layerRadius(a, a.mirror());
+    int ends = 0, endZ = 0;
+    for (int z = a.mirror() + 1; z <= top; ++z)
+        if (layerRadius(a, z) > ends) ends = layerRadius(a, z), endZ = z;
+    INFO("radius at the middle " << middle << ", end plate " << ends << " at layer " << endZ << ", half height " << top);
+    CHECK(ends >= 1.5 * middle); // measured 32 against 19
+    CHECK(layerRadius(a, -endZ) == ends); // the same plate at the other end
+    CHECK(endZ >= top / 3);               // near the end, not a bulge in the middle
+    CHECK(top > 2 * ends);                // still a column between the plates
+    // A plate, not a cone: 12 layers above and below it the crystal is under 2/3 as wide.
+    CHECK(3 * layerRadius(a, endZ + 12) < 2 * ends);
+    CHECK(3 * layerRadius(a, endZ - 12) < 2 * ends);
+}
+
 TEST_CASE("[output] world_scale multiplies the world size of written grids and meshes", "[gg3d][fast]")
 {
     namespace fs = std::filesystem;
