@@ -226,6 +226,7 @@ void FluidEffect::advectTemperature(World& world, double dt)
             if (j < mFluid->ny()) umax = std::max(umax, std::fabs(mFluid->u(i, j)));
             if (i < mFluid->nx()) umax = std::max(umax, std::fabs(mFluid->v(i, j)));
         }
+    if (umax == 0.0) { mAdvectTSeconds += since(t0); return; } // still air: T unchanged, bit for bit
     const int reach = int(std::ceil(umax * std::sqrt(2.0) * dt / h * (mHex ? 1.155 : 1.0))) + 1;
 
     // Where the new T can differ from T_inf: the old T's stored voxels moved by the flow.

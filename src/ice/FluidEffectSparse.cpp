@@ -113,7 +113,7 @@ void FluidEffect::advectTemperatureSparse(World& world, double dt)
 {
     const auto t0 = Clock::now();
     auto T = world.fields.get<openvdb::FloatGrid>(ice::kTemperature);
-    if (!T) return;
+    if (!T || mSparse->maxSpeed() == 0.0) return; // still air: T unchanged, bit for bit
     const openvdb::Coord n = mSparse->dims();
     const double bg = T->background();
     std::vector<double> f(size_t(n.x()) * n.y() * n.z(), bg);
