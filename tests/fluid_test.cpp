@@ -435,6 +435,54 @@ wake_length = 8
     CHECK(maxW > 0.0); // the wind blows along z
 }
 
+TEST_CASE("3D: a ball of ice in a wind grows further upstream than downstream", "[slow][fluid]")
+{
+    const char* scene = R"(
+[scene]
+name = "ball_wind"
+frames = 1
+steps_per_frame = 300
+[domain]
+kind = "box"
+size = [40, 40, 40]
+voxel_size = 0.0002
+[[crystal.seed]]
+shape = "point"
+position = [0.5, 0.5, 0.5]
+radius = 4.0
+[phase_field]
+dt = 0.0001
+[fluid]
+inflow_edge = "front"
+inflow_speed = 3.5
+band_width = 6
+wake_length = 12
+)";
+    // Extent of the ice (p > 1/2) from the centre along -z (upstream) and +z (downstream).
+    auto run = [&](const std::string& speed) {
+        auto sim = makeSim(scene, {"fluid.inflow_speed=" + speed});
+        sim.initialize();
+        for (int s = 0; s < 300; ++s) sim.step();
+        auto p = sim.world().fields.get<openvdb::FloatGrid>(ice::kPhase);
+        const auto c = sim.world().domain.centre();
+        double up = 0, down = 0;
+        for (auto it = p->cbeginValueOn(); it; ++it) {
+            if (*it <= 0.5f) continue;
+            const double dz = it.getCoord().z() - c.z();
+            up = std::max(up, -dz);
+            down = std::max(down, dz);
+        }
+        return std::make_pair(up, down);
+    };
+    const auto still = run("0");
+    const auto wind = run("3.5");
+    INFO("still: up " << still.first << " down " << still.second << "; wind: up " << wind.first << " down "
+                      << wind.second);
+    CHECK(std::fabs(still.first - still.second) <= 1.0);
+    CHECK(wind.first > wind.second);
+    CHECK(wind.first >= still.first);
+}
+
 TEST_CASE("The fluid scene files load", "[fast][fluid]")
 {
     for (const char* f : {"scenes/fluid_dendrite_flow.toml", "scenes/fluid_dendrite_flow_sparse.toml",
