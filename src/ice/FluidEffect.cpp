@@ -113,9 +113,13 @@ std::unique_ptr<Effect> FluidEffect::create(ParamDict& d, const World& world)
     if (flat && sp.inflowSide >= 4)
         throw SceneError(world.sceneLabel, 0, "fluid.inflow_edge",
                          "[fluid] inflow_edge = \"" + edge + "\" needs a box domain (allowed on planes: left, right, bottom, top)");
-    if (world.domain.kind() != "plane" && world.domain.kind() != "box")
+    // The MAC grid covers the domain's bounds in index space: a flat domain or a solid (3D) one;
+    // a curved surface (not flat, intrinsically 2D: a shell) is not supported yet. Decided from
+    // properties, not the kind.
+    if (!flat && world.domain.intrinsicDimension() != 3)
         throw SceneError(world.sceneLabel, 0, "fluid",
-                         "[fluid] runs on plane and box domains, not on \"" + world.domain.kind() + "\"");
+                         "[fluid] runs on flat or solid 3D domains (plane, box), not on the surface domain \"" +
+                             world.domain.kind() + "\"");
     const auto& bb = world.domain.bbox();
     if (bb.dim().x() < 4 || bb.dim().y() < 4 || (!flat && bb.dim().z() < 4))
         throw SceneError(world.sceneLabel, 0, "fluid", "[fluid] needs a domain of at least 4 cells along each axis");
