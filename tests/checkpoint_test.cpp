@@ -214,6 +214,9 @@ TEST_CASE("every effect with history resumes bit for bit", "[checkpoint]")
     SECTION("fluid around the crystal (velocities and warm-started pressure)")
     checkResume("fluid", scene("[phase_field]\nanisotropy_mode = 4\n[fluid]\ninflow_speed = 3.5\ntolerance = 1e-3\n"),
                 3, 7);
+    SECTION("fluid, the sparse band solver (velocities and the pressure on its unknowns)")
+    checkResume("fluid_sparse", scene("[phase_field]\nanisotropy_mode = 4\n[fluid]\ninflow_speed = 3.5\nsolver = \"sparse\"\nband_width = 6\n"),
+                4, 9);
     SECTION("DLA humidity from steam (gas published into the fields)")
     checkResume("steam", scene("[steam]\ncenter = [0.002, 0.002, 0.001]\nradius = 0.002\nheight = 0.004\n"
                                "density_scale = 40.0\nthreshold = 0.01\n[dla]\nhumidity = 30\nsteam_humidity = 2.0\n"),

@@ -250,16 +250,17 @@ TEST_CASE("Hexagonal lattice: the fluid runs on the square auxiliary grid and ve
     CHECK(err < 1e-5);
 }
 
-TEST_CASE("Fluid refuses box domains with a scene error", "[fast][fluid]")
+TEST_CASE("Fluid refuses the dense 2D solver on box domains with a scene error", "[fast][fluid]")
 {
     const char* scene = R"(
 [domain]
 kind = "box"
 size = [16, 16, 16]
 [fluid]
+solver = "dense2d"
 )";
     CHECK_THROWS_AS(makeSim(scene), SceneError);
-    try { makeSim(scene); } catch (const SceneError& e) { CHECK(std::string(e.what()).find("plane") != std::string::npos); }
+    try { makeSim(scene); } catch (const SceneError& e) { CHECK(std::string(e.what()).find("flat") != std::string::npos); }
 }
 
 TEST_CASE("A dendrite in a flow grows faster upstream than downstream (ice paper Figure 4)", "[fast][fluid]")
@@ -310,9 +311,182 @@ TEST_CASE("Fluid hybrid runs are bit-identical with 1 and 2 threads and finite",
     for (auto it = t1->cbeginValueOn(); it; ++it) REQUIRE(std::isfinite(*it));
 }
 
+namespace {
+/// Mean x offset from the centre of the frozen cells of the up and down side arms (|dy| > 6).
+double sideArmLean(const openvdb::FloatGrid& p, const Domain& dom)
+{
+    const auto c = dom.centre();
+    double sum = 0;
+    int n = 0;
+    for (auto it = p.cbeginValueOn(); it; ++it) {
+        if (*it <= 0.5f) continue;
+        const double dx = it.getCoord().x() - c.x(), dy = it.getCoord().y() - c.y();
+        if (std::fabs(dy) > 6 && std::fabs(dx) < std::fabs(dy)) { sum += dx; ++n; }
+    }
+    return n ? sum / n : 0.0;
+}
+} // namespace
+
+TEST_CASE("Sparse band solver: the dendrite's upstream arm is longer than the downstream one, side arms lean upstream",
+          "[fast][fluid]")
+{
+    auto run = [](const std::string& speed, openvdb::FloatGrid::Ptr* pOut) {
+        auto sim = makeSim(kHybridScene, {"fluid.inflow_speed=" + speed, "fluid.solver=\"sparse\"", "fluid.band_width=8"});
+        sim.initialize();
+        for (int s = 0; s < 350; ++s) sim.step();
+        auto p = sim.world().fields.get<openvdb::FloatGrid>(ice::kPhase);
+        *pOut = p->deepCopy();
+        return std::make_pair(armLengths(*p, sim.world().domain), sideArmLean(*p, sim.world().domain));
+    };
+    openvdb::FloatGrid::Ptr p0, p1;
+    const auto [still, leanStill] = run("0", &p0);
+    const auto [flow, lean] = run("3.5", &p1);
+    INFO("still: left " << still.left << " right " << still.right << " lean " << leanStill);
+    INFO("flow:  left " << flow.left << " right " << flow.right << " up " << flow.up << " down " << flow.down
+                        << " lean " << lean);
+    CHECK(std::fabs(still.left - still.right) <= 1.0);
+    // Upstream (-x) arm longer than the downstream one. At this size (64^2, 350 steps) the ratio
+    // is about 1.1, not the issue's 1.2 (see docs/fluid.md).
+    CHECK(flow.left > flow.right + 1.0);
+    CHECK(flow.left > still.left);
+    CHECK(lean < leanStill - 0.2); // the side arms lean upstream (towards -x)
+}
+
+TEST_CASE("Zero inflow equals the run without [fluid], bit for bit (dense and sparse solvers)", "[fast][fluid]")
+{
+    auto run = [](const std::vector<std::string>& sets, bool fluid) {
+        std::string scene = kHybridScene;
+        if (!fluid) scene = scene.substr(0, scene.find("[fluid]"));
+        auto all = sets;
+        all.push_back("domain.size=[40, 40]");
+        auto sim = makeSim(scene, fluid ? all : std::vector<std::string>{"domain.size=[40, 40]"});
+        sim.initialize();
+        for (int s = 0; s < 60; ++s) sim.step();
+        return std::make_pair(sim.world().fields.get<openvdb::FloatGrid>(ice::kPhase)->deepCopy(),
+                              sim.world().fields.get<openvdb::FloatGrid>(ice::kTemperature)->deepCopy());
+    };
+    const auto ref = run({}, false);
+    for (const char* solver : {"\"dense2d\"", "\"sparse\""}) {
+        INFO(solver);
+        const auto got = run({"fluid.inflow_speed=0", std::string("fluid.solver=") + solver}, true);
+        CHECK(maxAbsDiff(*ref.first, *got.first) == 0.0);
+        CHECK(maxAbsDiff(*ref.second, *got.second) == 0.0);
+    }
+}
+
+TEST_CASE("Sparse fluid on a box domain: flow_vel finite, zero in the ice, same bits at 1 and 2 threads", "[fast][fluid]")
+{
+    const char* scene = R"(
+[scene]
+name = "ball_wind"
+frames = 1
+steps_per_frame = 20
+[domain]
+kind = "box"
+size = [24, 24, 24]
+voxel_size = 0.0002
+[[crystal.seed]]
+shape = "point"
+position = [0.5, 0.5, 0.5]
+radius = 4.0
+[phase_field]
+dt = 0.0001
+[fluid]
+inflow_edge = "front"
+inflow_speed = 3.5
+band_width = 5
+wake_length = 8
+)";
+    auto run = [&](int threads) {
+        tbb::global_control gc(tbb::global_control::max_allowed_parallelism, threads);
+        auto sim = makeSim(scene);
+        sim.initialize();
+        for (int s = 0; s < 20; ++s) sim.step();
+        auto& w = sim.world();
+        const FluidEffect* found = nullptr;
+        for (auto& e : sim.effects())
+            if (e->name() == "fluid") found = static_cast<const FluidEffect*>(e.get());
+        REQUIRE(found);
+        const FluidEffect& fx = *found;
+        REQUIRE(fx.sparseSolver());
+        CHECK(fx.sparseSolver()->dim() == 3);
+        CHECK(fx.sparseSolver()->maxDivergence() < 1e-5 * 3.5 / (3.0 / 64.0) + 1e-12);
+        return std::make_tuple(w.fields.get<openvdb::FloatGrid>(ice::kPhase)->deepCopy(),
+                               w.fields.get<openvdb::FloatGrid>(ice::kTemperature)->deepCopy(),
+                               w.fields.get<openvdb::Vec3SGrid>(ice::kVelocity)->deepCopy());
+    };
+    auto [p1, t1, v1] = run(1);
+    auto [p2, t2, v2] = run(2);
+    CHECK(maxAbsDiff(*p1, *p2) == 0.0);
+    CHECK(maxAbsDiff(*t1, *t2) == 0.0);
+    auto pa = p1->getConstAccessor();
+    auto a2 = v2->getConstAccessor();
+    bool same = true, finite = true;
+    double iceSpeed = 0, maxW = 0;
+    for (auto it = v1->cbeginValueOn(); it; ++it) {
+        same = same && std::memcmp(&*it, &a2.getValue(it.getCoord()), sizeof(openvdb::Vec3s)) == 0;
+        finite = finite && std::isfinite((*it)[0]) && std::isfinite((*it)[1]) && std::isfinite((*it)[2]);
+        if (pa.getValue(it.getCoord()) > 0.5f) iceSpeed = std::max(iceSpeed, double((*it).length()));
+        maxW = std::max(maxW, double(std::fabs((*it)[2])));
+    }
+    CHECK(same);
+    CHECK(finite);
+    CHECK(iceSpeed == 0.0);
+    CHECK(maxW > 0.0); // the wind blows along z
+}
+
+TEST_CASE("3D: a ball of ice in a wind grows further upstream than downstream", "[slow][fluid]")
+{
+    const char* scene = R"(
+[scene]
+name = "ball_wind"
+frames = 1
+steps_per_frame = 300
+[domain]
+kind = "box"
+size = [40, 40, 40]
+voxel_size = 0.0002
+[[crystal.seed]]
+shape = "point"
+position = [0.5, 0.5, 0.5]
+radius = 4.0
+[phase_field]
+dt = 0.0001
+[fluid]
+inflow_edge = "front"
+inflow_speed = 3.5
+band_width = 6
+wake_length = 12
+)";
+    // Extent of the ice (p > 1/2) from the centre along -z (upstream) and +z (downstream).
+    auto run = [&](const std::string& speed) {
+        auto sim = makeSim(scene, {"fluid.inflow_speed=" + speed});
+        sim.initialize();
+        for (int s = 0; s < 300; ++s) sim.step();
+        auto p = sim.world().fields.get<openvdb::FloatGrid>(ice::kPhase);
+        const auto c = sim.world().domain.centre();
+        double up = 0, down = 0;
+        for (auto it = p->cbeginValueOn(); it; ++it) {
+            if (*it <= 0.5f) continue;
+            const double dz = it.getCoord().z() - c.z();
+            up = std::max(up, -dz);
+            down = std::max(down, dz);
+        }
+        return std::make_pair(up, down);
+    };
+    const auto still = run("0");
+    const auto wind = run("3.5");
+    INFO("still: up " << still.first << " down " << still.second << "; wind: up " << wind.first << " down "
+                      << wind.second);
+    CHECK(std::fabs(still.first - still.second) <= 1.0);
+    CHECK(wind.first > wind.second);
+    CHECK(wind.first >= still.first);
+}
+
 TEST_CASE("The fluid scene files load", "[fast][fluid]")
 {
-    for (const char* f : {"scenes/fluid_dendrite_flow.toml"}) {
+    for (const char* f : {"scenes/fluid_dendrite_flow.toml", "scenes/fluid_dendrite_flow_sparse.toml",
+                          "scenes/fluid_plate_wind_3d.toml"}) {
         INFO(f);
         Scene scene = Scene::fromString(readFile(std::string(FROSTVDB_SOURCE_DIR) + "/" + f), f);
         CHECK_NOTHROW(Simulation(std::move(scene)));

@@ -689,6 +689,8 @@ int benchAccuracy(const BenchArgs& args)
           "voxels). A run-time clip remains only for a solve that is not a positive scheme (BiCGSTAB stopped "
           "early), and it is counted.\n\n");
     R.out("---\nBench wall time: " + fmt("%.0f", since(tStart)) + " s.\n");
+    R.out("\n## 8. The fluid band against the full-domain solve\n\nMeasured by the fluid tests, not this "
+          "bench: see [fluid.md](fluid.md#band-error-against-the-full-domain-solve).\n");
     {
         std::ofstream f(docs + "/accuracy.md");
         f << R.md.str();

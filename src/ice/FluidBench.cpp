@@ -1,17 +1,24 @@
-// `frostvdb bench fluid`: what one [fluid] step costs on n x n planes with a disc obstacle, and
-// the projection solved by the hand-written dense CG against OpenVDB's tools::poisson
-// (incomplete-Cholesky and Jacobi preconditioners) on the same system from a zero guess.
+// `frostvdb bench fluid [SIZE...]`: the pressure solve of a flow past a ball (a disc in 2D) by
+// the multigrid-preconditioned CG, next to the Jacobi-preconditioned CG on the same system and
+// OpenVDB's tools::poisson, then what a whole fluid step costs. SIZE is n^2 or n^3 (default
+// 256^2 1024^2 128^3 256^3; --quick: 64^2 32^3).
 #include <frostvdb/core/Bench.h>
+#include <frostvdb/fluid/MultigridPoisson.h>
+#include <frostvdb/fluid/SparseFluid.h>
 #include <frostvdb/ice/Fluid.h>
 
 #include <openvdb/tools/PoissonSolver.h>
 
 #include <tbb/global_control.h>
 
+#include <sys/resource.h>
+
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <fstream>
 #include <memory>
+#include <string>
 
 namespace frostvdb {
 
@@ -20,20 +27,51 @@ namespace {
 using Clock = std::chrono::steady_clock;
 double since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
 
-/// The projection's boundary conditions for tools::poisson: solids and non-outflow edges are
-/// Neumann (nothing to do), outflow edges Dirichlet phi = 0, the plane's z neighbours Neumann.
-struct PlaneBoundary {
-    const ice::StableFluid2D* f;
-    void operator()(const openvdb::Coord& ijk, const openvdb::Coord& nb, double& source, double& diag) const
+double cpuSeconds()
+{
+    rusage u{};
+    getrusage(RUSAGE_SELF, &u);
+    return u.ru_utime.tv_sec + u.ru_stime.tv_sec + 1e-6 * (u.ru_utime.tv_usec + u.ru_stime.tv_usec);
+}
+
+/// Peak resident memory since the last reset (MiB).
+double peakRssMb()
+{
+    std::ifstream in("/proc/self/status");
+    std::string line;
+    while (std::getline(in, line))
+        if (line.rfind("VmHWM:", 0) == 0) return std::stod(line.substr(6)) / 1024.0;
+    return 0;
+}
+void resetPeakRss() { std::ofstream("/proc/self/clear_refs") << "5"; }
+
+struct Problem {
+    int dim, n;
+    double r;
+    bool solid(int i, int j, int k) const
     {
-        if (nb.z() != ijk.z()) return;
-        ice::FluidEdge e;
-        if (nb.x() < 0) e = ice::FluidEdge::Left;
-        else if (nb.x() >= f->nx()) e = ice::FluidEdge::Right;
-        else if (nb.y() < 0) e = ice::FluidEdge::Bottom;
-        else if (nb.y() >= f->ny()) e = ice::FluidEdge::Top;
-        else return; // a solid cell
-        if (f->wall(e) == ice::WallKind::Outflow) diag -= 1.0;
+        const double c = 0.5 * (n - 1), dz = dim == 3 ? k - c : 0.0;
+        return (i - c) * (i - c) + (j - c) * (j - c) + dz * dz <= r * r;
+    }
+    /// -div of the free stream (1, 0, 0) with the faces next to the ball closed.
+    double rhs(int i, int j, int k) const
+    {
+        const double uL = solid(i - 1, j, k) ? 0.0 : 1.0, uR = solid(i + 1, j, k) ? 0.0 : 1.0;
+        return -(uR - uL);
+    }
+};
+
+/// tools::poisson boundary: outflow (+x and the four sides) Dirichlet, inflow (-x) Neumann,
+/// the ball Neumann; in 2D the z neighbours are Neumann.
+struct BallBoundary {
+    Problem pb;
+    void operator()(const openvdb::Coord& ijk, const openvdb::Coord& nb, double&, double& diag) const
+    {
+        if (pb.dim == 2 && nb.z() != ijk.z()) return;
+        if (nb.x() < 0) return; // inflow wall
+        const bool outside = nb.x() >= pb.n || nb.y() < 0 || nb.y() >= pb.n ||
+                             (pb.dim == 3 && (nb.z() < 0 || nb.z() >= pb.n));
+        if (outside) diag -= 1.0;
     }
 };
 
@@ -42,71 +80,106 @@ int benchFluid(const BenchArgs& args)
     std::unique_ptr<tbb::global_control> gc;
     if (args.threads > 0)
         gc = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism, args.threads);
-    const double h = 3.0 / 64.0, dt = 0.0002;
-    std::vector<int> sizes = args.quick ? std::vector<int>{64} : std::vector<int>{128, 256, 512};
-    std::printf("fluid bench: n x n plane, disc obstacle r = n/10, inflow 3.5 from the left, dt %.4g, tolerance 1e-5\n", dt);
-    std::printf("%6s | %10s %6s | %12s %6s | %12s %6s | %10s %6s\n", "n", "CG cold s", "iters", "poisson IC s",
-                "iters", "poisson Jac s", "iters", "step ms", "iters");
-    for (int n : sizes) {
-        ice::FluidParams fp;
-        ice::StableFluid2D f(fp, n, n, h);
-        std::vector<uint8_t> solid(size_t(n) * n, 0);
-        const double c = 0.5 * (n - 1), r = 0.1 * n;
-        for (int j = 0; j < n; ++j)
-            for (int i = 0; i < n; ++i)
-                if ((i - c) * (i - c) + (j - c) * (j - c) <= r * r) solid[size_t(j) * n + i] = 1;
-        f.setSolid(solid);
-        f.setFreeStream();
-
-        // The same projection through tools::poisson (index space, source = the flux out).
-        openvdb::DoubleTree source(0.0);
-        for (int j = 0; j < n; ++j)
-            for (int i = 0; i < n; ++i)
-                if (!solid[size_t(j) * n + i])
-                    source.setValue(openvdb::Coord(i, j, 0), f.u(i + 1, j) - f.u(i, j) + f.v(i, j + 1) - f.v(i, j));
-        double tIC = 0, tJ = 0;
-        int itIC = 0, itJ = 0;
-        {
-            auto state = openvdb::math::pcg::terminationDefaults<double>();
-            state.iterations = 10000;
-            state.relativeError = 1e-14;
-            state.absoluteError = 1e-5 * fp.inflowSpeed;
-            openvdb::util::NullInterrupter interrupt;
-            auto t0 = Clock::now();
-            auto x = openvdb::tools::poisson::solveWithBoundaryConditions(source, PlaneBoundary{&f}, state, interrupt);
-            tIC = since(t0);
-            itIC = state.iterations;
-            state = openvdb::math::pcg::terminationDefaults<double>();
-            state.iterations = 10000;
-            state.relativeError = 1e-14;
-            state.absoluteError = 1e-5 * fp.inflowSpeed;
-            t0 = Clock::now();
-            using Pre = openvdb::math::pcg::JacobiPreconditioner<openvdb::tools::poisson::LaplacianMatrix>;
-            x = openvdb::tools::poisson::solveWithBoundaryConditionsAndPreconditioner<Pre>(source, PlaneBoundary{&f},
-                                                                                          state, interrupt);
-            tJ = since(t0);
-            itJ = state.iterations;
-        }
+    std::vector<std::string> sizes = args.args;
+    if (sizes.empty())
+        sizes = args.quick ? std::vector<std::string>{"64^2", "32^3"}
+                           : std::vector<std::string>{"256^2", "1024^2", "128^3", "256^3"};
+    const size_t refLimit = 2200000; // the slow reference solvers only up to 1024^2 / 128^3
+    std::printf("fluid bench: pressure solve of a free stream past a ball (r = n/10), outflow on 5 sides, "
+                "to relative residual 1e-5; CPU s in brackets\n");
+    std::printf("%8s %10s | %5s %8s %8s | %5s %8s | %5s %8s | %9s %9s %9s | %8s\n", "size", "unknowns", "MG it",
+                "setup s", "solve s", "JC it", "solve s", "VDB it", "solve s", "adv s", "proj s", "step s",
+                "peak MiB");
+    for (const std::string& sz : sizes) {
+        const auto hat = sz.find('^');
+        if (hat == std::string::npos) { std::fprintf(stderr, "bench fluid: size '%s' is not n^2 or n^3\n", sz.c_str()); return 2; }
+        Problem pb{std::stoi(sz.substr(hat + 1)), std::stoi(sz.substr(0, hat)), 0};
+        if (pb.dim != 2 && pb.dim != 3) { std::fprintf(stderr, "bench fluid: size '%s' is not n^2 or n^3\n", sz.c_str()); return 2; }
+        pb.r = 0.1 * pb.n;
+        resetPeakRss();
         auto t0 = Clock::now();
-        f.project();
-        const double tCold = since(t0);
-        const int itCold = f.stats().pressureIterations;
-        const int steps = args.quick ? 5 : 20;
-        int itSum = 0;
-        t0 = Clock::now();
-        for (int s = 0; s < steps; ++s) {
-            f.step(dt);
-            itSum += f.stats().pressureIterations;
+        double c0 = cpuSeconds();
+        fluid::MultigridPoisson mg(
+            pb.dim, openvdb::Coord(pb.n, pb.n, pb.dim == 3 ? pb.n : 1),
+            [&](int i, int j, int k) { return pb.solid(i, j, k) ? fluid::CellKind::Solid : fluid::CellKind::Fluid; },
+            {false, true, true, true, pb.dim == 3, pb.dim == 3});
+        const double tSetup = since(t0), cSetup = cpuSeconds() - c0;
+        const size_t n = mg.unknowns();
+        std::vector<double> b(n), x(n, 0.0);
+        for (size_t k = 0; k < n; ++k) {
+            const auto c = mg.cellOf(k);
+            b[k] = pb.rhs(c.x(), c.y(), c.z());
         }
-        const double tStep = since(t0) / steps;
-        std::printf("%6d | %10.4f %6d | %12.4f %6d | %12.4f %6d | %10.3f %6.1f\n", n, tCold, itCold, tIC, itIC, tJ,
-                    itJ, tStep * 1e3, double(itSum) / steps);
+        fluid::PoissonSettings ps;
+        t0 = Clock::now();
+        c0 = cpuSeconds();
+        const auto st = mg.solve(b, x, ps);
+        const double tMg = since(t0), cMg = cpuSeconds() - c0;
+        char jc[64] = "    -        -", vdb[64] = "    -        -";
+        if (n <= refLimit) {
+            ps.multigrid = false;
+            ps.maxIterations = 20000;
+            std::fill(x.begin(), x.end(), 0.0);
+            t0 = Clock::now();
+            const auto sj = mg.solve(b, x, ps);
+            std::snprintf(jc, sizeof jc, "%5d %8.3f", sj.iterations, since(t0));
+            x = std::vector<double>();
+            openvdb::DoubleTree source(0.0);
+            for (int k = 0; k < (pb.dim == 3 ? pb.n : 1); ++k)
+                for (int j = 0; j < pb.n; ++j)
+                    for (int i = 0; i < pb.n; ++i)
+                        if (!pb.solid(i, j, k)) source.setValue(openvdb::Coord(i, j, k), -pb.rhs(i, j, k));
+            auto state = openvdb::math::pcg::terminationDefaults<double>();
+            state.iterations = 20000;
+            state.relativeError = 1e-5;
+            state.absoluteError = 1e-30;
+            openvdb::util::NullInterrupter interrupt;
+            t0 = Clock::now();
+            auto sol = openvdb::tools::poisson::solveWithBoundaryConditions(source, BallBoundary{pb}, state, interrupt);
+            std::snprintf(vdb, sizeof vdb, "%5d %8.3f", state.iterations, since(t0));
+        }
+        // Whole steps: the 2D reference layout with the multigrid projection, or the sparse 3D solver.
+        double adv = 0, proj = 0;
+        const int steps = args.quick ? 2 : 3;
+        if (pb.dim == 2) {
+            ice::FluidParams fp;
+            fp.inflowSpeed = 1.0;
+            ice::StableFluid2D f(fp, pb.n, pb.n, 1.0);
+            std::vector<uint8_t> solid(size_t(pb.n) * pb.n, 0);
+            for (int j = 0; j < pb.n; ++j)
+                for (int i = 0; i < pb.n; ++i) solid[size_t(j) * pb.n + i] = pb.solid(i, j, 0);
+            f.setSolid(solid);
+            f.setFreeStream();
+            f.project();
+            f.advectSeconds = f.projectSeconds = 0;
+            for (int s = 0; s < steps; ++s) f.step(1.0);
+            adv = f.advectSeconds / steps;
+            proj = f.projectSeconds / steps;
+        } else {
+            fluid::SparseFluidParams fp;
+            fp.inflowSpeed = 1.0;
+            fp.bandWidth = 0; // the whole box: the worst case
+            fluid::SparseFluid f(fp, openvdb::Coord(pb.n), 3);
+            f.setSolid([&](int i, int j, int k) { return pb.solid(i, j, k); });
+            f.setFreeStream();
+            f.project();
+            f.advectSeconds = f.projectSeconds = 0;
+            for (int s = 0; s < steps; ++s) f.step(1.0);
+            adv = f.advectSeconds / steps;
+            proj = f.projectSeconds / steps;
+        }
+        std::printf("%8s %10zu | %5d %8.3f %8.3f | %s | %s | %9.3f %9.3f %9.3f | %8.0f\n", sz.c_str(), n, st.iterations,
+                    tSetup, tMg, jc, vdb, adv, proj, adv + proj, peakRssMb());
+        std::printf("%8s %10s | %5s [%6.2f] [%6.2f]   (MG relative residual %.2e, %d levels)\n", "", "", "", cSetup,
+                    cMg, st.relativeResidual, st.levels);
+        std::fflush(stdout);
     }
     return 0;
 }
 
 } // namespace
 
-FROSTVDB_REGISTER_BENCH(fluid, "fluid", "[fluid] step cost; dense CG projection vs tools::poisson", benchFluid);
+FROSTVDB_REGISTER_BENCH(fluid, "fluid", "[fluid] pressure solve: multigrid PCG vs Jacobi-CG vs tools::poisson; step cost",
+                        benchFluid);
 
 } // namespace frostvdb

@@ -17,6 +17,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <map>
 #include <sstream>
 
 namespace frostvdb {
@@ -44,33 +45,84 @@ std::unique_ptr<Effect> FluidEffect::create(ParamDict& d, const World& world)
 {
     auto fx = std::make_unique<FluidEffect>();
     ice::FluidParams& f = fx->mParams;
-    f.inflowEdge = parseEdge(d.getString("inflow_edge", "left", {"left", "right", "top", "bottom"},
-        "the domain edge the flow enters through; the opposite edge is always an outflow"));
-    const std::string profile = d.getString("inflow_profile", "uniform", {"uniform", "parabolic", "ramp_quadratic"},
-        "inflow speed along the edge: uniform; parabolic (speed at the centre, 0 at the ends, the paper's "
-        "Figure 10); ramp_quadratic (0 at the start rising as s^2 to speed at the end, Figure 6; s runs left to "
-        "right along top/bottom, bottom to top along left/right)");
+    const bool flat = world.domain.flat();
+    const std::string solverKind = d.getString("solver", flat ? "dense2d" : "sparse", {"dense2d", "sparse"},
+        "dense2d: the dense MAC grid over the whole plane (planes only; the reference); sparse: a MAC grid solved "
+        "only in a band around the ice and its wake, in 2D or 3D (the default on box domains; see docs/fluid.md)");
+    const bool sparse = solverKind == "sparse";
+    fx->mSparseMode = sparse;
+    const std::string edge = d.getString("inflow_edge", "left", {"left", "right", "bottom", "top", "front", "back"},
+        "the domain side the flow enters through (left -x, right +x, bottom -y, top +y, front -z, back +z; front "
+        "and back on box domains); the opposite side is always an outflow");
+    f.inflowEdge = parseEdge(edge);
+    const std::string profile = d.getString("inflow_profile", "uniform",
+        {"uniform", "parabolic", "ramp_quadratic", "linear", "quadratic"},
+        "inflow speed across the inflow side: uniform; parabolic (speed at the centre, 0 at the ends, the paper's "
+        "Figure 10); ramp_quadratic or quadratic (0 at the start rising as s^2 to speed at the end, Figure 6); "
+        "linear (rising as s). s runs along x for inflow on y or z sides, along y for inflow on x sides");
     f.profile = profile == "parabolic" ? ice::InflowProfile::Parabolic
-              : profile == "ramp_quadratic" ? ice::InflowProfile::RampQuadratic
+              : (profile == "ramp_quadratic" || profile == "quadratic") ? ice::InflowProfile::RampQuadratic
               : ice::InflowProfile::Uniform;
+    if (!sparse && profile == "linear")
+        throw SceneError(world.sceneLabel, 0, "fluid.inflow_profile",
+                         "[fluid] inflow_profile = \"linear\" needs solver = \"sparse\"");
     f.inflowSpeed = d.getFloat("inflow_speed", 3.5, 0.0, 1000.0, "",
         "peak inflow speed in PDE units (lengths in units where one cell = [domain] spacing, time in the ice clock); the paper uses 3.5");
     f.closedWalls = d.getString("walls", "outflow", {"outflow", "closed"},
-        "the two edges beside the inflow: outflow (zero-gradient velocity, p = 0) or closed (free-slip solid walls, a channel)") == "closed";
+        "the sides beside the inflow: outflow (zero-gradient velocity, p = 0) or closed (free-slip solid walls, a channel)") == "closed";
     f.viscosity = d.getFloat("viscosity", 0.0, 0.0, 100.0, "",
-        "kinematic viscosity nu (PDE units), solved implicitly; 0 = inviscid");
+        "dense2d: kinematic viscosity nu (PDE units), solved implicitly; 0 = inviscid");
     f.tolerance = d.getFloat("tolerance", 1e-5, 1e-12, 0.1, "",
         "projection (and viscosity) solve tolerance: max |div u| h / inflow_speed after the projection");
     f.maxIterations = int(d.getInt("max_iterations", 2000, 1, 1000000, "",
         "conjugate-gradient iteration cap per linear solve (a solve that hits it is reported)"));
+    f.multigrid = d.getString("pressure_solver", "multigrid", {"multigrid", "jacobi_cg"},
+        "dense2d projection solver: multigrid (multigrid-preconditioned CG, McAdams et al. 2010; iterations about "
+        "constant in the grid size) or jacobi_cg (the Jacobi-preconditioned CG kept as the reference)") == "multigrid";
     f.solidThreshold = d.getFloat("obstacle_threshold", 0.5, 0.0, 1.0, "",
         "cells with p above this are solid obstacles (the paper: 0.5)");
-    if (!world.domain.flat()) // the paper's 2D stable fluid: one layer of cells
+    fluid::SparseFluidParams& sp = fx->mSparseParams;
+    sp.bandWidth = d.getFloat("band_width", 8.0, 0.0, 10000.0, "",
+        "sparse: cells within this many cells of the ice are solved (the tolerance of the band, like the phase "
+        "field's); beyond, the free stream is the background; 0 = the whole domain");
+    sp.wakeLength = d.getFloat("wake_length", 24.0, 0.0, 100000.0, "",
+        "sparse: the band is stretched this many cells downstream of the ice (the wake)");
+    sp.advection = d.getString("advection", "maccormack", {"semi_lagrangian", "maccormack"},
+        "sparse: advection of velocity and T: semi_lagrangian (RK2 trace, linear interpolation) or maccormack "
+        "(second order, limited to the sampled cells' range, so bounded at any CFL)") == "maccormack"
+        ? fluid::Advection::MacCormack : fluid::Advection::SemiLagrangian;
+    d.onlyWhen(sparse, "band_width", "solver = \"dense2d\"");
+    d.onlyWhen(sparse, "wake_length", "solver = \"dense2d\"");
+    d.onlyWhen(sparse, "advection", "solver = \"dense2d\"");
+    d.onlyWhen(!sparse, "viscosity", "solver = \"sparse\"");
+    d.onlyWhen(!sparse, "pressure_solver", "solver = \"sparse\"");
+    static const std::map<std::string, int> sides{{"left", 0}, {"right", 1}, {"bottom", 2}, {"top", 3}, {"front", 4}, {"back", 5}};
+    sp.inflowSide = sides.at(edge);
+    sp.profile = profile == "parabolic" ? fluid::Profile::Parabolic
+               : profile == "linear" ? fluid::Profile::Linear
+               : (profile == "ramp_quadratic" || profile == "quadratic") ? fluid::Profile::Quadratic
+               : fluid::Profile::Uniform;
+    sp.lateral = f.closedWalls ? fluid::SideKind::Wall : fluid::SideKind::Outflow;
+    if (flat) sp.sides[4] = sp.sides[5] = 1; // a plane: no flow across it
+    if (!flat && !sparse)
+        throw SceneError(world.sceneLabel, 0, "fluid.solver",
+                         "[fluid] solver = \"dense2d\" runs on flat domains only, not on \"" + world.domain.kind() + "\"; use \"sparse\"");
+    if (sparse && world.domain.lattice().kind() != LatticeKind::Square)
+        throw SceneError(world.sceneLabel, 0, "fluid.solver",
+                         "[fluid] solver = \"sparse\" needs a square lattice; use \"dense2d\" on hexagonal planes");
+    if (flat && sp.inflowSide >= 4)
+        throw SceneError(world.sceneLabel, 0, "fluid.inflow_edge",
+                         "[fluid] inflow_edge = \"" + edge + "\" needs a box domain (allowed on planes: left, right, bottom, top)");
+    // The MAC grid covers the domain's bounds in index space: a flat domain or a solid (3D) one;
+    // a curved surface (not flat, intrinsically 2D: a shell) is not supported yet. Decided from
+    // properties, not the kind.
+    if (!flat && world.domain.intrinsicDimension() != 3)
         throw SceneError(world.sceneLabel, 0, "fluid",
-                         "[fluid] runs on flat domains only (domain.kind = \"plane\"), not on \"" + world.domain.kind() + "\"");
+                         "[fluid] runs on flat or solid 3D domains (plane, box), not on the surface domain \"" +
+                             world.domain.kind() + "\"");
     const auto& bb = world.domain.bbox();
-    if (bb.dim().x() < 4 || bb.dim().y() < 4)
-        throw SceneError(world.sceneLabel, 0, "fluid", "[fluid] needs a domain of at least 4 x 4 cells");
+    if (bb.dim().x() < 4 || bb.dim().y() < 4 || (!flat && bb.dim().z() < 4))
+        throw SceneError(world.sceneLabel, 0, "fluid", "[fluid] needs a domain of at least 4 cells along each axis");
     return fx;
 }
 
@@ -97,6 +149,7 @@ FieldDeclaration FluidEffect::declaration() const
 void FluidEffect::initialize(World& world)
 {
     ice::requireIceFields(world);
+    if (mSparseMode) { initializeSparse(world); return; }
     const Domain& dom = world.domain;
     mHex = dom.lattice().kind() == LatticeKind::Hexagonal;
     mOrigin = dom.bbox().min(); // aux cell (0, 0) sits on the domain's first cell
@@ -177,6 +230,7 @@ void FluidEffect::advectTemperature(World& world, double dt)
             if (j < mFluid->ny()) umax = std::max(umax, std::fabs(mFluid->u(i, j)));
             if (i < mFluid->nx()) umax = std::max(umax, std::fabs(mFluid->v(i, j)));
         }
+    if (umax == 0.0) { mAdvectTSeconds += since(t0); return; } // still air: T unchanged, bit for bit
     const int reach = int(std::ceil(umax * std::sqrt(2.0) * dt / h * (mHex ? 1.155 : 1.0))) + 1;
 
     // Where the new T can differ from T_inf: the old T's stored voxels moved by the flow.
@@ -212,6 +266,7 @@ void FluidEffect::advectTemperature(World& world, double dt)
 
 void FluidEffect::step(World& world, const StepInfo& info)
 {
+    if (mSparseMode) { stepSparse(world, info); return; }
     const double dt = ice::shared(world).dt; // read every step: the phase field owns the clock
     updateObstacles(world);
     mFluid->step(dt);
@@ -231,12 +286,17 @@ void FluidEffect::step(World& world, const StepInfo& info)
 
 void FluidEffect::saveState(const World&, StateWriter& out) const
 {
+    if (mSparse) {
+        for (auto& [name, a] : mSparse->historyArrays()) out.putArray(name, *a);
+        return;
+    }
     for (auto& [name, a] : mFluid->historyArrays()) out.putArray(name, *a);
 }
 
 void FluidEffect::loadState(World&, const StateReader& in)
 {
-    for (auto& [name, a] : mFluid->historyArrays()) {
+    auto arrays = mSparse ? mSparse->historyArrays() : mFluid->historyArrays();
+    for (auto& [name, a] : arrays) {
         const size_t n = a->size();
         in.getArray(name, *a);
         if (a->size() != n) in.fail(name, "holds " + std::to_string(a->size()) + " values, this grid needs " + std::to_string(n));
@@ -257,6 +317,7 @@ void FluidEffect::addToFrame(World& world, Frame& frame)
 
 bool FluidEffect::writePreview(World& world, const Frame& frame, const std::string& pngPath)
 {
+    if (mSparseMode) return writePreviewSparse(world, pngPath);
     // Top view of the flow: speed as a blue ramp, warm tint where T departs from T_inf, ice white.
     auto p = world.fields.get<openvdb::FloatGrid>(ice::kPhase);
     auto T = world.fields.get<openvdb::FloatGrid>(ice::kTemperature);
@@ -300,6 +361,9 @@ bool FluidEffect::writePreview(World& world, const Frame& frame, const std::stri
 
 std::vector<std::pair<std::string, double>> FluidEffect::timings() const
 {
+    if (mSparse)
+        return {{"obstacles", mObstacleSeconds}, {"advect_u", mSparse->advectSeconds},
+                {"project", mSparse->projectSeconds}, {"vel_out", mVelOutSeconds}, {"advect_T", mAdvectTSeconds}};
     if (!mFluid) return {};
     return {{"obstacles", mObstacleSeconds}, {"advect_u", mFluid->advectSeconds},
             {"viscosity", mFluid->viscositySeconds}, {"project", mFluid->projectSeconds},

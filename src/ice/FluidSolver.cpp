@@ -4,6 +4,7 @@
 // previous step. Every reduction is summed row by row and then serially, so the result does not
 // depend on the thread count.
 #include <frostvdb/ice/Fluid.h>
+#include <frostvdb/fluid/MultigridPoisson.h>
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
@@ -138,6 +139,8 @@ StableFluid2D::StableFluid2D(const FluidParams& params, int nx, int ny, double h
     mPhi.assign(size_t(mNx) * mNy, 0.0);
     mSolid.assign(size_t(mNx) * mNy, 0);
 }
+
+StableFluid2D::~StableFluid2D() = default;
 
 double StableFluid2D::profile(double s) const
 {
@@ -369,10 +372,46 @@ void StableFluid2D::project()
         }
     };
     const double tol = mParams.tolerance * (mParams.inflowSpeed > 0 ? mParams.inflowSpeed : 1.0);
-    double res = 0;
-    bool ok = true;
-    mStats.pressureIterations = conjugateGradient(g, invDiag, apply, b, mPhi, tol, mParams.maxIterations, res, ok);
-    mStats.pressureConverged = ok;
+    if (mParams.multigrid) {
+        // Cells that couple to nothing (boxed in by fixed faces) are left out, like above.
+        std::vector<uint8_t> out(g.size(), 0);
+        for (size_t k = 0; k < g.size(); ++k) out[k] = invDiag[k] == 0;
+        if (!mPoisson || out != mPoissonSolid) {
+            const int W0 = mNx;
+            mPoisson = std::make_unique<fluid::MultigridPoisson>(
+                2, openvdb::Coord(mNx, mNy, 1),
+                [&out, W0](int i, int j, int) {
+                    return out[size_t(j) * W0 + i] ? fluid::CellKind::Solid : fluid::CellKind::Fluid;
+                },
+                std::array<bool, 6>{mWalls[0] == WallKind::Outflow, mWalls[1] == WallKind::Outflow,
+                                    mWalls[2] == WallKind::Outflow, mWalls[3] == WallKind::Outflow, false, false});
+            mPoissonSolid = std::move(out);
+        }
+        const size_t n = mPoisson->unknowns();
+        std::vector<double> bb(n), xx(n);
+        for (size_t k = 0; k < n; ++k) {
+            const openvdb::Coord c = mPoisson->cellOf(k);
+            const size_t idx = size_t(c.y()) * mNx + c.x();
+            bb[k] = b[idx];
+            xx[k] = mPhi[idx];
+        }
+        fluid::PoissonSettings ps;
+        ps.relativeTolerance = 0;
+        ps.absoluteTolerance = tol;
+        ps.maxIterations = mParams.maxIterations;
+        const fluid::PoissonStats st = mPoisson->solve(bb, xx, ps);
+        for (size_t k = 0; k < n; ++k) {
+            const openvdb::Coord c = mPoisson->cellOf(k);
+            mPhi[size_t(c.y()) * mNx + c.x()] = xx[k];
+        }
+        mStats.pressureIterations = st.iterations;
+        mStats.pressureConverged = st.converged;
+    } else {
+        double res = 0;
+        bool ok = true;
+        mStats.pressureIterations = conjugateGradient(g, invDiag, apply, b, mPhi, tol, mParams.maxIterations, res, ok);
+        mStats.pressureConverged = ok;
+    }
     // Subtract the gradient on every free face.
     auto phi = [&](int i, int j) {
         return (i < 0 || j < 0 || i >= mNx || j >= mNy) ? 0.0 : mPhi[size_t(j) * mNx + i];

@@ -16,6 +16,7 @@
 /// `vel` in World (and in frames) holds u * voxel_size / h at every domain cell: world metres per
 /// unit of simulation time, as ice/IceState.h documents and [dla] reads it.
 #include <frostvdb/core/Effect.h>
+#include <frostvdb/fluid/SparseFluid.h>
 
 #include <openvdb/openvdb.h>
 
@@ -25,6 +26,7 @@
 #include <vector>
 
 namespace frostvdb {
+namespace fluid { class MultigridPoisson; }
 namespace ice {
 
 enum class FluidEdge { Left = 0, Right = 1, Bottom = 2, Top = 3 };
@@ -40,6 +42,9 @@ struct FluidParams {
     double tolerance = 1e-5;    ///< projection: max |div u| h / inflow_speed
     int maxIterations = 2000;   ///< per linear solve
     double solidThreshold = 0.5;///< p above this is an obstacle
+    /// Projection solver: multigrid-preconditioned CG (fluid/MultigridPoisson.h, iterations flat
+    /// in the grid size) or the Jacobi-preconditioned CG kept as the reference.
+    bool multigrid = true;
 };
 
 /// Statistics of the last step, for tests and benchmarks.
@@ -55,6 +60,7 @@ struct FluidStepStats {
 class StableFluid2D {
 public:
     StableFluid2D(const FluidParams& params, int nx, int ny, double h);
+    ~StableFluid2D();
 
     int nx() const { return mNx; }
     int ny() const { return mNy; }
@@ -109,6 +115,8 @@ private:
     std::vector<double> mU, mV, mPhi;
     std::vector<uint8_t> mSolid;
     FluidStepStats mStats;
+    std::unique_ptr<fluid::MultigridPoisson> mPoisson; ///< rebuilt when the obstacles change
+    std::vector<uint8_t> mPoissonSolid;                ///< the obstacles mPoisson was built for
 };
 
 } // namespace ice
@@ -136,8 +144,19 @@ public:
 
     const ice::StableFluid2D& solver() const { return *mFluid; }
     const ice::FluidParams& params() const { return mParams; }
+    /// The band-limited 2D/3D solver (solver = "sparse"; the default on box domains), or null.
+    const fluid::SparseFluid* sparseSolver() const { return mSparse.get(); }
 
 private:
+    // solver = "sparse" (src/ice/FluidEffectSparse.cpp): fluid/SparseFluid.h in 2D or 3D.
+    void initializeSparse(World& world);
+    void stepSparse(World& world, const StepInfo& info);
+    void updateObstaclesSparse(World& world);
+    void writeVelocitySparse(World& world);
+    void advectTemperatureSparse(World& world, double dt);
+    bool writePreviewSparse(World& world, const std::string& pngPath);
+    double cellsPerUnit(const World& world) const; ///< PDE velocity -> cells per unit time
+
     void updateObstacles(World& world);
     void writeVelocityField(World& world);
     void advectTemperature(World& world, double dt);
@@ -150,6 +169,9 @@ private:
     bool mHex = false;
     openvdb::Coord mOrigin{0, 0, 0}; ///< the domain's first cell (aux cell (0, 0))
     double mObstacleSeconds = 0, mVelOutSeconds = 0, mAdvectTSeconds = 0;
+    bool mSparseMode = false;
+    fluid::SparseFluidParams mSparseParams;
+    std::unique_ptr<fluid::SparseFluid> mSparse;
 };
 
 } // namespace frostvdb
