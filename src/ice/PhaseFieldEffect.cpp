@@ -74,10 +74,8 @@ std::unique_ptr<Effect> PhaseFieldEffect::create(ParamDict& d, const World& worl
         "advecting the heat (first-order upwind; on a plane use [fluid])");
     fx->mWind = openvdb::Vec3d(wind[0], wind[1], wind[2]);
     d.onlyWhen(fx->mOnShell, "wind", "[domain] kind = \"" + world.domain.kind() + "\"");
-    if (fx->mOnShell) { // the closest-point solver: Euler, no noise, yet
+    if (fx->mOnShell) // the closest-point solver: Euler only, yet
         if (!euler) d.fail("scheme", "lw_cn is not available on shell domains yet (allowed: euler)");
-        if (k.noise != 0.0) d.fail("noise", "interface noise is not available on shell domains yet (allowed: 0)");
-    }
     const double limit = k.stabilityLimit(world.domain.stencil(), !world.domain.flat());
     fx->mStabilityLimit = limit;
     fx->mSubsteps = 1;
@@ -194,7 +192,8 @@ void PhaseFieldEffect::step(World& world, const StepInfo& info)
             world.fields.get<openvdb::FloatGrid>(ice::kTemperature) != mShellT)
             gatherShell(world);
         const double subDt = mParams.dt / mSubsteps;
-        for (int s = 0; s < mSubsteps; ++s) mShell->step(mTime + (s + 1) * subDt, &mShellStats);
+        for (int s = 0; s < mSubsteps; ++s) // noise keyed by the substep's index, as on a plane
+            mShell->step(mTime + (s + 1) * subDt, info.step * mSubsteps + s, world.seed, &mShellStats);
         scatterShell(world);
         mTime += mParams.dt;
         return;

@@ -48,7 +48,9 @@ openvdb::FloatGrid::Ptr frostFog(const ShellBand& band, const std::vector<float>
     for (size_t i = 0; i < band.size(); ++i) {
         if (band.lateralOffset(i) > 0.5f) continue; // beyond an open mesh's border
         const double s = band.normalOffset(i);
-        const double th = band.frostThickness() * std::min(1.0, double(std::max(0.f, growth[i])));
+        // max with p: a seed's voxels start as ice and never grow, yet carry the full layer
+        // (elsewhere growth >= p, since p started at 0)
+        const double th = band.frostThickness() * std::min(1.0, double(std::max({0.f, growth[i], p[i]})));
         fog[i] = float(ramp(p[i]) * ramp(s + 0.5) * ramp(th - s + 0.5));
     }
     auto grid = toGrid(band, fog, 0.f, "ice");

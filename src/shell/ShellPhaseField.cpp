@@ -2,6 +2,8 @@
 /// @brief Closest-point heat and phase-field steps on a shell band (see ShellPhaseField.h).
 #include <frostvdb/shell/ShellPhaseField.h>
 
+#include <frostvdb/core/Random.h>
+
 #include <tbb/parallel_for.h>
 
 #include <chrono>
@@ -88,7 +90,7 @@ void ShellPhaseField::extendAll()
     mT.swap(mTn);
 }
 
-void ShellPhaseField::step(double time, ShellStepStats* stats)
+void ShellPhaseField::step(double time, int64_t stepIndex, uint64_t seed, ShellStepStats* stats)
 {
     const ShellBand& b = *mBand;
     const KobayashiParams& k = mParams;
@@ -125,7 +127,12 @@ void ShellPhaseField::step(double time, ShellStepStats* stats)
         const double div = double(mA[i]) * lapP + dax * mGx[i] + day * mGy[i] + daz * mGz[i];
         const double Te = k.localMeltTemperature(mMelt.empty() ? 1.0 : double(mMelt[i]));
         const double m = k.alpha / M_PI * std::atan(k.gamma * (Te - t0v));
-        const double reaction = p0 * (1.0 - p0) * (p0 - 0.5 + m);
+        double chi = 0; // the plane's noiseDraw: same hash, keyed by the voxel's coordinate
+        if (k.noise != 0) {
+            const openvdb::Coord& c = b.coord(i);
+            chi = toUnit(hashCounters(seed, uint64_t(stepIndex), coordKey(c.x(), c.y(), c.z()))) - 0.5;
+        }
+        const double reaction = p0 * (1.0 - p0) * (p0 - 0.5 + m + k.noise * chi);
         const double dp = k.dt / k.tau * (div + divC + reaction);
         mPn[i] = float(p0 + dp);
         double adv = 0; // v . grad T, upwind

@@ -22,7 +22,7 @@ void fromGrid(const ShellBand& band, const openvdb::FloatGrid& grid, std::vector
 /// The frost layer as a fog volume: at band voxel x with normal offset s (voxels, along the
 /// outward normal at cp) and no lateral offset (x projects inside the surface, so nothing
 /// beyond an open mesh's border), ice = clamp(p) * ramp(s + 1/2) * ramp(th - s + 1/2),
-/// th = frostThickness * min(1, growth), ramp(v) = clamp(v, 0, 1). Background 0, inactive
+/// th = frostThickness * min(1, max(growth, p)) (seeds start as ice with no growth), ramp(v) = clamp(v, 0, 1). Background 0, inactive
 /// where 0.
 openvdb::FloatGrid::Ptr frostFog(const ShellBand& band, const std::vector<float>& p, const std::vector<float>& growth);
 /// The fog's 0.5 iso-surface (OpenVDB volume-to-mesh) as polygons in world space.

@@ -62,7 +62,11 @@ public:
     /// Re-extends p and T off the surface (after seeds were written anywhere in the band).
     void extendAll();
     /// One forward-Euler step of dt at time @a time (the time after the step goes to freeze_time).
-    void step(double time, ShellStepStats* stats = nullptr);
+    void step(double time, ShellStepStats* stats = nullptr) { step(time, 0, 0, stats); }
+    /// The same with Kobayashi's interface noise (params.noise > 0): chi in [-1/2, 1/2] is a pure
+    /// function of (@a seed, @a stepIndex, the voxel's coordinate), as on a plane, so the result
+    /// does not depend on the thread count or on the band's voxel order.
+    void step(double time, int64_t stepIndex, uint64_t seed, ShellStepStats* stats);
 
 private:
     std::shared_ptr<const ShellBand> mBand;
