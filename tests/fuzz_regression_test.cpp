@@ -5,6 +5,7 @@
 // accepted or refused with one line and exit code 2. The shipped scenes go through the scene target.
 #include "../fuzz/FuzzTargets.h"
 
+#include "test_util.h"
 #include <frostvdb/BuildPaths.h>
 
 #include <catch2/catch.hpp>
@@ -45,9 +46,7 @@ int replay(const fs::path& dir, Target target)
 /// code and the first line of its output.
 int runWithMap(const fs::path& map, std::string& firstLine)
 {
-    const fs::path dir = fs::temp_directory_path() / "frostvdb_test_fuzz_map";
-    fs::remove_all(dir);
-    fs::create_directories(dir);
+    const fs::path dir = fs::path(frostvdb::test::tempDir("fuzz_map"));
     const fs::path copy = dir / ("map" + map.extension().string());
     fs::copy_file(map, copy);
     std::ofstream(dir / "s.toml") << "[scene]\nframes = 1\nsteps_per_frame = 1\n[domain]\nsize = [16, 16]\n"

@@ -10,9 +10,11 @@
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
+#include <unistd.h>
 #include <fstream>
 #include <sstream>
 #include <string>
+#include <vector>
 
 namespace frostvdb::test {
 
@@ -34,10 +36,26 @@ inline std::string errorOf(const std::string& text, const std::vector<std::strin
     return "";
 }
 
-/// A fresh empty folder under the system temp dir.
+/// A fresh empty folder under the system temp dir, private to this process (test runs of
+/// several checkouts at once, or ctest -j, never share one).
+/// They are removed when the test process exits (set FROSTVDB_KEEP_TEST_DIRS to keep them).
+struct TempDirs {
+    std::vector<std::filesystem::path> made;
+    pid_t owner = ::getpid();
+    ~TempDirs()
+    {
+        if (::getpid() != owner || std::getenv("FROSTVDB_KEEP_TEST_DIRS")) return; // not in forked children
+        std::error_code ec;
+        for (const auto& p : made) std::filesystem::remove_all(p, ec);
+    }
+};
+inline TempDirs gTempDirs;
+
 inline std::string tempDir(const std::string& name)
 {
-    auto p = std::filesystem::temp_directory_path() / ("frostvdb_test_" + name);
+    auto p = std::filesystem::temp_directory_path() /
+             ("frostvdb_test_" + std::to_string(::getpid()) + "_" + name);
+    gTempDirs.made.push_back(p);
     std::filesystem::remove_all(p);
     std::filesystem::create_directories(p);
     return p.string();

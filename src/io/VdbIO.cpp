@@ -296,6 +296,16 @@ openvdb::GridPtrVecPtr parseGrids(const std::string& bytes, openvdb::MetaMap::Pt
     return grids;
 }
 
+/// The state letter of process @a pid in /proc (R running, S sleeping, ...), or 0.
+char processState(pid_t pid)
+{
+    std::ifstream in("/proc/" + std::to_string(pid) + "/stat");
+    std::string text;
+    std::getline(in, text);
+    const auto close = text.rfind(')'); // the command name may hold spaces
+    return close != std::string::npos && close + 2 < text.size() ? text[close + 2] : 0;
+}
+
 /// OpenVDB trusts the tree data inside a grid (node masks, compressed block sizes): a damaged
 /// byte there can corrupt memory or ask for gigabytes. So the bytes are parsed first in a child
 /// process with a memory cap and a time limit, which takes that risk; "" when the parse is safe.
@@ -314,6 +324,10 @@ std::string trialParseInChild(const std::string& bytes)
         rlimit lim{};
         lim.rlim_cur = lim.rlim_max = rlim_t(double(pages) * double(::sysconf(_SC_PAGESIZE)) + extra);
         if (pages > 0) ::setrlimit(RLIMIT_AS, &lim);
+        rlimit cpu{};
+        cpu.rlim_cur = 30; // SIGXCPU after 30 s of CPU
+        cpu.rlim_max = 31;
+        ::setrlimit(RLIMIT_CPU, &cpu);
         try {
             parseGrids(bytes, nullptr);
         } catch (const std::bad_alloc&) {
@@ -323,20 +337,29 @@ std::string trialParseInChild(const std::string& bytes)
         }
         ::_exit(0);
     }
-    int status = 0;
-    for (int i = 0; i < 3000; ++i) { // 30 s
+    // A hostile file makes the reader loop on the CPU: the child's CPU limit (30 s) stops it. A
+    // child that sleeps instead is stuck on a lock some other thread of this process held at
+    // fork() (a forked child inherits locks but not their owners): that says nothing about the
+    // file, so it is killed and the parent parses directly, as OpenVDB itself would.
+    int status = 0, sleepingPolls = 0;
+    for (int i = 0; i < 12000; ++i) { // 120 s of wall time as a last resort
         const pid_t r = ::waitpid(pid, &status, WNOHANG);
         if (r == pid) {
+            if (WIFSIGNALED(status) && WTERMSIG(status) == SIGXCPU)
+                return "damaged grid data (parsing it takes more than 30 s)";
             if (WIFSIGNALED(status)) return "damaged grid data (parsing it crashed OpenVDB's reader)";
             if (WIFEXITED(status) && WEXITSTATUS(status) == 4)
                 return "damaged grid data (it asks for more than 64x its size in memory)";
             return {};
         }
         if (r < 0) return {};
+        sleepingPolls = processState(pid) == 'S' ? sleepingPolls + 1 : 0;
+        if (sleepingPolls >= 100) break; // asleep for 1 s: stuck, not parsing
         ::usleep(10000);
     }
     ::kill(pid, SIGKILL);
     ::waitpid(pid, &status, 0);
+    if (sleepingPolls >= 100) return {};
     return "damaged grid data (parsing it takes more than 30 s)";
 }
 
