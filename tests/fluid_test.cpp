@@ -374,29 +374,20 @@ TEST_CASE("Zero inflow equals the run without [fluid], bit for bit (dense and sp
     }
 }
 
+/// A ball of ice of radius 4 in the centre of an n^3 box, a wind along z entering at the front.
+static std::string ballWindScene(int n, int steps, int bandWidth, int wakeLength)
+{
+    return "[scene]\nname = \"ball_wind\"\nframes = 1\nsteps_per_frame = " + std::to_string(steps) +
+           "\n[domain]\nkind = \"box\"\nsize = [" + std::to_string(n) + ", " + std::to_string(n) + ", " +
+           std::to_string(n) +
+           "]\nvoxel_size = 0.0002\n[[crystal.seed]]\nshape = \"point\"\nposition = [0.5, 0.5, 0.5]\n"
+           "radius = 4.0\n[phase_field]\ndt = 0.0001\n[fluid]\ninflow_edge = \"front\"\ninflow_speed = 3.5\n"
+           "band_width = " + std::to_string(bandWidth) + "\nwake_length = " + std::to_string(wakeLength) + "\n";
+}
+
 TEST_CASE("Sparse fluid on a box domain: flow_vel finite, zero in the ice, same bits at 1 and 2 threads", "[fast][fluid]")
 {
-    const char* scene = R"(
-[scene]
-name = "ball_wind"
-frames = 1
-steps_per_frame = 20
-[domain]
-kind = "box"
-size = [24, 24, 24]
-voxel_size = 0.0002
-[[crystal.seed]]
-shape = "point"
-position = [0.5, 0.5, 0.5]
-radius = 4.0
-[phase_field]
-dt = 0.0001
-[fluid]
-inflow_edge = "front"
-inflow_speed = 3.5
-band_width = 5
-wake_length = 8
-)";
+    const std::string scene = ballWindScene(24, 20, 5, 8);
     auto run = [&](int threads) {
         tbb::global_control gc(tbb::global_control::max_allowed_parallelism, threads);
         auto sim = makeSim(scene);
@@ -437,27 +428,7 @@ wake_length = 8
 
 TEST_CASE("3D: a ball of ice in a wind grows further upstream than downstream", "[slow][fluid]")
 {
-    const char* scene = R"(
-[scene]
-name = "ball_wind"
-frames = 1
-steps_per_frame = 300
-[domain]
-kind = "box"
-size = [40, 40, 40]
-voxel_size = 0.0002
-[[crystal.seed]]
-shape = "point"
-position = [0.5, 0.5, 0.5]
-radius = 4.0
-[phase_field]
-dt = 0.0001
-[fluid]
-inflow_edge = "front"
-inflow_speed = 3.5
-band_width = 6
-wake_length = 12
-)";
+    const std::string scene = ballWindScene(40, 300, 6, 12);
     // Extent of the ice (p > 1/2) from the centre along -z (upstream) and +z (downstream).
     auto run = [&](const std::string& speed) {
         auto sim = makeSim(scene, {"fluid.inflow_speed=" + speed});

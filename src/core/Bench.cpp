@@ -1,6 +1,8 @@
 #include <frostvdb/core/Bench.h>
 
+#include <fstream>
 #include <map>
+#include <sys/resource.h>
 
 namespace frostvdb {
 
@@ -26,5 +28,27 @@ std::vector<const BenchInfo*> BenchRegistry::all()
     for (auto& [k, info] : registry()) v.push_back(&info);
     return v;
 }
+
+namespace bench {
+
+double cpuSeconds()
+{
+    rusage u{};
+    getrusage(RUSAGE_SELF, &u);
+    return u.ru_utime.tv_sec + u.ru_stime.tv_sec + 1e-6 * (u.ru_utime.tv_usec + u.ru_stime.tv_usec);
+}
+
+double peakRssMiB()
+{
+    std::ifstream in("/proc/self/status");
+    std::string line;
+    while (std::getline(in, line))
+        if (line.rfind("VmHWM:", 0) == 0) return std::stod(line.substr(6)) / 1024.0;
+    return 0;
+}
+
+void resetPeakRss() { std::ofstream("/proc/self/clear_refs") << "5"; }
+
+} // namespace bench
 
 } // namespace frostvdb

@@ -22,15 +22,6 @@
 namespace frostvdb::dla3d {
 namespace {
 
-double peakRssMb()
-{
-    std::ifstream in("/proc/self/status");
-    std::string line;
-    while (std::getline(in, line))
-        if (line.rfind("VmHWM:", 0) == 0) return std::stod(line.substr(6)) / 1024.0;
-    return 0;
-}
-
 double dlafSeconds(size_t n)
 {
     // fogleman/dlaf (Boost R-tree, one core), as published in issue 13 for this machine kind
@@ -76,7 +67,7 @@ int benchDla3d(const BenchArgs& args)
         const auto m = massRadiusDimension(agg.positions(), agg.centre(), 10 * agg.settings().contact(),
                                            0.3 * agg.radius());
         const double dl = base.dimension == 3 && base.stickDistance == 2.0 && base.radius == 0.5 ? dlafSeconds(n) : 0;
-        std::printf("%10zu %9.2f %9.2f %9.1f %12.0f %9.1f %9.2f %10llu %8.3f %8.3f %10s %9s\n", n, wall, cpu, peakRssMb(),
+        std::printf("%10zu %9.2f %9.2f %9.1f %12.0f %9.1f %9.2f %10llu %8.3f %8.3f %10s %9s\n", n, wall, cpu, bench::peakRssMiB(),
                     double(n) / wall, double(st.steps) / double(n), double(st.walkers) / double(n),
                     (unsigned long long)st.conflicts, g.dimension, m.dimension,
                     dl > 0 ? std::to_string(dl).substr(0, 6).c_str() : "-",

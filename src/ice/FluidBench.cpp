@@ -24,26 +24,7 @@ namespace frostvdb {
 
 namespace {
 
-using Clock = std::chrono::steady_clock;
-double since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
-
-double cpuSeconds()
-{
-    rusage u{};
-    getrusage(RUSAGE_SELF, &u);
-    return u.ru_utime.tv_sec + u.ru_stime.tv_sec + 1e-6 * (u.ru_utime.tv_usec + u.ru_stime.tv_usec);
-}
-
-/// Peak resident memory since the last reset (MiB).
-double peakRssMb()
-{
-    std::ifstream in("/proc/self/status");
-    std::string line;
-    while (std::getline(in, line))
-        if (line.rfind("VmHWM:", 0) == 0) return std::stod(line.substr(6)) / 1024.0;
-    return 0;
-}
-void resetPeakRss() { std::ofstream("/proc/self/clear_refs") << "5"; }
+using bench::Clock;
 
 struct Problem {
     int dim, n;
@@ -96,14 +77,14 @@ int benchFluid(const BenchArgs& args)
         Problem pb{std::stoi(sz.substr(hat + 1)), std::stoi(sz.substr(0, hat)), 0};
         if (pb.dim != 2 && pb.dim != 3) { std::fprintf(stderr, "bench fluid: size '%s' is not n^2 or n^3\n", sz.c_str()); return 2; }
         pb.r = 0.1 * pb.n;
-        resetPeakRss();
+        bench::resetPeakRss();
         auto t0 = Clock::now();
-        double c0 = cpuSeconds();
+        double c0 = bench::cpuSeconds();
         fluid::MultigridPoisson mg(
             pb.dim, openvdb::Coord(pb.n, pb.n, pb.dim == 3 ? pb.n : 1),
             [&](int i, int j, int k) { return pb.solid(i, j, k) ? fluid::CellKind::Solid : fluid::CellKind::Fluid; },
             {false, true, true, true, pb.dim == 3, pb.dim == 3});
-        const double tSetup = since(t0), cSetup = cpuSeconds() - c0;
+        const double tSetup = bench::since(t0), cSetup = bench::cpuSeconds() - c0;
         const size_t n = mg.unknowns();
         std::vector<double> b(n), x(n, 0.0);
         for (size_t k = 0; k < n; ++k) {
@@ -112,9 +93,9 @@ int benchFluid(const BenchArgs& args)
         }
         fluid::PoissonSettings ps;
         t0 = Clock::now();
-        c0 = cpuSeconds();
+        c0 = bench::cpuSeconds();
         const auto st = mg.solve(b, x, ps);
-        const double tMg = since(t0), cMg = cpuSeconds() - c0;
+        const double tMg = bench::since(t0), cMg = bench::cpuSeconds() - c0;
         char jc[64] = "    -        -", vdb[64] = "    -        -";
         if (n <= refLimit) {
             ps.multigrid = false;
@@ -122,7 +103,7 @@ int benchFluid(const BenchArgs& args)
             std::fill(x.begin(), x.end(), 0.0);
             t0 = Clock::now();
             const auto sj = mg.solve(b, x, ps);
-            std::snprintf(jc, sizeof jc, "%5d %8.3f", sj.iterations, since(t0));
+            std::snprintf(jc, sizeof jc, "%5d %8.3f", sj.iterations, bench::since(t0));
             x = std::vector<double>();
             openvdb::DoubleTree source(0.0);
             for (int k = 0; k < (pb.dim == 3 ? pb.n : 1); ++k)
@@ -136,7 +117,7 @@ int benchFluid(const BenchArgs& args)
             openvdb::util::NullInterrupter interrupt;
             t0 = Clock::now();
             auto sol = openvdb::tools::poisson::solveWithBoundaryConditions(source, BallBoundary{pb}, state, interrupt);
-            std::snprintf(vdb, sizeof vdb, "%5d %8.3f", state.iterations, since(t0));
+            std::snprintf(vdb, sizeof vdb, "%5d %8.3f", state.iterations, bench::since(t0));
         }
         // Whole steps: the 2D reference layout with the multigrid projection, or the sparse 3D solver.
         double adv = 0, proj = 0;
@@ -169,7 +150,7 @@ int benchFluid(const BenchArgs& args)
             proj = f.projectSeconds / steps;
         }
         std::printf("%8s %10zu | %5d %8.3f %8.3f | %s | %s | %9.3f %9.3f %9.3f | %8.0f\n", sz.c_str(), n, st.iterations,
-                    tSetup, tMg, jc, vdb, adv, proj, adv + proj, peakRssMb());
+                    tSetup, tMg, jc, vdb, adv, proj, adv + proj, bench::peakRssMiB());
         std::printf("%8s %10s | %5s [%6.2f] [%6.2f]   (MG relative residual %.2e, %d levels)\n", "", "", "", cSetup,
                     cMg, st.relativeResidual, st.levels);
         std::fflush(stdout);

@@ -20,15 +20,7 @@
 namespace frostvdb {
 namespace {
 
-using Clock = std::chrono::steady_clock;
-double since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
-
-double peakRssMiB()
-{
-    rusage u{};
-    getrusage(RUSAGE_SELF, &u);
-    return double(u.ru_maxrss) / 1024.0;
-}
+using bench::Clock;
 
 struct ShellResult {
     std::string what;
@@ -45,7 +37,7 @@ ShellResult runShell(const std::string& what, const TriangleMesh& mesh, const op
     bs.voxelSize = 1.0;
     auto t0 = Clock::now();
     auto band = shell::ShellBand::build(mesh, bs);
-    r.buildSeconds = since(t0);
+    r.buildSeconds = bench::since(t0);
     r.bandVoxels = band->size();
     r.surfaceVoxels = band->surfaceVoxels();
     KobayashiParams k;
@@ -56,7 +48,7 @@ ShellResult runShell(const std::string& what, const TriangleMesh& mesh, const op
     }
     t0 = Clock::now();
     for (int s = 0; s < steps; ++s) pf.step((s + 1) * k.dt);
-    r.stepSeconds = since(t0) / steps;
+    r.stepSeconds = bench::since(t0) / steps;
     // band arrays: the band's own plus the solver's 15 float arrays
     r.bandMiB = (double(band->memoryBytes()) + 15.0 * 4.0 * double(band->size())) / (1024.0 * 1024.0);
     size_t frosted = 0, update = 0;
@@ -66,7 +58,7 @@ ShellResult runShell(const std::string& what, const TriangleMesh& mesh, const op
             frosted += pf.p()[i] > 0.5f ? 1 : 0;
         }
     r.frostedVoxels2 = update ? r.surfaceVoxels * double(frosted) / double(update) : 0.0;
-    r.rssMiB = peakRssMiB();
+    r.rssMiB = bench::peakRssMiB();
     return r;
 }
 
@@ -105,7 +97,7 @@ int benchShell(const BenchArgs& a)
         }
     auto t0 = Clock::now();
     for (int s = 0; s < steps; ++s) plane.step();
-    const double planeStep = since(t0) / steps;
+    const double planeStep = bench::since(t0) / steps;
     const double planeRate = double(n) * n / planeStep, shellRate = big.surfaceVoxels / big.stepSeconds;
     std::printf("\nupdate rate per surface cell: plane %dx%d %.1f M/s, %s %.1f M/s (%.1fx slower); "
                 "per band voxel %.1f M/s\n", n, n, planeRate * 1e-6, big.what.c_str(), shellRate * 1e-6,

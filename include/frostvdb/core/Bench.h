@@ -2,6 +2,7 @@
 /// @file Bench.h
 /// @brief `frostvdb bench NAME`: named benchmarks registered from the module they measure.
 /// A benchmark prints its figures and, where asked, writes them to docs/.
+#include <chrono>
 #include <functional>
 #include <string>
 #include <vector>
@@ -34,6 +35,15 @@ struct BenchRegistrar {
     BenchRegistrar(const std::string& name, const std::string& summary, BenchFn fn)
     { BenchRegistry::add({name, summary, std::move(fn)}); }
 };
+
+/// What benchmarks measure, one definition for all of them.
+namespace bench {
+using Clock = std::chrono::steady_clock;
+inline double since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
+double cpuSeconds();   ///< user + system CPU of this process
+double peakRssMiB();   ///< peak resident memory (VmHWM) since start or the last resetPeakRss()
+void resetPeakRss();   ///< starts a new VmHWM peak (Linux clear_refs 5)
+} // namespace bench
 
 } // namespace frostvdb
 
