@@ -26,6 +26,19 @@ namespace {
 
 using bench::Clock;
 
+/// Starts @a f from the free stream, projected, then times @a steps whole steps: advection and
+/// projection seconds per step (both solvers keep these two counters).
+template <typename Solver>
+void timeSteps(Solver& f, int steps, double& adv, double& proj)
+{
+    f.setFreeStream();
+    f.project();
+    f.advectSeconds = f.projectSeconds = 0;
+    for (int s = 0; s < steps; ++s) f.step(1.0);
+    adv = f.advectSeconds / steps;
+    proj = f.projectSeconds / steps;
+}
+
 struct Problem {
     int dim, n;
     double r;
@@ -130,24 +143,14 @@ int benchFluid(const BenchArgs& args)
             for (int j = 0; j < pb.n; ++j)
                 for (int i = 0; i < pb.n; ++i) solid[size_t(j) * pb.n + i] = pb.solid(i, j, 0);
             f.setSolid(solid);
-            f.setFreeStream();
-            f.project();
-            f.advectSeconds = f.projectSeconds = 0;
-            for (int s = 0; s < steps; ++s) f.step(1.0);
-            adv = f.advectSeconds / steps;
-            proj = f.projectSeconds / steps;
+            timeSteps(f, steps, adv, proj);
         } else {
             fluid::SparseFluidParams fp;
             fp.inflowSpeed = 1.0;
             fp.bandWidth = 0; // the whole box: the worst case
             fluid::SparseFluid f(fp, openvdb::Coord(pb.n), 3);
             f.setSolid([&](int i, int j, int k) { return pb.solid(i, j, k); });
-            f.setFreeStream();
-            f.project();
-            f.advectSeconds = f.projectSeconds = 0;
-            for (int s = 0; s < steps; ++s) f.step(1.0);
-            adv = f.advectSeconds / steps;
-            proj = f.projectSeconds / steps;
+            timeSteps(f, steps, adv, proj);
         }
         std::printf("%8s %10zu | %5d %8.3f %8.3f | %s | %s | %9.3f %9.3f %9.3f | %8.0f\n", sz.c_str(), n, st.iterations,
                     tSetup, tMg, jc, vdb, adv, proj, adv + proj, bench::peakRssMiB());
