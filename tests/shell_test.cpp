@@ -167,6 +167,20 @@ TEST_CASE("Shell heat: a zonal harmonic on a sphere decays at l(l+1)/R^2 within 
     }
 }
 
+/// The flat plane reference: the dense 2D loop of the same equations from the same seed, an
+/// L x L square, after @a steps steps.
+static DensePhaseField flatPlate(const KobayashiParams& k, double L, int steps)
+{
+    DensePhaseField plane(k, Lattice(LatticeKind::Square, 3.0 / 64.0), int(L), int(L));
+    for (int j = 0; j < int(L); ++j)
+        for (int i = 0; i < int(L); ++i) {
+            const double x = i + 0.5 - L / 2, y = j + 0.5 - L / 2;
+            plane.p()[plane.index(i, j)] = seedProfile(std::sqrt(x * x + y * y));
+        }
+    for (int s = 0; s < steps; ++s) plane.step();
+    return plane;
+}
+
 TEST_CASE("Shell phase field: a plate at 0, 30 and 45 degrees grows the same crystal as the plane", "[fast][shell]")
 {
     const double L = 56;
@@ -175,14 +189,7 @@ TEST_CASE("Shell phase field: a plate at 0, 30 and 45 degrees grows the same cry
     // tilted plates grow 8.6 % more ice ([shellexp] "interface width" measures both)
     KobayashiParams k = plateParams();
     k.epsBar = 0.015;
-    // the flat plane reference: the dense 2D loop of the same equations and the same seed
-    DensePhaseField plane(k, Lattice(LatticeKind::Square, 3.0 / 64.0), int(L), int(L));
-    for (int j = 0; j < int(L); ++j)
-        for (int i = 0; i < int(L); ++i) {
-            const double x = i + 0.5 - L / 2, y = j + 0.5 - L / 2;
-            plane.p()[plane.index(i, j)] = seedProfile(std::sqrt(x * x + y * y));
-        }
-    for (int s = 0; s < steps; ++s) plane.step();
+    DensePhaseField plane = flatPlate(k, L, steps); // the flat reference
     auto planeP = [&](double u, double v) {
         const double x = u + L / 2 - 0.5, y = v + L / 2 - 0.5;
         const int i = int(std::floor(x)), j = int(std::floor(y));
@@ -467,13 +474,7 @@ TEST_CASE("Shell orientation against the interface width eps / h (measurement, n
             PlateSampler ps(run);
             a[n++] = iceArea([&](double u, double v) { return ps(u, v); }, L);
         }
-        DensePhaseField plane(k, Lattice(LatticeKind::Square, 3.0 / 64.0), int(L), int(L));
-        for (int j = 0; j < int(L); ++j)
-            for (int i = 0; i < int(L); ++i) {
-                const double x = i + 0.5 - L / 2, y = j + 0.5 - L / 2;
-                plane.p()[plane.index(i, j)] = seedProfile(std::sqrt(x * x + y * y));
-            }
-        for (int s = 0; s < steps; ++s) plane.step();
+        DensePhaseField plane = flatPlate(k, L, steps);
         int planeCells = 0; // cell count (the plate test samples bilinearly; close enough here)
         for (int j = 0; j < int(L); ++j)
             for (int i = 0; i < int(L); ++i) planeCells += plane.p()[plane.index(i, j)] > 0.5f ? 1 : 0;
