@@ -1,6 +1,7 @@
 // The band-limited MAC stable fluid in 2D/3D (see fluid/SparseFluid.h). Every loop writes its own
 // faces or cells only and the pressure solve is deterministic, so a step gives the same bits at
 // any thread count.
+#include <frostvdb/core/Stopwatch.h>
 #include <frostvdb/fluid/SparseFluid.h>
 
 #include <tbb/blocked_range.h>
@@ -17,8 +18,7 @@ namespace fluid {
 
 namespace {
 
-using Clock = std::chrono::steady_clock;
-double since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
+using Clock = SteadyClock;
 
 /// f(i, j, k) over a box, rows (j, k) in parallel.
 template <typename F>
@@ -325,10 +325,10 @@ void SparseFluid::step(double dt)
     }
     for (int c = 0; c < mDim; ++c) mU[size_t(c)].swap(fwd[size_t(c)]);
     applyBoundaries();
-    advectSeconds += since(t0);
+    advectSeconds += secondsSince(t0);
     t0 = Clock::now();
     project();
-    projectSeconds += since(t0);
+    projectSeconds += secondsSince(t0);
 }
 
 void SparseFluid::advectScalar(std::vector<double>& f, double dt) const

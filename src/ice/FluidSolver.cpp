@@ -3,6 +3,7 @@
 // system solved by a matrix-free Jacobi-preconditioned conjugate gradient warm-started from the
 // previous step. Every reduction is summed row by row and then serially, so the result does not
 // depend on the thread count.
+#include <frostvdb/core/Stopwatch.h>
 #include <frostvdb/ice/Fluid.h>
 #include <frostvdb/fluid/MultigridPoisson.h>
 
@@ -18,8 +19,7 @@ namespace ice {
 
 namespace {
 
-using Clock = std::chrono::steady_clock;
-double since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
+using Clock = SteadyClock;
 
 /// Rows in parallel, about 16k cells per task (small grids run serially: a parallel_for per
 /// vector operation costs more than it saves below that).
@@ -435,13 +435,13 @@ void StableFluid2D::step(double dt)
     applyBoundaries();
     advect(dt);
     applyBoundaries();
-    advectSeconds += since(t0);
+    advectSeconds += secondsSince(t0);
     t0 = Clock::now();
     if (mParams.viscosity > 0) diffuse(dt);
-    viscositySeconds += since(t0);
+    viscositySeconds += secondsSince(t0);
     t0 = Clock::now();
     project();
-    projectSeconds += since(t0);
+    projectSeconds += secondsSince(t0);
 }
 
 } // namespace ice
