@@ -133,6 +133,8 @@ void PhaseFieldEffect::initialize(World& world)
     mTime = 0.0;
     if (auto band = shell::bandOf(world.domain)) {
         mShell = std::make_unique<shell::ShellPhaseField>(band, solverParams, world.domain.lattice().spacing());
+        // [region]: the band around the ice (tolerance) or the whole band (dense, the reference)
+        mShell->setActiveRegion(!world.region.dense, world.region.tolerance);
         mShell->setWind(mWind);
         gatherShell(world);
         const auto& lum = band->colourLuminance();
@@ -153,8 +155,9 @@ void PhaseFieldEffect::initialize(World& world)
 void PhaseFieldEffect::gatherShell(World& world)
 {
     const shell::ShellBand& band = mShell->band();
-    shell::fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kPhase), mShell->p());
-    shell::fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kTemperature), mShell->T());
+    // (building the band's leaves wherever p or T is off its background: seeds)
+    shell::fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kPhase), mShell->p(), true);
+    shell::fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kTemperature), mShell->T(), true);
     std::vector<float> v;
     shell::fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kGrowth), v);
     mShell->growthValues() = v;
@@ -166,8 +169,11 @@ void PhaseFieldEffect::gatherShell(World& world)
         if (colourMelt) // both: the product
             for (size_t i = 0; i < v.size(); ++i) v[i] *= band.colourLuminance()[i];
         mShell->setMelt(v);
+        auto acc = std::make_shared<openvdb::FloatGrid::ConstAccessor>(melt->getConstAccessor());
+        mShell->setMeltSource([melt, acc](const openvdb::Coord& c) { return acc->getValue(c); }, colourMelt);
     } else if (colourMelt) {
         mShell->setMelt(band.colourLuminance());
+        mShell->setMeltSource(nullptr, true); // leaves built later: their luminance
     }
 }
 

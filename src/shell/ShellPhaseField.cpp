@@ -54,18 +54,73 @@ void heatStep(const ShellBand& band, std::vector<float>& u, double dt, double h,
 ShellPhaseField::ShellPhaseField(std::shared_ptr<const ShellBand> band, const KobayashiParams& params, double h)
     : mBand(std::move(band)), mParams(params), mAniso(params), mH(h)
 {
-    const size_t n = mBand->size();
-    mP.assign(n, 0.f);
-    mT.assign(n, float(params.farTemperature));
-    mGrowth.assign(n, 0.f);
-    mFreeze.assign(n, 0.f);
-    for (auto* v : {&mA, &mCx, &mCy, &mCz, &mGx, &mGy, &mGz}) v->assign(n, 0.f);
-    for (size_t i = 0; i < n; ++i) mUpdateCount += mBand->inUpdateSet(i) ? 1 : 0;
+    // a whole band is stepped whole (the reference); a lazy one around the ice, exactly (tol 0)
+    mActive = !mBand->whole();
+    grow();
+}
+
+void ShellPhaseField::setActiveRegion(bool active, double tolerance)
+{
+    mActive = active;
+    mTolerance = std::max(0.0, tolerance);
+    if (!active) mBand->materialiseAll();
+    mStepped.clear();
+    mCoefficient.clear();
+    mHot.clear();
+    mInStepped.clear();
+    mSlotsSeen = 0;
+    mDirty = true;
+    grow();
+}
+
+size_t ShellPhaseField::steppedVoxels() const
+{
+    size_t n = 0;
+    for (uint32_t s : mStepped) n += mBand->leaves()[s].end - mBand->leaves()[s].begin;
+    return n;
+}
+
+void ShellPhaseField::setMeltSource(std::function<float(const openvdb::Coord&)> melt, bool timesLuminance)
+{
+    mMeltSource = std::move(melt);
+    mMeltTimesLum = timesLuminance;
+}
+
+void ShellPhaseField::grow()
+{
+    const ShellBand& b = *mBand;
+    const size_t n = b.size(), old = mPOld.size();
+    if (old == n && mP.size() == n) return;
+    const float tInf = float(mParams.farTemperature);
+    mP.resize(n, 0.f);
+    mT.resize(n, tInf);
+    mGrowth.resize(n, 0.f);
+    mFreeze.resize(n, 0.f);
+    for (auto* v : {&mPn, &mTn, &mPOld, &mA, &mCx, &mCy, &mCz, &mGx, &mGy, &mGz}) v->resize(n, 0.f);
+    if (mMeltSet && mMelt.size() < n) {
+        const size_t from = mMelt.size();
+        mMelt.resize(n, 1.f);
+        for (size_t i = from; i < n; ++i) {
+            double v = mMeltSource ? mMeltSource(b.coord(i)) : 1.0;
+            if (mMeltTimesLum && !b.colourLuminance().empty()) v *= b.colourLuminance()[i];
+            mMelt[i] = float(v);
+        }
+    }
+    if (mWindWorld.lengthSqr() > 0.0 && mWind.size() < n) {
+        const size_t from = mWind.size();
+        mWind.resize(n);
+        for (size_t i = from; i < n; ++i) {
+            const openvdb::Vec3d& nr = b.frame(i).normal;
+            mWind[i] = openvdb::Vec3f(mWindWorld - nr * mWindWorld.dot(nr));
+        }
+    }
 }
 
 void ShellPhaseField::setWind(const openvdb::Vec3d& wind)
 {
     mWind.clear();
+    mWindWorld = wind;
+    grow();
     if (wind.lengthSqr() == 0.0) return;
     mWind.resize(mBand->size());
     for (size_t i = 0; i < mBand->size(); ++i) {
@@ -82,22 +137,101 @@ double ShellPhaseField::windStabilityLimit() const
     return 1.0 / (6.0 / (mH * mH) + vmax / mH);
 }
 
+void ShellPhaseField::updateRegion()
+{
+    const ShellBand& b = *mBand;
+    grow();
+    const auto& leaves = b.leaves();
+    auto recount = [&] {
+        mCoefficient.clear();
+        for (uint32_t s = 0; s < leaves.size(); ++s)
+            if (leaves[s].prepared && leaves[s].end > leaves[s].begin) mCoefficient.push_back(s);
+        mUpdateCount = 0;
+        for (uint32_t s : mStepped)
+            for (size_t i = leaves[s].begin; i < leaves[s].end; ++i) mUpdateCount += b.inUpdateSet(i) ? 1 : 0;
+    };
+    if (!mActive) { // the whole band, every leaf
+        if (mSlotsSeen == leaves.size()) return;
+        mStepped.clear();
+        for (uint32_t s = 0; s < leaves.size(); ++s)
+            if (leaves[s].end > leaves[s].begin) mStepped.push_back(s);
+        mSlotsSeen = leaves.size();
+        recount();
+        return;
+    }
+    // Hot leaves: any voxel off the background by more than the tolerance. Only stepped leaves can
+    // turn hot, unless someone wrote the fields (mDirty) or built leaves since the last scan.
+    mHot.resize(leaves.size(), 0);
+    mInStepped.resize(leaves.size(), 0);
+    std::vector<uint32_t> scan;
+    if (mDirty || mSlotsSeen != leaves.size()) {
+        for (uint32_t s = 0; s < leaves.size(); ++s)
+            if (!mHot[s] && leaves[s].end > leaves[s].begin) scan.push_back(s);
+    } else {
+        for (uint32_t s : mStepped)
+            if (!mHot[s]) scan.push_back(s);
+    }
+    mDirty = false;
+    const float tol = float(mTolerance), tInf = float(mParams.farTemperature);
+    std::vector<char> hot(scan.size(), 0);
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, scan.size(), 4), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t k = r.begin(); k < r.end(); ++k) {
+            const auto& l = leaves[scan[k]];
+            for (size_t i = l.begin; i < l.end && !hot[k]; ++i)
+                if (std::fabs(mP[i]) > tol || std::fabs(mT[i] - tInf) > tol) hot[k] = 1;
+        }
+    });
+    std::vector<openvdb::Coord> prep, stepped;
+    for (size_t k = 0; k < scan.size(); ++k) {
+        if (!hot[k]) continue;
+        mHot[scan[k]] = 1;
+        const openvdb::Coord o = leaves[scan[k]].origin;
+        for (int dx = -3; dx <= 3; ++dx)
+            for (int dy = -3; dy <= 3; ++dy)
+                for (int dz = -3; dz <= 3; ++dz) {
+                    const openvdb::Coord n = o + openvdb::Coord(dx * kLeafDim, dy * kLeafDim, dz * kLeafDim);
+                    prep.push_back(n);
+                    if (std::max({std::abs(dx), std::abs(dy), std::abs(dz)}) <= 2) stepped.push_back(n);
+                }
+    }
+    if (!stepped.empty()) {
+        b.prepare(prep); // builds the band two leaves beyond the stepped ones, prepares one beyond
+        grow();
+        mHot.resize(leaves.size(), 0);
+        mInStepped.resize(leaves.size(), 0);
+        for (const auto& o : stepped) {
+            const int32_t s = b.leafSlot(o);
+            if (s < 0 || mInStepped[size_t(s)] || leaves[size_t(s)].end == leaves[size_t(s)].begin) continue;
+            mInStepped[size_t(s)] = 1;
+            mStepped.push_back(uint32_t(s));
+        }
+        std::sort(mStepped.begin(), mStepped.end());
+        recount();
+    }
+    mSlotsSeen = leaves.size();
+}
+
 void ShellPhaseField::extendAll()
 {
-    mBand->extendPhase(mP, mPn, mA);
-    mBand->extend(mT, mTn, false);
-    mP.swap(mPn);
-    mT.swap(mTn);
+    updateRegion();
+    const ShellBand& b = *mBand;
+    b.extendPhase(mP, mPn, mA, &mStepped, &mCoefficient);
+    b.extend(mT, mTn, false, float(mParams.farTemperature), &mStepped);
+    b.forEachVoxel(&mStepped, [&](size_t i) {
+        mP[i] = mPn[i];
+        mT[i] = mTn[i];
+    });
 }
 
 void ShellPhaseField::step(double time, int64_t stepIndex, uint64_t seed, ShellStepStats* stats)
 {
+    updateRegion();
     const ShellBand& b = *mBand;
     const KobayashiParams& k = mParams;
     const double invH = 1.0 / mH, invH2 = invH * invH;
     const auto t0 = Clock::now();
     // Pass 1: eps^2 and C = eps eps' (n x g) on the coefficient set, g the tangential gradient.
-    forEachVoxel(b.size(), [&](size_t i) {
+    b.forEachVoxel(&mCoefficient, [&](size_t i) {
         if (!b.inCoefficientSet(i)) return;
         const VoxelFrame& f = b.frame(i);
         openvdb::Vec3d g(centralDiff(b, mP, i, 0), centralDiff(b, mP, i, 1), centralDiff(b, mP, i, 2));
@@ -114,10 +248,11 @@ void ShellPhaseField::step(double time, int64_t stepIndex, uint64_t seed, ShellS
         mGy[i] = float(g.y());
         mGz[i] = float(g.z());
     });
-    // Pass 2: the Euler update on the update set.
-    mPn.assign(b.size(), 0.f);
-    mTn.assign(b.size(), 0.f);
-    forEachVoxel(b.size(), [&](size_t i) {
+    // Pass 2: the Euler update on the update set (elsewhere the new values are the old ones:
+    // only nodes, all in the update set, are read by the extension).
+    mPn = mP;
+    mTn = mT;
+    b.forEachVoxel(&mStepped, [&](size_t i) {
         if (!b.inUpdateSet(i)) return;
         const double p0 = mP[i], t0v = mT[i];
         const double lapP = laplacianSum(b, mP, i) * invH2, lapT = laplacianSum(b, mT, i) * invH2;
@@ -146,13 +281,12 @@ void ShellPhaseField::step(double time, int64_t stepIndex, uint64_t seed, ShellS
     });
     const auto t1 = Clock::now();
     // Re-extension: p through its sharp-profile variant (ShellBand::extendPhase), T plain.
-    std::vector<float>& pOld = mPOld;
-    pOld = mP;
-    b.extendPhase(mPn, mP, mA); // mA is scratch here: pass 1 rewrites it where it is read
-    b.extend(mTn, mT, false);
+    mPOld = mP;
+    b.extendPhase(mPn, mP, mA, &mStepped, &mCoefficient); // mA is scratch here: pass 1 rewrites it where it is read
+    b.extend(mTn, mT, false, float(k.farTemperature), &mStepped);
     const float tNext = float(time);
-    forEachVoxel(b.size(), [&](size_t i) {
-        const float d = mP[i] - pOld[i];
+    b.forEachVoxel(&mStepped, [&](size_t i) {
+        const float d = mP[i] - mPOld[i];
         if (d > 0.f) mGrowth[i] += d;
         if (mFreeze[i] == 0.f && mP[i] > 0.5f) mFreeze[i] = tNext;
     });
