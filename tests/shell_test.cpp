@@ -18,6 +18,7 @@
 #include <filesystem>
 #include <fstream>
 #include <functional>
+#include <map>
 
 #include <cmath>
 
@@ -482,4 +483,100 @@ TEST_CASE("Shell orientation against the interface width eps / h (measurement, n
         WARN("eps " << eps << " (eps/h " << eps / (3.0 / 64.0) << "): area 0 deg " << a[0] << ", 30 deg " << a[1]
                     << " (" << 100 * (a[1] / a[0] - 1) << " %),\n  45 deg " << a[2] << " (" << 100 * (a[2] / a[0] - 1) << " %)");
     }
+}
+
+namespace {
+
+/// A phase field on a tilted plate with a seed disc of radius 3 at its centre, run @a steps with
+/// noise, on a whole band (@a lazy false, stepped whole) or a lazily built one stepped around the
+/// ice with region tolerance @a tol. Returns p and T by voxel.
+struct RegionRun {
+    std::map<openvdb::Coord, std::pair<float, float>> values;
+    size_t bandVoxels = 0, steppedVoxels = 0;
+};
+
+RegionRun runRegion(double L, bool lazy, double tol, int steps)
+{
+    MeshPlacement m;
+    m.rotateDegrees = Vec3d(30, 30, 0);
+    TriangleMesh mesh = makePlate(L, int(L / 8));
+    mesh.transform(m);
+    shell::BandSettings bs;
+    bs.voxelSize = 1.0;
+    bs.crystalAxis = m.matrix().transform3x3(Vec3d(1, 0, 0));
+    auto band = lazy ? shell::ShellBand::buildLazy(mesh, bs) : shell::ShellBand::build(mesh, bs);
+    KobayashiParams k = plateParams();
+    k.noise = 0.01;
+    shell::ShellPhaseField pf(band, k, 3.0 / 64.0);
+    pf.setActiveRegion(lazy, tol);
+    band->nearSurfacePoint(Vec3d(0.0), 6.0); // builds the seed's leaves on a lazy band
+    pf.grow();
+    for (size_t i = 0; i < band->size(); ++i) pf.p()[i] = seedProfile(band->closestPoint(i).length());
+    for (int s = 0; s < steps; ++s) pf.step((s + 1) * k.dt, s, 7, nullptr);
+    RegionRun r;
+    for (size_t i = 0; i < band->size(); ++i) r.values[band->coord(i)] = {pf.p()[i], pf.T()[i]};
+    r.bandVoxels = band->size();
+    r.steppedVoxels = pf.steppedVoxels();
+    return r;
+}
+
+/// Largest |p - p_ref| and |T - T_ref| over the reference's voxels (a voxel the run did not
+/// build counts as background: p 0, T 0).
+double maxDifference(const RegionRun& a, const RegionRun& ref)
+{
+    double d = 0;
+    for (const auto& [c, v] : ref.values) {
+        const auto it = a.values.find(c);
+        const std::pair<float, float> w = it == a.values.end() ? std::make_pair(0.f, 0.f) : it->second;
+        d = std::max({d, double(std::fabs(w.first - v.first)), double(std::fabs(w.second - v.second))});
+    }
+    return d;
+}
+
+} // namespace
+
+TEST_CASE("Shell active region: at tolerance 0 the same bits as the whole band, converging as it shrinks",
+          "[fast][shell][region]")
+{
+    const double L = 64;
+    const int steps = 60;
+    const RegionRun whole = runRegion(L, false, 0.0, steps);
+    const RegionRun exact = runRegion(L, true, 0.0, steps);
+    INFO("whole band " << whole.bandVoxels << " voxels; lazy band " << exact.bandVoxels << ", stepped "
+                       << exact.steppedVoxels);
+    CHECK(maxDifference(exact, whole) == 0.0); // bit-identical wherever either has a voxel
+    for (const auto& [c, v] : exact.values) REQUIRE(whole.values.count(c) == 1); // the same band
+    double last = 1.0;
+    for (double tol : {1e-2, 1e-4, 1e-6}) {
+        const double d = maxDifference(runRegion(L, true, tol, steps), whole);
+        WARN("tolerance " << tol << ": max |difference| " << d);
+        CHECK(d <= last);
+        CHECK(d <= 10 * tol); // the error stays of the order of what is left out
+        last = d;
+    }
+}
+
+TEST_CASE("Shell active region: a huge plate with a small crystal builds only the band around it",
+          "[fast][shell][region]")
+{
+    // a 4096^2 tilted plate (~190 M band voxels if built whole); 40 steps of a radius-3 seed
+    const RegionRun r = runRegion(4096, true, 1e-6, 40);
+    WARN("built " << r.bandVoxels << ", stepped " << r.steppedVoxels);
+    CHECK(r.bandVoxels < 200000);       // the seed's neighbourhood, not the plate
+    CHECK(r.steppedVoxels < r.bandVoxels);
+    double pMax = 0;
+    for (const auto& [c, v] : r.values) pMax = std::max(pMax, double(v.first));
+    CHECK(pMax > 0.9); // the crystal is there
+}
+
+TEST_CASE("Shell active region: bit-identical at 1 and 2 threads", "[fast][shell][region][determinism]")
+{
+    RegionRun r[2];
+    for (int t : {1, 2}) {
+        tbb::global_control c(tbb::global_control::max_allowed_parallelism, size_t(t));
+        r[t - 1] = runRegion(64, true, 1e-6, 40);
+    }
+    CHECK(r[0].values.size() == r[1].values.size());
+    CHECK(maxDifference(r[0], r[1]) == 0.0);
+    CHECK(maxDifference(r[1], r[0]) == 0.0);
 }

@@ -167,12 +167,11 @@ void TriangleBvh::query(const BBoxd& box, std::vector<uint32_t>& out) const
     std::sort(out.begin(), out.end());
 }
 
-Vec3d TriangleBvh::closestPoint(const Vec3d& p, uint32_t* tri) const
+bool TriangleBvh::closestPointWithin(const Vec3d& p, double maxDistSqr, Vec3d& out, uint32_t& tri, double& distSqr) const
 {
-    double best = std::numeric_limits<double>::max();
-    uint32_t bestTri = 0;
-    Vec3d out = p;
-    if (mNodes.empty()) return out;
+    double best = maxDistSqr;
+    bool found = false;
+    if (mNodes.empty()) return false;
     int32_t stack[128];
     int top = 0;
     stack[top++] = 0;
@@ -182,11 +181,13 @@ Vec3d TriangleBvh::closestPoint(const Vec3d& p, uint32_t* tri) const
         if (n.left < 0) {
             for (uint32_t k = n.first; k < n.first + n.count; ++k) {
                 const uint32_t t = mOrder[k];
+                if (boxDistanceSqr(p, mBoxes[t]) > best) continue;
                 const auto& f = (*mTriangles)[t];
                 const Vec3d q =
                     dla3d::closestPointOnTriangle(p, (*mPoints)[f[0]], (*mPoints)[f[1]], (*mPoints)[f[2]]);
                 const double d = (q - p).lengthSqr();
-                if (d < best || (d == best && t < bestTri)) { best = d; bestTri = t; out = q; }
+                // the lowest triangle index wins ties, whatever order the nodes are visited in
+                if (d < best || (d == best && (!found || t < tri))) { best = d; tri = t; out = q; found = true; }
             }
             continue;
         }
@@ -195,7 +196,17 @@ Vec3d TriangleBvh::closestPoint(const Vec3d& p, uint32_t* tri) const
         if (dl <= dr) { stack[top++] = n.right; stack[top++] = n.left; }
         else { stack[top++] = n.left; stack[top++] = n.right; }
     }
-    if (tri) *tri = bestTri;
+    distSqr = best;
+    return found;
+}
+
+Vec3d TriangleBvh::closestPoint(const Vec3d& p, uint32_t* tri) const
+{
+    Vec3d out = p;
+    uint32_t t = 0;
+    double d = 0;
+    closestPointWithin(p, std::numeric_limits<double>::max(), out, t, d);
+    if (tri) *tri = t;
     return out;
 }
 
@@ -261,21 +272,11 @@ std::shared_ptr<const ShellBand> ShellBand::build(const TriangleMesh& mesh, cons
     return band;
 }
 
-bool ShellBand::voxelGeometry(const Coord& c, const std::vector<uint32_t>& cand, Vec3d& cp, uint32_t& tri,
-                              double& dist) const
+bool ShellBand::voxelGeometry(const Coord& c, Vec3d& cp, uint32_t& tri, double& dist) const
 {
-    const Vec3d x(c.x(), c.y(), c.z());
-    const double hw2 = kHalfWidth * kHalfWidth;
-    double best = std::numeric_limits<double>::max();
-    for (uint32_t t : cand) { // ascending: the lowest index wins ties
-        if (boxDistanceSqr(x, mBvh.box(t)) > std::min(best, hw2)) continue; // cheap reject
-        const auto& f = mTris[t];
-        const Vec3d q = dla3d::closestPointOnTriangle(x, mPts[f[0]], mPts[f[1]], mPts[f[2]]);
-        const double d = (q - x).lengthSqr();
-        if (d < best) { best = d; cp = q; tri = t; }
-    }
-    if (best > hw2) return false;
-    dist = std::sqrt(best);
+    double d2 = 0;
+    if (!mBvh.closestPointWithin(Vec3d(c.x(), c.y(), c.z()), kHalfWidth * kHalfWidth, cp, tri, d2)) return false;
+    dist = std::sqrt(d2);
     return true;
 }
 
@@ -304,7 +305,7 @@ void ShellBand::computeLeaf(const Coord& origin, LeafData& out) const
                 Vec3d cp;
                 uint32_t t = 0;
                 double d = 0;
-                if (!voxelGeometry(c, cand, cp, t, d)) continue;
+                if (!voxelGeometry(c, cp, t, d)) continue;
                 Vec3d bc;
                 const VoxelFrame fr = frameOn(t, cp, &bc);
                 out.coords.push_back(c);
@@ -513,13 +514,10 @@ int32_t ShellBand::indexOf(const Coord& c) const { return mIndex->tree().getValu
 bool ShellBand::contains(const Coord& c) const
 {
     if (leafSlot(leafOrigin(c)) >= 0) return indexOf(c) >= 0;
-    std::vector<uint32_t> cand;
-    const Vec3d x(c.x(), c.y(), c.z());
-    mBvh.query(BBoxd(x - Vec3d(kHalfWidth), x + Vec3d(kHalfWidth)), cand);
     Vec3d cp;
     uint32_t t;
     double d;
-    return voxelGeometry(c, cand, cp, t, d);
+    return voxelGeometry(c, cp, t, d);
 }
 
 VoxelFrame ShellBand::frameAt(const Coord& c) const
@@ -527,13 +525,10 @@ VoxelFrame ShellBand::frameAt(const Coord& c) const
     const int32_t i = indexOf(c);
     if (i >= 0) return mFrames[size_t(i)];
     if (leafSlot(leafOrigin(c)) >= 0) return VoxelFrame{};
-    std::vector<uint32_t> cand;
-    const Vec3d x(c.x(), c.y(), c.z());
-    mBvh.query(BBoxd(x - Vec3d(kHalfWidth), x + Vec3d(kHalfWidth)), cand);
     Vec3d cp;
     uint32_t t;
     double d;
-    return voxelGeometry(c, cand, cp, t, d) ? frameOn(t, cp) : VoxelFrame{};
+    return voxelGeometry(c, cp, t, d) ? frameOn(t, cp) : VoxelFrame{};
 }
 
 std::vector<size_t> ShellBand::nearBorder(double width) const

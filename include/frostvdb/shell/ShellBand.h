@@ -4,9 +4,8 @@
 /// surface PDEs by the closest point method (Ruuth & Merriman 2008).
 ///
 /// The band is built per 8^3 leaf ("brick"), only where it is needed: a bounding-volume
-/// hierarchy over the mesh's triangles gives each leaf the triangles within the half-width of
-/// it, and each voxel of the leaf gets the exact closest point on those (the lowest triangle
-/// index on ties). build() materialises every leaf the mesh reaches (the whole band, the
+/// hierarchy over the mesh's triangles gives each voxel the exact closest point on the mesh
+/// (the lowest triangle index on ties) when it lies within the half-width. build() materialises every leaf the mesh reaches (the whole band, the
 /// reference); buildLazy() materialises none, and the shell's phase field asks for the leaves
 /// around the ice as it grows (ShellPhaseField's active region), so a huge mesh with small
 /// crystals costs what the crystals cost. A voxel's data does not depend on which leaves were
@@ -80,6 +79,9 @@ public:
     void query(const openvdb::BBoxd& box, std::vector<uint32_t>& out) const;
     /// The closest point on the mesh to @a p; @a tri gets its triangle (lowest index on ties).
     openvdb::Vec3d closestPoint(const openvdb::Vec3d& p, uint32_t* tri = nullptr) const;
+    /// The same among the points within sqrt(@a maxDistSqr) of @a p: false when there is none.
+    bool closestPointWithin(const openvdb::Vec3d& p, double maxDistSqr, openvdb::Vec3d& out, uint32_t& tri,
+                            double& distSqr) const;
     size_t memoryBytes() const;
     const openvdb::BBoxd& box(uint32_t t) const { return mBoxes[t]; }
 
@@ -231,9 +233,8 @@ private:
     void computeLeaf(const openvdb::Coord& origin, LeafData& out) const;
     size_t materialiseLocked(std::vector<openvdb::Coord> origins) const;
     void prepareLocked(std::vector<openvdb::Coord> origins) const;
-    /// Geometry of voxel @a c from triangles @a cand: false when it is beyond the half-width.
-    bool voxelGeometry(const openvdb::Coord& c, const std::vector<uint32_t>& cand, openvdb::Vec3d& cp, uint32_t& tri,
-                       double& dist) const;
+    /// Closest point of voxel @a c (exact, lowest triangle index on ties): false beyond the half-width.
+    bool voxelGeometry(const openvdb::Coord& c, openvdb::Vec3d& cp, uint32_t& tri, double& dist) const;
     VoxelFrame frameOn(uint32_t tri, const openvdb::Vec3d& cp, openvdb::Vec3d* bary = nullptr) const;
     /// Leaves (origins) within the half-width of triangle @a t.
     void leavesOfTriangle(uint32_t t, std::vector<openvdb::Coord>& out) const;
