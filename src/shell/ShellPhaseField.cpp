@@ -66,7 +66,7 @@ void ShellPhaseField::setActiveRegion(bool active, double tolerance)
     if (!active) mBand->materialiseAll();
     mStepped.clear();
     mCoefficient.clear();
-    mHot.clear();
+    mOff.clear();
     mInStepped.clear();
     mSlotsSeen = 0;
     mDirty = true;
@@ -159,54 +159,65 @@ void ShellPhaseField::updateRegion()
         recount();
         return;
     }
-    // Hot leaves: any voxel off the background by more than the tolerance. Only stepped leaves can
-    // turn hot, unless someone wrote the fields (mDirty) or built leaves since the last scan.
-    mHot.resize(leaves.size(), 0);
+    // Per leaf, the box of its voxels off the background by more than the tolerance. Only
+    // stepped leaves can change, unless someone wrote the fields (mDirty) or built leaves since
+    // the last scan.
+    mOff.resize(leaves.size());
     mInStepped.resize(leaves.size(), 0);
     std::vector<uint32_t> scan;
     if (mDirty || mSlotsSeen != leaves.size()) {
         for (uint32_t s = 0; s < leaves.size(); ++s)
-            if (!mHot[s] && leaves[s].end > leaves[s].begin) scan.push_back(s);
+            if (leaves[s].end > leaves[s].begin) scan.push_back(s);
     } else {
-        for (uint32_t s : mStepped)
-            if (!mHot[s]) scan.push_back(s);
+        scan = mStepped;
     }
     mDirty = false;
     const float tol = float(mTolerance), tInf = float(mParams.farTemperature);
-    std::vector<char> hot(scan.size(), 0);
+    std::vector<openvdb::CoordBBox> off(scan.size());
     tbb::parallel_for(tbb::blocked_range<size_t>(0, scan.size(), 4), [&](const tbb::blocked_range<size_t>& r) {
         for (size_t k = r.begin(); k < r.end(); ++k) {
             const auto& l = leaves[scan[k]];
-            for (size_t i = l.begin; i < l.end && !hot[k]; ++i)
-                if (std::fabs(mP[i]) > tol || std::fabs(mT[i] - tInf) > tol) hot[k] = 1;
+            for (size_t i = l.begin; i < l.end; ++i)
+                if (std::fabs(mP[i]) > tol || std::fabs(mT[i] - tInf) > tol) off[k].expand(b.coord(i));
         }
     });
+    // One step reads at most kReach voxels away (see the file comment): every leaf within kReach
+    // of an off-background voxel is stepped, the ring around those prepared (pass 1 there).
+    constexpr int kReach = 9;
     std::vector<openvdb::Coord> prep, stepped;
     for (size_t k = 0; k < scan.size(); ++k) {
-        if (!hot[k]) continue;
-        mHot[scan[k]] = 1;
-        const openvdb::Coord o = leaves[scan[k]].origin;
-        for (int dx = -3; dx <= 3; ++dx)
-            for (int dy = -3; dy <= 3; ++dy)
-                for (int dz = -3; dz <= 3; ++dz) {
-                    const openvdb::Coord n = o + openvdb::Coord(dx * kLeafDim, dy * kLeafDim, dz * kLeafDim);
-                    prep.push_back(n);
-                    if (std::max({std::abs(dx), std::abs(dy), std::abs(dz)}) <= 2) stepped.push_back(n);
+        if (off[k].empty()) continue;
+        openvdb::CoordBBox& have = mOff[scan[k]];
+        if (!have.empty() && have.isInside(off[k])) continue;
+        have.expand(off[k]);
+        openvdb::CoordBBox box = have;
+        box.expand(kReach);
+        const openvdb::Coord lo = leafOrigin(box.min()), hi = leafOrigin(box.max());
+        for (int x = lo.x() - kLeafDim; x <= hi.x() + kLeafDim; x += kLeafDim)
+            for (int y = lo.y() - kLeafDim; y <= hi.y() + kLeafDim; y += kLeafDim)
+                for (int z = lo.z() - kLeafDim; z <= hi.z() + kLeafDim; z += kLeafDim) {
+                    const openvdb::Coord o(x, y, z);
+                    prep.push_back(o);
+                    if (x >= lo.x() && x <= hi.x() && y >= lo.y() && y <= hi.y() && z >= lo.z() && z <= hi.z())
+                        stepped.push_back(o);
                 }
     }
     if (!stepped.empty()) {
-        b.prepare(prep); // builds the band two leaves beyond the stepped ones, prepares one beyond
+        b.prepare(prep); // builds the band one leaf beyond the prepared ring
         grow();
-        mHot.resize(leaves.size(), 0);
+        mOff.resize(leaves.size());
         mInStepped.resize(leaves.size(), 0);
+        size_t before = mStepped.size();
         for (const auto& o : stepped) {
             const int32_t s = b.leafSlot(o);
             if (s < 0 || mInStepped[size_t(s)] || leaves[size_t(s)].end == leaves[size_t(s)].begin) continue;
             mInStepped[size_t(s)] = 1;
             mStepped.push_back(uint32_t(s));
         }
-        std::sort(mStepped.begin(), mStepped.end());
-        recount();
+        if (mStepped.size() != before || mCoefficient.empty()) {
+            std::sort(mStepped.begin(), mStepped.end());
+            recount();
+        }
     }
     mSlotsSeen = leaves.size();
 }

@@ -22,11 +22,12 @@
 /// exactly as the plane's kobayashiAux/kobayashiEuler pair does with (cx, cy) replaced by C.
 /// The eps(theta) evaluation is the plane's own Anisotropy functor.
 ///
-/// Active region (setActiveRegion): a band leaf holding any voxel with |p| > tol or |T - T_inf|
-/// > tol is "hot"; the leaves within two leaves (16 voxels) of a hot leaf are stepped, the ring
-/// around them gets the coefficients of pass 1, and the band is built (ShellBand::prepare) two
-/// leaves beyond. One step reads at most 9 voxels away (extension: nodes within 7.5 voxels of x,
-/// each updated from neighbours 2 away), so at tol = 0 every voxel left out would have kept its
+/// Active region (setActiveRegion): a voxel with |p| > tol or |T - T_inf| > tol is "off the
+/// background". One step reads at most 9 voxels away (the extension's nodes lie within 7.5
+/// voxels of x, each updated from values 2 away), so every band leaf within 9 voxels of an
+/// off-background voxel (per leaf, the box of its off-background voxels grown by 9) is stepped;
+/// the ring of leaves around those gets the coefficients of pass 1, and the band is built
+/// (ShellBand::prepare) one leaf further. At tol = 0 every voxel left out would have kept its
 /// background value exactly (the extension interpolates differences from the background, so a
 /// constant stays bit-exact): the answer equals the whole band's bit for bit. The stepped set
 /// only grows. Time and memory then follow the ice and its heat halo, not the mesh's area.
@@ -109,7 +110,8 @@ private:
     bool mActive = false, mDirty = true, mMeltSet = false, mMeltTimesLum = false;
     double mTolerance = 0;
     std::function<float(const openvdb::Coord&)> mMeltSource;
-    std::vector<char> mHot, mInStepped;          ///< per leaf slot
+    std::vector<openvdb::CoordBBox> mOff;        ///< per leaf slot: box of its off-background voxels
+    std::vector<char> mInStepped;                 ///< per leaf slot
     std::vector<uint32_t> mStepped, mCoefficient; ///< leaf slots: stepped, pass 1 (prepared)
     size_t mSlotsSeen = 0;                        ///< leaf slots scanned for heat so far
 };
