@@ -65,7 +65,6 @@ void ShellPhaseField::setActiveRegion(bool active, double tolerance)
     mTolerance = std::max(0.0, tolerance);
     if (!active) mBand->materialiseAll();
     mStepped.clear();
-    mCoefficient.clear();
     mOff.clear();
     mInStepped.clear();
     mSlotsSeen = 0;
@@ -96,7 +95,14 @@ void ShellPhaseField::grow()
     mT.resize(n, tInf);
     mGrowth.resize(n, 0.f);
     mFreeze.resize(n, 0.f);
-    for (auto* v : {&mPn, &mTn, &mPOld, &mA, &mCx, &mCy, &mCz, &mGx, &mGy, &mGz}) v->resize(n, 0.f);
+    // Voxels never stepped sit at the background with a background neighbourhood: their pass-1
+    // coefficients are those of a zero gradient, their extension variable phi that of p = 0
+    // (exactly what pass 1 and extendPhase compute there on a whole band).
+    double eps0, epsPrime0;
+    mAniso(0.0, 0.0, eps0, epsPrime0);
+    mA.resize(n, float(eps0 * eps0));
+    mPhi.resize(n, float(std::atanh(2.0 * 1e-6 - 1.0)));
+    for (auto* v : {&mPn, &mTn, &mPOld, &mCx, &mCy, &mCz, &mGx, &mGy, &mGz}) v->resize(n, 0.f);
     if (mMeltSet && mMelt.size() < n) {
         const size_t from = mMelt.size();
         mMelt.resize(n, 1.f);
@@ -143,9 +149,6 @@ void ShellPhaseField::updateRegion()
     grow();
     const auto& leaves = b.leaves();
     auto recount = [&] {
-        mCoefficient.clear();
-        for (uint32_t s = 0; s < leaves.size(); ++s)
-            if (leaves[s].prepared && leaves[s].end > leaves[s].begin) mCoefficient.push_back(s);
         mUpdateCount = 0;
         for (uint32_t s : mStepped)
             for (size_t i = leaves[s].begin; i < leaves[s].end; ++i) mUpdateCount += b.inUpdateSet(i) ? 1 : 0;
@@ -182,9 +185,10 @@ void ShellPhaseField::updateRegion()
         }
     });
     // One step reads at most kReach voxels away (see the file comment): every leaf within kReach
-    // of an off-background voxel is stepped, the ring around those prepared (pass 1 there).
+    // of an off-background voxel is stepped; the ring of leaves around those stays at the
+    // background (built, for the stencils' indices).
     constexpr int kReach = 9;
-    std::vector<openvdb::Coord> prep, stepped;
+    std::vector<openvdb::Coord> stepped;
     for (size_t k = 0; k < scan.size(); ++k) {
         if (off[k].empty()) continue;
         openvdb::CoordBBox& have = mOff[scan[k]];
@@ -193,17 +197,14 @@ void ShellPhaseField::updateRegion()
         openvdb::CoordBBox box = have;
         box.expand(kReach);
         const openvdb::Coord lo = leafOrigin(box.min()), hi = leafOrigin(box.max());
-        for (int x = lo.x() - kLeafDim; x <= hi.x() + kLeafDim; x += kLeafDim)
-            for (int y = lo.y() - kLeafDim; y <= hi.y() + kLeafDim; y += kLeafDim)
-                for (int z = lo.z() - kLeafDim; z <= hi.z() + kLeafDim; z += kLeafDim) {
-                    const openvdb::Coord o(x, y, z);
-                    prep.push_back(o);
-                    if (x >= lo.x() && x <= hi.x() && y >= lo.y() && y <= hi.y() && z >= lo.z() && z <= hi.z())
-                        stepped.push_back(o);
+        for (int x = lo.x(); x <= hi.x(); x += kLeafDim)
+            for (int y = lo.y(); y <= hi.y(); y += kLeafDim)
+                for (int z = lo.z(); z <= hi.z(); z += kLeafDim) {
+                    stepped.emplace_back(x, y, z);
                 }
     }
     if (!stepped.empty()) {
-        b.prepare(prep); // builds the band one leaf beyond the prepared ring
+        b.prepare(stepped); // builds the ring of leaves around them too
         grow();
         mOff.resize(leaves.size());
         mInStepped.resize(leaves.size(), 0);
@@ -214,7 +215,7 @@ void ShellPhaseField::updateRegion()
             mInStepped[size_t(s)] = 1;
             mStepped.push_back(uint32_t(s));
         }
-        if (mStepped.size() != before || mCoefficient.empty()) {
+        if (mStepped.size() != before) {
             std::sort(mStepped.begin(), mStepped.end());
             recount();
         }
@@ -226,7 +227,7 @@ void ShellPhaseField::extendAll()
 {
     updateRegion();
     const ShellBand& b = *mBand;
-    b.extendPhase(mP, mPn, mA, &mStepped, &mCoefficient);
+    b.extendPhase(mP, mPn, mPhi, &mStepped, &mStepped);
     b.extend(mT, mTn, false, float(mParams.farTemperature), &mStepped);
     b.forEachVoxel(&mStepped, [&](size_t i) {
         mP[i] = mPn[i];
@@ -242,7 +243,7 @@ void ShellPhaseField::step(double time, int64_t stepIndex, uint64_t seed, ShellS
     const double invH = 1.0 / mH, invH2 = invH * invH;
     const auto t0 = Clock::now();
     // Pass 1: eps^2 and C = eps eps' (n x g) on the coefficient set, g the tangential gradient.
-    b.forEachVoxel(&mCoefficient, [&](size_t i) {
+    b.forEachVoxel(&mStepped, [&](size_t i) {
         if (!b.inCoefficientSet(i)) return;
         const VoxelFrame& f = b.frame(i);
         openvdb::Vec3d g(centralDiff(b, mP, i, 0), centralDiff(b, mP, i, 1), centralDiff(b, mP, i, 2));
@@ -293,7 +294,7 @@ void ShellPhaseField::step(double time, int64_t stepIndex, uint64_t seed, ShellS
     const auto t1 = Clock::now();
     // Re-extension: p through its sharp-profile variant (ShellBand::extendPhase), T plain.
     mPOld = mP;
-    b.extendPhase(mPn, mP, mA, &mStepped, &mCoefficient); // mA is scratch here: pass 1 rewrites it where it is read
+    b.extendPhase(mPn, mP, mPhi, &mStepped, &mStepped);
     b.extend(mTn, mT, false, float(k.farTemperature), &mStepped);
     const float tNext = float(time);
     b.forEachVoxel(&mStepped, [&](size_t i) {

@@ -25,9 +25,10 @@
 /// Active region (setActiveRegion): a voxel with |p| > tol or |T - T_inf| > tol is "off the
 /// background". One step reads at most 9 voxels away (the extension's nodes lie within 7.5
 /// voxels of x, each updated from values 2 away), so every band leaf within 9 voxels of an
-/// off-background voxel (per leaf, the box of its off-background voxels grown by 9) is stepped;
-/// the ring of leaves around those gets the coefficients of pass 1, and the band is built
-/// (ShellBand::prepare) one leaf further. At tol = 0 every voxel left out would have kept its
+/// off-background voxel (per leaf, the box of its off-background voxels grown by 9) is stepped
+/// (ShellBand::prepare, which builds the ring of leaves around them too). A voxel outside is
+/// more than 9 voxels from anything off the background, so its pass-1 coefficients are those of
+/// a zero gradient and its extension variable that of p = 0: set once, never recomputed. At tol = 0 every voxel left out would have kept its
 /// background value exactly (the extension interpolates differences from the background, so a
 /// constant stays bit-exact): the answer equals the whole band's bit for bit. The stepped set
 /// only grows. Time and memory then follow the ice and its heat halo, not the mesh's area.
@@ -112,7 +113,8 @@ private:
     std::function<float(const openvdb::Coord&)> mMeltSource;
     std::vector<openvdb::CoordBBox> mOff;        ///< per leaf slot: box of its off-background voxels
     std::vector<char> mInStepped;                 ///< per leaf slot
-    std::vector<uint32_t> mStepped, mCoefficient; ///< leaf slots: stepped, pass 1 (prepared)
+    std::vector<uint32_t> mStepped;               ///< leaf slots stepped (sorted)
+    std::vector<float> mPhi;                      ///< extendPhase's atanh(2p - 1)
     size_t mSlotsSeen = 0;                        ///< leaf slots scanned for heat so far
 };
 
