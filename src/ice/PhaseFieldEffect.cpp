@@ -252,7 +252,15 @@ bool PhaseFieldEffect::writePreview(World&, const Frame& frame, const std::strin
 void PhaseFieldEffect::saveState(const World& world, StateWriter& out) const
 {
     out.putDouble("time", mTime);
-    if (mShell) return; // explicit: the band fields are World fields, no history
+    if (mShell) { // explicit: the band fields are World fields, no history; the active region is ours
+        if (!mShell->activeRegion()) return;
+        auto boxes = openvdb::Int32Grid::create(0);
+        auto stepped = openvdb::MaskGrid::create();
+        mShell->regionState(*boxes, *stepped);
+        out.putGrid("shell_region_boxes", boxes);
+        out.putGrid("shell_region_stepped", stepped);
+        return;
+    }
     for (auto& [name, grid] : mSolver->historyGrids()) out.putGrid(name, *grid);
     out.putDouble("last_step_dt", mSolver->lastStepDt());
     const auto cadence = mSolver->cadenceState(*world.fields.get<openvdb::FloatGrid>(ice::kPhase),
@@ -273,6 +281,9 @@ void PhaseFieldEffect::loadState(World& world, const StateReader& in)
     mTime = in.getDouble("time");
     if (mShell) {
         gatherShell(world);
+        if (in.has("shell_region_stepped"))
+            mShell->restoreRegion(*in.getGrid<openvdb::Int32Grid>("shell_region_boxes"),
+                                  *in.getGrid<openvdb::MaskGrid>("shell_region_stepped"));
         return;
     }
     for (auto& [name, grid] : mSolver->historyGrids()) *grid = in.getGrid<openvdb::FloatGrid>(name);

@@ -223,6 +223,55 @@ void ShellPhaseField::updateRegion()
     mSlotsSeen = leaves.size();
 }
 
+void ShellPhaseField::regionState(openvdb::Int32Grid& boxes, openvdb::MaskGrid& stepped) const
+{
+    const auto& leaves = mBand->leaves();
+    auto bacc = boxes.getAccessor();
+    auto sacc = stepped.getAccessor();
+    for (uint32_t s : mStepped) sacc.setValueOn(leaves[s].origin);
+    for (size_t s = 0; s < mOff.size(); ++s) {
+        if (mOff[s].empty()) continue;
+        const openvdb::Coord d = mOff[s].max() - leaves[s].origin;
+        bacc.setValue(mOff[s].min(), 1 + (d.x() << 6 | d.y() << 3 | d.z()));
+    }
+}
+
+void ShellPhaseField::restoreRegion(const openvdb::Int32Grid& boxes, const openvdb::MaskGrid& stepped)
+{
+    if (!mActive) return;
+    const ShellBand& b = *mBand;
+    std::vector<openvdb::Coord> origins;
+    for (auto it = stepped.cbeginValueOn(); it; ++it) origins.push_back(it.getCoord());
+    b.prepare(origins);
+    grow();
+    const auto& leaves = b.leaves();
+    mOff.assign(leaves.size(), openvdb::CoordBBox());
+    mInStepped.assign(leaves.size(), 0);
+    mStepped.clear();
+    for (const auto& o : origins) {
+        const int32_t s = b.leafSlot(o);
+        if (s < 0 || leaves[size_t(s)].end == leaves[size_t(s)].begin || mInStepped[size_t(s)]) continue;
+        mInStepped[size_t(s)] = 1;
+        mStepped.push_back(uint32_t(s));
+    }
+    std::sort(mStepped.begin(), mStepped.end());
+    for (auto it = boxes.cbeginValueOn(); it; ++it) {
+        const openvdb::Coord lo = it.getCoord(), o = leafOrigin(lo);
+        const int off = *it - 1;
+        b.materialise({o});
+        mOff.resize(leaves.size());
+        mInStepped.resize(leaves.size(), 0);
+        const int32_t s = b.leafSlot(o);
+        mOff[size_t(s)] = openvdb::CoordBBox(lo, o + openvdb::Coord(off >> 6 & 7, off >> 3 & 7, off & 7));
+    }
+    grow();
+    mUpdateCount = 0;
+    for (uint32_t s : mStepped)
+        for (size_t i = leaves[s].begin; i < leaves[s].end; ++i) mUpdateCount += b.inUpdateSet(i) ? 1 : 0;
+    mDirty = true; // rescan: the boxes only grow from here
+    mSlotsSeen = leaves.size();
+}
+
 void ShellPhaseField::extendAll()
 {
     updateRegion();

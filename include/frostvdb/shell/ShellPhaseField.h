@@ -72,6 +72,12 @@ public:
     /// Leaves stepped (band leaf slots), and the band voxels in them.
     const std::vector<uint32_t>& steppedLeaves() const { return mStepped; }
     size_t steppedVoxels() const;
+    /// The active region's state for a checkpoint: @a stepped has the origin voxel of every
+    /// stepped leaf on; @a boxes holds, at the min corner of each leaf's box of off-background
+    /// voxels, 1 + the leaf offset of its max corner. restoreRegion() (after the fields were read
+    /// back) rebuilds the same region, so a resumed run steps the same voxels as an uninterrupted one.
+    void regionState(openvdb::Int32Grid& boxes, openvdb::MaskGrid& stepped) const;
+    void restoreRegion(const openvdb::Int32Grid& boxes, const openvdb::MaskGrid& stepped);
     /// Sizes every array to the band (new voxels at the background: p 0, T T_inf, melt from the
     /// melt source).
     void grow();
