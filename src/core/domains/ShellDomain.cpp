@@ -1,7 +1,8 @@
 /// @file ShellDomain.cpp
 /// @brief `[domain] kind = "shell"`: frost on objects. The support is a narrow band of voxels
 /// around a triangle mesh (shell/ShellBand.h); surface operators run there by the closest point
-/// method (shell/ShellPhaseField.h). Memory follows the mesh's area, never its bounding box.
+/// method (shell/ShellPhaseField.h). The band is built lazily, leaf by leaf, where the ice and its
+/// heat need it ([region] tolerance; dense = true builds it whole): memory follows the ice.
 #include <frostvdb/shell/ShellDomain.h>
 
 #include <frostvdb/io/Mesh.h>
