@@ -657,3 +657,36 @@ TEST_CASE("Shell active region: a run resumed from its fields and region state s
     }
     CHECK(differ == 0);
 }
+
+TEST_CASE("Shell scene: the active region at tolerance 0 writes the whole band's ice, seeds on the border too",
+          "[fast][shell][region]")
+{
+    // an open plate (a border) with a point seed and an edge seed: built lazily where they are
+    // stamped, against [region] dense = true (the whole band)
+    const std::string obj = (std::filesystem::temp_directory_path() / "frostvdb_shell_region_plate.obj").string();
+    {
+        std::ofstream f(obj);
+        f << "v -0.004 -0.003 0\nv 0.004 -0.003 0\nv 0.004 0.003 0\nv -0.004 0.003 0\nf 1 2 3\nf 1 3 4\n";
+    }
+    const std::string scene = "[scene]\nname = \"rg\"\nframes = 1\nsteps_per_frame = 40\n"
+                              "[domain]\nkind = \"shell\"\nvoxel_size = 0.0001\nmesh = \"" + obj + "\"\n"
+                              "mesh_rotate = [30, 20, 0]\n"
+                              "[[crystal.seed]]\nshape = \"point\"\nposition = [0.5, 0.5, 0.5]\nradius = 3\n"
+                              "[[crystal.seed]]\nshape = \"edge\"\nedges = \"border\"\nwidth = 1\n"
+                              "[phase_field]\nnoise = 0.01\n";
+    std::map<openvdb::Coord, float> ice[2];
+    for (int dense : {0, 1}) {
+        auto sim = test::makeSim(scene + (dense ? "[region]\ndense = true\n" : "[region]\ntolerance = 0\n"));
+        RunOptions ro;
+        ro.progress = false;
+        ro.outDir = test::tempDir("shell_region" + std::to_string(dense));
+        sim.run(ro);
+        openvdb::io::File f(ro.outDir + "/rg.0001.vdb");
+        f.open();
+        auto g = openvdb::gridPtrCast<openvdb::FloatGrid>(f.readGrid("ice"));
+        for (auto it = g->cbeginValueOn(); it; ++it) ice[dense][it.getCoord()] = *it;
+    }
+    CHECK(ice[0].size() > 100);
+    CHECK(ice[0] == ice[1]);
+    std::filesystem::remove(obj);
+}
