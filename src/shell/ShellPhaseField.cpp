@@ -9,6 +9,7 @@
 #include <chrono>
 #include <algorithm>
 #include <cmath>
+#include <stdexcept>
 
 namespace frostvdb::shell {
 
@@ -112,6 +113,10 @@ void ShellPhaseField::grow()
             mMelt[i] = float(v);
         }
     }
+    // a per-voxel wind without a world direction cannot be extended to new voxels
+    if (!mWind.empty() && mWind.size() < n && mWindWorld.lengthSqr() == 0.0)
+        throw std::logic_error("shell phase field: a per-voxel wind was set before the band grew; build the band "
+                               "whole first (ShellBand::materialiseAll)");
     if (mWindWorld.lengthSqr() > 0.0 && mWind.size() < n) {
         const size_t from = mWind.size();
         mWind.resize(n);
