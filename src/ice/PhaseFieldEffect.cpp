@@ -133,6 +133,8 @@ void PhaseFieldEffect::initialize(World& world)
     mTime = 0.0;
     if (auto band = shell::bandOf(world.domain)) {
         mShell = std::make_unique<shell::ShellPhaseField>(band, solverParams, world.domain.lattice().spacing());
+        // [region]: the band around the ice (tolerance) or the whole band (dense, the reference)
+        mShell->setActiveRegion(!world.region.dense, world.region.tolerance);
         mShell->setWind(mWind);
         gatherShell(world);
         const auto& lum = band->colourLuminance();
@@ -153,8 +155,9 @@ void PhaseFieldEffect::initialize(World& world)
 void PhaseFieldEffect::gatherShell(World& world)
 {
     const shell::ShellBand& band = mShell->band();
-    shell::fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kPhase), mShell->p());
-    shell::fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kTemperature), mShell->T());
+    // (building the band's leaves wherever p or T is off its background: seeds)
+    shell::fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kPhase), mShell->p(), true);
+    shell::fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kTemperature), mShell->T(), true);
     std::vector<float> v;
     shell::fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kGrowth), v);
     mShell->growthValues() = v;
@@ -166,8 +169,11 @@ void PhaseFieldEffect::gatherShell(World& world)
         if (colourMelt) // both: the product
             for (size_t i = 0; i < v.size(); ++i) v[i] *= band.colourLuminance()[i];
         mShell->setMelt(v);
+        auto acc = std::make_shared<openvdb::FloatGrid::ConstAccessor>(melt->getConstAccessor());
+        mShell->setMeltSource([melt, acc](const openvdb::Coord& c) { return acc->getValue(c); }, colourMelt);
     } else if (colourMelt) {
         mShell->setMelt(band.colourLuminance());
+        mShell->setMeltSource(nullptr, true); // leaves built later: their luminance
     }
 }
 
@@ -246,7 +252,15 @@ bool PhaseFieldEffect::writePreview(World&, const Frame& frame, const std::strin
 void PhaseFieldEffect::saveState(const World& world, StateWriter& out) const
 {
     out.putDouble("time", mTime);
-    if (mShell) return; // explicit: the band fields are World fields, no history
+    if (mShell) { // explicit: the band fields are World fields, no history; the active region is ours
+        if (!mShell->activeRegion()) return;
+        auto boxes = openvdb::Int32Grid::create(0);
+        auto stepped = openvdb::MaskGrid::create();
+        mShell->regionState(*boxes, *stepped);
+        out.putGrid("shell_region_boxes", boxes);
+        out.putGrid("shell_region_stepped", stepped);
+        return;
+    }
     for (auto& [name, grid] : mSolver->historyGrids()) out.putGrid(name, *grid);
     out.putDouble("last_step_dt", mSolver->lastStepDt());
     const auto cadence = mSolver->cadenceState(*world.fields.get<openvdb::FloatGrid>(ice::kPhase),
@@ -267,6 +281,9 @@ void PhaseFieldEffect::loadState(World& world, const StateReader& in)
     mTime = in.getDouble("time");
     if (mShell) {
         gatherShell(world);
+        if (in.has("shell_region_stepped"))
+            mShell->restoreRegion(*in.getGrid<openvdb::Int32Grid>("shell_region_boxes"),
+                                  *in.getGrid<openvdb::MaskGrid>("shell_region_stepped"));
         return;
     }
     for (auto& [name, grid] : mSolver->historyGrids()) *grid = in.getGrid<openvdb::FloatGrid>(name);
