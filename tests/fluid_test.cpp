@@ -463,3 +463,4 @@ TEST_CASE("The fluid scene files load", "[fast][fluid]")
         CHECK_NOTHROW(Simulation(std::move(scene)));
     }
 }
+

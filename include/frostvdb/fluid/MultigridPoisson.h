@@ -77,6 +77,7 @@ public:
 private:
     std::vector<std::unique_ptr<Level>> mLevels;
     int mDim;
+    mutable std::vector<double> mR, mZ, mP, mQ; ///< CG's vectors, kept across solves
 };
 
 } // namespace fluid
