@@ -194,6 +194,23 @@ namespace {
 
 using Level = MultigridPoisson::Level;
 
+/// f(u, coordinates of unknown u) for u in [a, e), in order; the coordinates are stepped along a
+/// row (unknowns of a row are consecutive in the padded layout), so the divisions of coordOf are
+/// paid once per row run, not per unknown.
+template <typename F>
+inline void forCoords(const Level& L, size_t a, size_t e, const F& f)
+{
+    int64_t prev = -2;
+    openvdb::Coord c;
+    for (size_t u = a; u < e; ++u) {
+        const int64_t p = L.lin[u];
+        if (p == prev + 1) c.x() += 1;
+        else c = L.coordOf(p);
+        prev = p;
+        f(u, c);
+    }
+}
+
 /// Cell-centred linear weights of fine offsets -1, 0, 1, 2 around a coarse cell (times 4).
 constexpr double kW[4] = {0.25, 0.75, 0.75, 0.25};
 
@@ -206,8 +223,7 @@ void restrictResidual(const Level& fine, const std::vector<double>& r, const Lev
     const double norm = dim == 3 ? 1.0 / 8.0 : 1.0 / 4.0;
     const int64_t sy = fine.stride[1], sz = fine.stride[2];
     forBlocks(coarse.size(), [&](size_t a, size_t e) {
-        for (size_t u = a; u < e; ++u) {
-            const openvdb::Coord c = coarse.coordOf(coarse.lin[u]);
+        forCoords(coarse, a, e, [&](size_t u, const openvdb::Coord& c) {
             const int nx = std::min(4, fine.n[0] + 2 - 2 * c.x()), ny = std::min(4, fine.n[1] + 2 - 2 * c.y());
             const int kz0 = dim == 3 ? 0 : 1, kz1 = dim == 3 ? std::min(4, fine.n[2] + 2 - 2 * c.z()) : 2;
             // padded position of fine cell (2c - 1) along each axis
@@ -225,7 +241,7 @@ void restrictResidual(const Level& fine, const std::vector<double>& r, const Lev
                 }
             }
             bc[u] = s * norm;
-        }
+        });
     });
 }
 
@@ -235,8 +251,7 @@ void prolongAdd(const Level& coarse, const std::vector<double>& xc, const Level&
 {
     const int dim = fine.dim;
     forBlocks(fine.size(), [&](size_t a, size_t e) {
-        for (size_t u = a; u < e; ++u) {
-            const openvdb::Coord f = fine.coordOf(fine.lin[u]);
+        forCoords(fine, a, e, [&](size_t u, const openvdb::Coord& f) {
             int64_t off[3][2];
             double w[3][2];
             for (int ax = 0; ax < 3; ++ax) {
@@ -256,7 +271,7 @@ void prolongAdd(const Level& coarse, const std::vector<double>& xc, const Level&
                         if (v >= 0) s += w[2][kz] * w[1][ky] * w[0][kx] * xc[size_t(v)];
                     }
             x[u] += s;
-        }
+        });
     });
 }
 
