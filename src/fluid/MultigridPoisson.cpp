@@ -407,6 +407,12 @@ int64_t MultigridPoisson::unknownIndex(int x, int y, int z) const
     return v >= 0 ? v : -1;
 }
 
+MultigridPoisson::IndexView MultigridPoisson::indexView() const
+{
+    const Level& l = *mLevels[0];
+    return {l.index.data(), l.stride[0], l.stride[1], l.dim == 3 ? l.stride[2] : 0};
+}
+
 openvdb::Coord MultigridPoisson::cellOf(size_t k) const { return mLevels[0]->coordOf(mLevels[0]->lin[k]); }
 
 void MultigridPoisson::apply(const std::vector<double>& in, std::vector<double>& out) const

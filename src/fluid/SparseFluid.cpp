@@ -329,8 +329,10 @@ void SparseFluid::project()
         }
     });
     mStats = mPoisson->solve(mRhs, mPressure, mP.poisson);
+    // Faces reach one cell outside the box at most: the padded index answers there (not an unknown).
+    const MultigridPoisson::IndexView index = mPoisson->indexView();
     auto p = [&](int i, int j, int k) {
-        const int64_t u = mPoisson->unknownIndex(i, j, k);
+        const int64_t u = index.at(i, j, k);
         return u >= 0 ? mPressure[size_t(u)] : 0.0;
     };
     for (int c = 0; c < mDim; ++c) {
