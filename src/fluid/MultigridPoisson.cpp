@@ -194,74 +194,84 @@ namespace {
 
 using Level = MultigridPoisson::Level;
 
+/// f(u, coordinates of unknown u) for u in [a, e), in order; the coordinates are stepped along a
+/// row (unknowns of a row are consecutive in the padded layout), so the divisions of coordOf are
+/// paid once per row run, not per unknown.
+template <typename F>
+inline void forCoords(const Level& L, size_t a, size_t e, const F& f)
+{
+    int64_t prev = -2;
+    openvdb::Coord c;
+    for (size_t u = a; u < e; ++u) {
+        const int64_t p = L.lin[u];
+        if (p == prev + 1) c.x() += 1;
+        else c = L.coordOf(p);
+        prev = p;
+        f(u, c);
+    }
+}
+
 /// Cell-centred linear weights of fine offsets -1, 0, 1, 2 around a coarse cell (times 4).
 constexpr double kW[4] = {0.25, 0.75, 0.75, 0.25};
 
-/// coarse.b = P^T r / 2^dim (gather over the 4^dim fine cells each coarse cell touches).
+/// coarse.b = P^T r / 2^dim (gather over the 4^dim fine cells each coarse cell touches). The
+/// padded index covers fine cells -1..n, whose padding entries are not unknowns, so only a tap
+/// past the padding (2c + 2 = n + 1 on an odd axis) needs a bounds test.
 void restrictResidual(const Level& fine, const std::vector<double>& r, const Level& coarse, std::vector<double>& bc)
 {
     const int dim = fine.dim;
     const double norm = dim == 3 ? 1.0 / 8.0 : 1.0 / 4.0;
+    const int64_t sy = fine.stride[1], sz = fine.stride[2];
     forBlocks(coarse.size(), [&](size_t a, size_t e) {
-        for (size_t u = a; u < e; ++u) {
-            const openvdb::Coord c = coarse.coordOf(coarse.lin[u]);
+        forCoords(coarse, a, e, [&](size_t u, const openvdb::Coord& c) {
+            const int nx = std::min(4, fine.n[0] + 2 - 2 * c.x()), ny = std::min(4, fine.n[1] + 2 - 2 * c.y());
+            const int kz0 = dim == 3 ? 0 : 1, kz1 = dim == 3 ? std::min(4, fine.n[2] + 2 - 2 * c.z()) : 2;
+            // padded position of fine cell (2c - 1) along each axis
+            const int64_t base = int64_t(2 * c.x()) + int64_t(2 * c.y()) * sy + (dim == 3 ? int64_t(2 * c.z()) * sz : 0);
             double s = 0;
-            const int kz0 = dim == 3 ? 0 : 1, kz1 = dim == 3 ? 4 : 2;
             for (int dz = kz0; dz < kz1; ++dz) {
-                const int fz = dim == 3 ? 2 * c.z() - 1 + dz : 0;
-                if (fz < 0 || fz >= fine.n[2]) continue;
                 const double wz = dim == 3 ? kW[dz] : 1.0;
-                for (int dy = 0; dy < 4; ++dy) {
-                    const int fy = 2 * c.y() - 1 + dy;
-                    if (fy < 0 || fy >= fine.n[1]) continue;
-                    for (int dx = 0; dx < 4; ++dx) {
-                        const int fx = 2 * c.x() - 1 + dx;
-                        if (fx < 0 || fx >= fine.n[0]) continue;
-                        const int32_t v = fine.index[size_t(fine.padLin(fx, fy, fz))];
+                const int64_t bz = base + (dim == 3 ? dz * sz : 0);
+                for (int dy = 0; dy < ny; ++dy) {
+                    const int64_t by = bz + dy * sy;
+                    for (int dx = 0; dx < nx; ++dx) {
+                        const int32_t v = fine.index[size_t(by + dx)];
                         if (v >= 0) s += wz * kW[dy] * kW[dx] * r[size_t(v)];
                     }
                 }
             }
             bc[u] = s * norm;
-        }
+        });
     });
 }
 
 /// x += P xc (each fine cell from its parent, weight 3/4 per axis, and the next coarse cell on
-/// its side, 1/4 per axis; coarse cells that are not unknowns count as 0).
+/// its side, 1/4 per axis; coarse cells that are not unknowns, padding included, count as 0).
 void prolongAdd(const Level& coarse, const std::vector<double>& xc, const Level& fine, std::vector<double>& x)
 {
     const int dim = fine.dim;
     forBlocks(fine.size(), [&](size_t a, size_t e) {
-        for (size_t u = a; u < e; ++u) {
-            const openvdb::Coord f = fine.coordOf(fine.lin[u]);
-            int cc[3][2];
+        forCoords(fine, a, e, [&](size_t u, const openvdb::Coord& f) {
+            int64_t off[3][2];
             double w[3][2];
-            for (int ax = 0; ax < dim; ++ax) {
-                const int p = f[ax] >> 1;
-                cc[ax][0] = p;
-                cc[ax][1] = (f[ax] & 1) ? p + 1 : p - 1;
-                w[ax][0] = 0.75;
-                w[ax][1] = 0.25;
+            for (int ax = 0; ax < 3; ++ax) {
+                const int p = ax < dim ? f[ax] >> 1 : 0;
+                const int q = ax < dim ? ((f[ax] & 1) ? p + 1 : p - 1) : 0;
+                const int64_t st = coarse.stride[ax];
+                off[ax][0] = int64_t(p + 1) * st;
+                off[ax][1] = int64_t(q + 1) * st;
+                w[ax][0] = ax < dim ? 0.75 : 1.0;
+                w[ax][1] = ax < dim ? 0.25 : 0.0;
             }
-            if (dim == 2) { cc[2][0] = cc[2][1] = 0; w[2][0] = 1; w[2][1] = 0; }
             double s = 0;
-            for (int kz = 0; kz < (dim == 3 ? 2 : 1); ++kz) {
-                const int z = cc[2][kz];
-                if (z < 0 || z >= coarse.n[2]) continue;
-                for (int ky = 0; ky < 2; ++ky) {
-                    const int y = cc[1][ky];
-                    if (y < 0 || y >= coarse.n[1]) continue;
+            for (int kz = 0; kz < (dim == 3 ? 2 : 1); ++kz)
+                for (int ky = 0; ky < 2; ++ky)
                     for (int kx = 0; kx < 2; ++kx) {
-                        const int xx = cc[0][kx];
-                        if (xx < 0 || xx >= coarse.n[0]) continue;
-                        const int32_t v = coarse.index[size_t(coarse.padLin(xx, y, z))];
+                        const int32_t v = coarse.index[size_t(off[2][kz] + off[1][ky] + off[0][kx])];
                         if (v >= 0) s += w[2][kz] * w[1][ky] * w[0][kx] * xc[size_t(v)];
                     }
-                }
-            }
             x[u] += s;
-        }
+        });
     });
 }
 
@@ -397,6 +407,12 @@ int64_t MultigridPoisson::unknownIndex(int x, int y, int z) const
     return v >= 0 ? v : -1;
 }
 
+MultigridPoisson::IndexView MultigridPoisson::indexView() const
+{
+    const Level& l = *mLevels[0];
+    return {l.index.data(), l.stride[0], l.stride[1], l.dim == 3 ? l.stride[2] : 0};
+}
+
 openvdb::Coord MultigridPoisson::cellOf(size_t k) const { return mLevels[0]->coordOf(mLevels[0]->lin[k]); }
 
 void MultigridPoisson::apply(const std::vector<double>& in, std::vector<double>& out) const
@@ -415,7 +431,9 @@ PoissonStats MultigridPoisson::solve(const std::vector<double>& b, std::vector<d
     st.unknowns = n;
     x.resize(n, 0.0);
     if (n == 0) { st.converged = true; return st; }
-    std::vector<double> r(n), z(n), p(n), q(n);
+    // CG's vectors live as long as the solver (reused from solve to solve).
+    std::vector<double>&r = mR, &z = mZ, &p = mP, &q = mQ;
+    for (auto* v : {&r, &z, &p, &q}) v->resize(n);
     L0.residual(x, b, r);
     const double bNorm = std::sqrt(blockSum(n, [&](size_t a, size_t e) {
         double s = 0;
@@ -459,7 +477,7 @@ PoissonStats MultigridPoisson::solve(const std::vector<double>& b, std::vector<d
     st.converged = measure();
     if (st.converged) return st;
     precondition();
-    p = z;
+    std::copy(z.begin(), z.end(), p.begin());
     double rz = dot(r, z);
     while (st.iterations < settings.maxIterations) {
         L0.apply(p, q);

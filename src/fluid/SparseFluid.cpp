@@ -34,6 +34,79 @@ void forBox(const openvdb::Coord& d, const F& f)
                       });
 }
 
+/// f(t) for t in [0, n), in parallel (each t writes its own entries only).
+template <typename F>
+void forList(size_t n, const F& f)
+{
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 1024), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t t = r.begin(); t != r.end(); ++t) f(t);
+    });
+}
+
+/// Clamped (zero-gradient) cell and weight of coordinate @a y on an axis of @a d samples.
+inline void clampAxis(double y, int d, int& i0, double& t)
+{
+    y = std::min(std::max(y, 0.0), double(d - 1));
+    i0 = std::min(int(y), d - 2);
+    t = y - i0;
+}
+
+/// The box a staggered array lives on (internal linkage, so the samplers below inline into the
+/// advection loops instead of being called through the shared library's symbol table).
+struct Layout {
+    openvdb::Coord n;
+    int dim;
+};
+
+/// Component c (c < 0: cell-centred) of @a f at x (cell coordinates): tri/bilinear, clamped to the
+/// array (zero gradient); @a lo and @a hi, if given, receive the range of the corners used.
+inline double sampleArray(const Layout& L, const std::vector<double>& f, int c, const openvdb::Vec3d& x, double* lo,
+                          double* hi)
+{
+    // Component c sits at x - e_c / 2.
+    const int dx = L.n.x() + (c == 0), dy = L.n.y() + (c == 1);
+    int i, j, k = 0;
+    double tx, ty, tz = 0;
+    clampAxis(x[0] + (c == 0 ? 0.5 : 0.0), dx, i, tx);
+    clampAxis(x[1] + (c == 1 ? 0.5 : 0.0), dy, j, ty);
+    const bool z2 = L.dim == 3;
+    if (z2) clampAxis(x[2] + (c == 2 ? 0.5 : 0.0), L.n.z() + (c == 2), k, tz);
+    const size_t sy = size_t(dx), sz = size_t(dx) * dy;
+    const double* p = f.data() + (size_t(k) * dy + j) * dx + i;
+    auto lerp = [](double a, double b, double s) { return a + s * (b - a); };
+    const double c0 = p[0], c1 = p[1], c2 = p[sy], c3 = p[sy + 1];
+    const double a0 = lerp(lerp(c0, c1, tx), lerp(c2, c3, tx), ty);
+    if (!z2) {
+        if (lo) {
+            *lo = std::min(std::min(c0, c1), std::min(c2, c3));
+            *hi = std::max(std::max(c0, c1), std::max(c2, c3));
+        }
+        return a0;
+    }
+    const double c4 = p[sz], c5 = p[sz + 1], c6 = p[sz + sy], c7 = p[sz + sy + 1];
+    if (lo) {
+        *lo = std::min(std::min(std::min(c0, c1), std::min(c2, c3)), std::min(std::min(c4, c5), std::min(c6, c7)));
+        *hi = std::max(std::max(std::max(c0, c1), std::max(c2, c3)), std::max(std::max(c4, c5), std::max(c6, c7)));
+    }
+    const double a1 = lerp(lerp(c4, c5, tx), lerp(c6, c7, tx), ty);
+    return lerp(a0, a1, tz);
+}
+
+inline openvdb::Vec3d velocityAt(const Layout& L, const std::array<std::vector<double>, 3>& u, const openvdb::Vec3d& x)
+{
+    openvdb::Vec3d v(0.0);
+    for (int c = 0; c < L.dim; ++c) v[c] = sampleArray(L, u[size_t(c)], c, x, nullptr, nullptr);
+    return v;
+}
+
+/// Second-order Runge-Kutta (midpoint) trace back through @a u; dt < 0 traces forward.
+inline openvdb::Vec3d backtrace(const Layout& L, const std::array<std::vector<double>, 3>& u, const openvdb::Vec3d& x,
+                                double dt)
+{
+    const openvdb::Vec3d mid = x - 0.5 * dt * velocityAt(L, u, x);
+    return x - dt * velocityAt(L, u, mid);
+}
+
 /// out[x] = any(in[x + lo .. x + hi]) along @a axis, per line, clipped to the box.
 std::vector<uint8_t> dilateAlong(const std::vector<uint8_t>& in, const openvdb::Coord& n, int axis, int lo, int hi)
 {
@@ -60,6 +133,8 @@ SparseFluid::SparseFluid(const SparseFluidParams& params, const openvdb::Coord& 
 {
     if (dim != 2 && dim != 3) throw std::invalid_argument("SparseFluid: dim must be 2 or 3");
     if (mP.inflowSide < 0 || mP.inflowSide >= 2 * dim) throw std::invalid_argument("SparseFluid: inflow side out of range");
+    if (double(mN.x() + 1) * (mN.y() + 1) * (mN.z() + 1) >= 4.0e9)
+        throw std::invalid_argument("SparseFluid: box too large (face lists are 32-bit)");
     for (int s = 0; s < 6; ++s)
         mSide[size_t(s)] = mP.sides[size_t(s)] < 0 ? mP.lateral : mP.sides[size_t(s)] == 1 ? SideKind::Wall : SideKind::Outflow;
     mSide[size_t(mP.inflowSide)] = SideKind::Inflow;
@@ -143,6 +218,8 @@ void SparseFluid::updateBand()
     if (mPoisson && cell == mCell) return;
     mCell.swap(cell);
     mActive = count;
+    listActive();
+    applyBoundaries(); // the fixed faces change only here (and in setFreeStream)
     std::unique_ptr<MultigridPoisson> old = std::move(mPoisson);
     std::vector<double> oldPressure = std::move(mPressure);
     mPoisson = std::make_unique<MultigridPoisson>(
@@ -162,6 +239,36 @@ void SparseFluid::updateBand()
             const int64_t v = old->unknownIndex(c.x(), c.y(), c.z());
             if (v >= 0) mPressure[u] = oldPressure[size_t(v)];
         }
+}
+
+openvdb::Coord SparseFluid::faceCoord(int c, uint32_t f) const
+{
+    const openvdb::Coord d = faceDims(c);
+    const uint32_t row = f / uint32_t(d.x());
+    return {int(f - row * uint32_t(d.x())), int(row % uint32_t(d.y())), int(row / uint32_t(d.y()))};
+}
+
+void SparseFluid::listActive()
+{
+    // Per row of the box, in parallel, then concatenated in order (so the lists do not depend on
+    // the thread count).
+    auto build = [&](const openvdb::Coord& d, const auto& keep, std::vector<uint32_t>& out) {
+        const int rows = d.y() * d.z();
+        std::vector<std::vector<uint32_t>> perRow(static_cast<size_t>(rows));
+        tbb::parallel_for(tbb::blocked_range<int>(0, rows), [&](const tbb::blocked_range<int>& r) {
+            for (int row = r.begin(); row != r.end(); ++row) {
+                const int j = row % d.y(), k = row / d.y();
+                for (int i = 0; i < d.x(); ++i)
+                    if (keep(i, j, k)) perRow[size_t(row)].push_back(uint32_t((size_t(k) * d.y() + j) * d.x() + i));
+            }
+        });
+        out.clear();
+        for (auto& v : perRow) out.insert(out.end(), v.begin(), v.end());
+        out.shrink_to_fit();
+    };
+    for (int c = 0; c < mDim; ++c)
+        build(faceDims(c), [&](int i, int j, int k) { double v; return !faceFixed(c, i, j, k, v); }, mFaces[size_t(c)]);
+    build(mN, [&](int i, int j, int k) { return mCell[cellIndex(i, j, k)] == kFluidCell; }, mCells);
 }
 
 double SparseFluid::maxSpeed() const
@@ -190,54 +297,7 @@ void SparseFluid::setFreeStream()
     applyBoundaries();
 }
 
-double SparseFluid::sampleComponent(const std::vector<double>& f, int c, const openvdb::Vec3d& x, double* lo,
-                                    double* hi) const
-{
-    // Component c (c < 0: cell-centred) sits at x - e_c / 2; clamp to the array (zero gradient).
-    const openvdb::Coord d = c < 0 ? mN : faceDims(c);
-    int i0[3];
-    double t[3];
-    for (int a = 0; a < 3; ++a) {
-        double y = x[a] + (a == c ? 0.5 : 0.0);
-        if (d[a] == 1 || (a == 2 && mDim == 2)) { i0[a] = 0; t[a] = 0; continue; }
-        y = std::min(std::max(y, 0.0), double(d[a] - 1));
-        i0[a] = std::min(int(y), d[a] - 2);
-        t[a] = y - i0[a];
-    }
-    const size_t sx = 1, sy = size_t(d.x()), sz = size_t(d.x()) * d.y();
-    const size_t base = (size_t(i0[2]) * d.y() + i0[1]) * d.x() + i0[0];
-    const bool z2 = mDim == 3 && d.z() > 1;
-    double corner[8];
-    int nc = 0;
-    for (int dz = 0; dz < (z2 ? 2 : 1); ++dz)
-        for (int dy = 0; dy < 2; ++dy)
-            for (int dx = 0; dx < 2; ++dx) corner[nc++] = f[base + dx * sx + dy * sy + dz * sz];
-    if (lo) {
-        *lo = *std::min_element(corner, corner + nc);
-        *hi = *std::max_element(corner, corner + nc);
-    }
-    auto lerp = [](double a, double b, double s) { return a + s * (b - a); };
-    const double a0 = lerp(lerp(corner[0], corner[1], t[0]), lerp(corner[2], corner[3], t[0]), t[1]);
-    if (!z2) return a0;
-    const double a1 = lerp(lerp(corner[4], corner[5], t[0]), lerp(corner[6], corner[7], t[0]), t[1]);
-    return lerp(a0, a1, t[2]);
-}
-
-openvdb::Vec3d SparseFluid::velocityAt(const std::array<std::vector<double>, 3>& u, const openvdb::Vec3d& x) const
-{
-    openvdb::Vec3d v(0.0);
-    for (int c = 0; c < mDim; ++c) v[c] = sampleComponent(u[size_t(c)], c, x, nullptr, nullptr);
-    return v;
-}
-
-openvdb::Vec3d SparseFluid::sample(const openvdb::Vec3d& x) const { return velocityAt(mU, x); }
-
-openvdb::Vec3d SparseFluid::backtrace(const openvdb::Vec3d& x, double dt) const
-{
-    // Second-order Runge-Kutta (midpoint) through the current velocity; dt < 0 traces forward.
-    const openvdb::Vec3d mid = x - 0.5 * dt * velocityAt(mU, x);
-    return x - dt * velocityAt(mU, mid);
-}
+openvdb::Vec3d SparseFluid::sample(const openvdb::Vec3d& x) const { return velocityAt(Layout{mN, mDim}, mU, x); }
 
 double SparseFluid::divergence(int i, int j, int k) const
 {
@@ -259,26 +319,28 @@ double SparseFluid::maxDivergence() const
 
 void SparseFluid::project()
 {
-    applyBoundaries();
+    // The fixed faces already hold their values (applyBoundaries runs when the band changes).
     const size_t n = mPoisson->unknowns();
-    std::vector<double> b(n);
+    mRhs.resize(n);
     tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 4096), [&](const tbb::blocked_range<size_t>& r) {
         for (size_t u = r.begin(); u != r.end(); ++u) {
             const openvdb::Coord c = mPoisson->cellOf(u);
-            b[u] = -divergence(c.x(), c.y(), c.z());
+            mRhs[u] = -divergence(c.x(), c.y(), c.z());
         }
     });
-    mStats = mPoisson->solve(b, mPressure, mP.poisson);
+    mStats = mPoisson->solve(mRhs, mPressure, mP.poisson);
+    // Faces reach one cell outside the box at most: the padded index answers there (not an unknown).
+    const MultigridPoisson::IndexView index = mPoisson->indexView();
     auto p = [&](int i, int j, int k) {
-        const int64_t u = mPoisson->unknownIndex(i, j, k);
+        const int64_t u = index.at(i, j, k);
         return u >= 0 ? mPressure[size_t(u)] : 0.0;
     };
     for (int c = 0; c < mDim; ++c) {
         auto& u = mU[size_t(c)];
-        forBox(faceDims(c), [&](int i, int j, int k) {
-            double v;
-            if (faceFixed(c, i, j, k, v)) return;
-            u[faceIndex(c, i, j, k)] -= p(i, j, k) - p(i - (c == 0), j - (c == 1), k - (c == 2));
+        const auto& faces = mFaces[size_t(c)];
+        forList(faces.size(), [&](size_t t) {
+            const openvdb::Coord q = faceCoord(c, faces[t]);
+            u[faces[t]] -= p(q.x(), q.y(), q.z()) - p(q.x() - (c == 0), q.y() - (c == 1), q.z() - (c == 2));
         });
     }
 }
@@ -286,45 +348,39 @@ void SparseFluid::project()
 void SparseFluid::step(double dt)
 {
     auto t0 = Clock::now();
-    applyBoundaries();
+    // Only the listed (non-fixed) faces move; the fixed ones already hold their values.
     const bool mc = mP.advection == Advection::MacCormack;
-    std::array<std::vector<double>, 3> fwd, lo, hi;
+    const Layout L{mN, mDim};
     for (int c = 0; c < mDim; ++c) {
-        fwd[size_t(c)] = mU[size_t(c)];
+        const auto& faces = mFaces[size_t(c)];
+        const auto& u = mU[size_t(c)];
+        auto& fwd = mFwd[size_t(c)];
+        fwd = u; // reuses the buffer's capacity
         if (mc) {
-            lo[size_t(c)].assign(fwd[size_t(c)].size(), 0.0);
-            hi[size_t(c)].assign(fwd[size_t(c)].size(), 0.0);
+            mLo.resize(std::max(mLo.size(), faces.size()));
+            mHi.resize(mLo.size());
         }
-        forBox(faceDims(c), [&](int i, int j, int k) {
-            double v;
-            if (faceFixed(c, i, j, k, v)) return;
-            const size_t f = faceIndex(c, i, j, k);
-            const openvdb::Vec3d x(i - 0.5 * (c == 0), j - 0.5 * (c == 1), k - 0.5 * (c == 2));
-            fwd[size_t(c)][f] = sampleComponent(mU[size_t(c)], c, backtrace(x, dt), mc ? &lo[size_t(c)][f] : nullptr,
-                                                mc ? &hi[size_t(c)][f] : nullptr);
+        auto facePos = [&](size_t t) {
+            const openvdb::Coord q = faceCoord(c, faces[t]);
+            return openvdb::Vec3d(q.x() - 0.5 * (c == 0), q.y() - 0.5 * (c == 1), q.z() - 0.5 * (c == 2));
+        };
+        forList(faces.size(), [&](size_t t) {
+            fwd[faces[t]] = sampleArray(L, u, c, backtrace(L, mU, facePos(t), dt), mc ? &mLo[t] : nullptr, mc ? &mHi[t] : nullptr);
         });
-    }
-    if (mc) {
+        if (!mc) continue;
         // MacCormack (Selle et al. 2008): trace the forward result back, correct by half the
         // round-trip error, and fall back to semi-Lagrangian where that leaves the bounds of the
-        // cells sampled (so no new extrema, whatever the CFL number).
-        std::array<std::vector<double>, 3> out;
-        for (int c = 0; c < mDim; ++c) {
-            out[size_t(c)] = fwd[size_t(c)];
-            forBox(faceDims(c), [&](int i, int j, int k) {
-                double v;
-                if (faceFixed(c, i, j, k, v)) return;
-                const size_t f = faceIndex(c, i, j, k);
-                const openvdb::Vec3d x(i - 0.5 * (c == 0), j - 0.5 * (c == 1), k - 0.5 * (c == 2));
-                const double back = sampleComponent(fwd[size_t(c)], c, backtrace(x, -dt), nullptr, nullptr);
-                const double corr = fwd[size_t(c)][f] + 0.5 * (mU[size_t(c)][f] - back);
-                if (corr >= lo[size_t(c)][f] && corr <= hi[size_t(c)][f]) out[size_t(c)][f] = corr;
-            });
-        }
-        fwd.swap(out);
+        // cells sampled (so no new extrema, whatever the CFL number). The result goes to mLo[t]
+        // (each face reads and writes only its own entry) and then into fwd.
+        forList(faces.size(), [&](size_t t) {
+            const uint32_t f = faces[t];
+            const double back = sampleArray(L, fwd, c, backtrace(L, mU, facePos(t), -dt), nullptr, nullptr);
+            const double corr = fwd[f] + 0.5 * (u[f] - back);
+            mLo[t] = corr >= mLo[t] && corr <= mHi[t] ? corr : fwd[f];
+        });
+        forList(faces.size(), [&](size_t t) { fwd[faces[t]] = mLo[t]; });
     }
-    for (int c = 0; c < mDim; ++c) mU[size_t(c)].swap(fwd[size_t(c)]);
-    applyBoundaries();
+    for (int c = 0; c < mDim; ++c) mU[size_t(c)].swap(mFwd[size_t(c)]);
     advectSeconds += secondsSince(t0);
     t0 = Clock::now();
     project();
@@ -334,23 +390,33 @@ void SparseFluid::step(double dt)
 void SparseFluid::advectScalar(std::vector<double>& f, double dt) const
 {
     const bool mc = mP.advection == Advection::MacCormack;
-    std::vector<double> fwd(f), lo(mc ? f.size() : 0), hi(mc ? f.size() : 0);
-    forBox(mN, [&](int i, int j, int k) {
-        const size_t x = cellIndex(i, j, k);
-        if (mCell[x] != kFluidCell) return;
-        fwd[x] = sampleComponent(f, -1, backtrace(openvdb::Vec3d(i, j, k), dt), mc ? &lo[x] : nullptr,
-                                 mc ? &hi[x] : nullptr);
+    const Layout L{mN, mDim};
+    const size_t n = mCells.size();
+    mScalarFwd = f;
+    auto& fwd = mScalarFwd;
+    if (mc) {
+        mLo.resize(std::max(mLo.size(), n));
+        mHi.resize(mLo.size());
+    }
+    auto cellPos = [&](size_t t) {
+        const uint32_t x = mCells[t];
+        const uint32_t row = x / uint32_t(mN.x());
+        return openvdb::Vec3d(double(x - row * uint32_t(mN.x())), double(row % uint32_t(mN.y())),
+                              double(row / uint32_t(mN.y())));
+    };
+    forList(n, [&](size_t t) {
+        fwd[mCells[t]] = sampleArray(L, f, -1, backtrace(L, mU, cellPos(t), dt), mc ? &mLo[t] : nullptr, mc ? &mHi[t] : nullptr);
     });
-    if (!mc) { f.swap(fwd); return; }
-    std::vector<double> out(fwd);
-    forBox(mN, [&](int i, int j, int k) {
-        const size_t x = cellIndex(i, j, k);
-        if (mCell[x] != kFluidCell) return;
-        const double back = sampleComponent(fwd, -1, backtrace(openvdb::Vec3d(i, j, k), -dt), nullptr, nullptr);
-        const double corr = fwd[x] + 0.5 * (f[x] - back);
-        if (corr >= lo[x] && corr <= hi[x]) out[x] = corr;
-    });
-    f.swap(out);
+    if (mc) {
+        forList(n, [&](size_t t) {
+            const uint32_t x = mCells[t];
+            const double back = sampleArray(L, fwd, -1, backtrace(L, mU, cellPos(t), -dt), nullptr, nullptr);
+            const double corr = fwd[x] + 0.5 * (f[x] - back);
+            mLo[t] = corr >= mLo[t] && corr <= mHi[t] ? corr : fwd[x];
+        });
+        forList(n, [&](size_t t) { fwd[mCells[t]] = mLo[t]; });
+    }
+    f.swap(fwd);
 }
 
 } // namespace fluid

@@ -65,6 +65,14 @@ public:
     int64_t unknownIndex(int x, int y, int z) const;
     /// Box cell of unknown @a k.
     openvdb::Coord cellOf(size_t k) const;
+    /// Fast look-up of unknownIndex for cells within one cell of the box (x in -1..n): an inline
+    /// read of the fine level's padded index (negative: not an unknown).
+    struct IndexView {
+        const int32_t* index;
+        int64_t sx, sy, sz;
+        int64_t at(int x, int y, int z) const { return index[(x + 1) * sx + (y + 1) * sy + (z + 1) * sz]; }
+    };
+    IndexView indexView() const;
 
     /// Solves A x = b (A: the positive semi-definite negative Laplacian, unit spacing). @a x holds
     /// the initial guess and receives the solution; both vectors have unknowns() entries.
@@ -77,6 +85,7 @@ public:
 private:
     std::vector<std::unique_ptr<Level>> mLevels;
     int mDim;
+    mutable std::vector<double> mR, mZ, mP, mQ; ///< CG's vectors, kept across solves
 };
 
 } // namespace fluid

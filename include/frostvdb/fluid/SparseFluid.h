@@ -15,7 +15,9 @@
 /// projection leaves exactly the divergence the pressure solve's residual says and no
 /// checkerboard modes; solids block whole faces, which is how the ice paper treats p > 1/2.
 /// Face velocities are stored in dense arrays over the box (8 bytes per face); the work (advection,
-/// projection, the compact unknowns of fluid/MultigridPoisson.h) is spent on active cells only.
+/// projection, the compact unknowns of fluid/MultigridPoisson.h) is spent on the listed active
+/// faces and cells only, and the fixed faces (solid, boundary, free stream) are written only when
+/// the band changes. Scratch buffers live as long as the solver (no allocation per step).
 ///
 /// Units: one cell = 1 length unit; dt in the same time unit as the velocities.
 #include <frostvdb/fluid/MultigridPoisson.h>
@@ -104,9 +106,8 @@ private:
     bool faceFixed(int c, int i, int j, int k, double& value) const;
     void applyBoundaries();
     void updateBand();
-    double sampleComponent(const std::vector<double>& f, int c, const openvdb::Vec3d& x, double* lo, double* hi) const;
-    openvdb::Vec3d velocityAt(const std::array<std::vector<double>, 3>& u, const openvdb::Vec3d& x) const;
-    openvdb::Vec3d backtrace(const openvdb::Vec3d& x, double dt) const;
+    openvdb::Coord faceCoord(int c, uint32_t f) const;
+    void listActive();
 
     SparseFluidParams mP;
     openvdb::Coord mN;
@@ -118,6 +119,15 @@ private:
     std::unique_ptr<MultigridPoisson> mPoisson;
     std::vector<double> mPressure; ///< on the poisson unknowns; warm start
     PoissonStats mStats;
+    /// The faces that are not fixed (per component) and the fluid cells, as box indices: the only
+    /// ones advection and projection visit. Rebuilt when the band changes.
+    std::array<std::vector<uint32_t>, 3> mFaces;
+    std::vector<uint32_t> mCells;
+    /// Scratch kept across steps: the forward (semi-Lagrangian) field, MacCormack's bounds (one
+    /// entry per listed face or cell), the projection's right-hand side.
+    std::array<std::vector<double>, 3> mFwd;
+    mutable std::vector<double> mLo, mHi, mScalarFwd;
+    std::vector<double> mRhs;
 };
 
 } // namespace fluid
