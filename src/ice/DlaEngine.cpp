@@ -17,6 +17,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <stdexcept>
 
 namespace frostvdb {
 namespace ice {
@@ -257,14 +258,28 @@ void DlaEngine::relaxQueue()
 
 void DlaEngine::freeze(int64_t cell)
 {
+    freezeDeferred(cell);
+    flushDistances();
+}
+
+void DlaEngine::freezeDeferred(int64_t cell)
+{
     if (isIce(cell)) return;
     const openvdb::Coord r = coord(cell) - mOrigin;
     mSparse->setFine(r.x(), r.y(), r.z(), 0);
     mSparse->addIce(r.x(), r.y(), r.z());
     ++mIceCount;
-    mQueue.clear();
     mQueue.push_back(cell);
+}
+
+void DlaEngine::flushDistances()
+{
+    // One multi-source BFS from every cell frozen since the last flush (all at distance 0, so
+    // first-in first-out is breadth-first): each cell is lowered once, not once per new ice
+    // cell near it, and the capped distances are the same unique minimum as one-by-one relaxing.
+    if (mQueue.empty()) return;
     relaxQueue();
+    mQueue.clear();
 }
 
 void DlaEngine::rebuild(const openvdb::FloatGrid& p)
@@ -286,6 +301,7 @@ void DlaEngine::rebuild(const openvdb::FloatGrid& p)
         }
     }
     relaxQueue(); // multi-source BFS
+    mQueue.clear();
 }
 
 void DlaEngine::sync(const openvdb::FloatGrid& p)
@@ -335,8 +351,9 @@ void DlaEngine::sync(const openvdb::FloatGrid& p)
         return;
     }
     for (const auto& f : fresh)
-        for (int64_t i : f) freeze(i);
-    for (int64_t i : tiles) freeze(i);
+        for (int64_t i : f) freezeDeferred(i);
+    for (int64_t i : tiles) freezeDeferred(i);
+    flushDistances();
 }
 
 double DlaEngine::stickingProbability(const Inputs& in, int64_t cell) const
@@ -423,6 +440,7 @@ struct DlaEngine::Probes {
 
 WalkEnd DlaEngine::walk(int64_t step, uint64_t walker, uint64_t salt, int64_t start, const Inputs& in) const
 {
+    if (distancesPending()) throw std::logic_error("DlaEngine::walk: flushDistances() first");
     WalkerRng rng(mSeed, walker, uint64_t(step), salt);
     const int64_t idx = start >= 0 ? start : release(step, walker, rng, in);
     if (idx < 0) return WalkEnd{};
@@ -433,6 +451,7 @@ WalkEnd DlaEngine::walk(int64_t step, uint64_t walker, uint64_t salt, int64_t st
 void DlaEngine::walkBatch(int64_t step, uint64_t first, uint64_t count, const Inputs& in,
                           std::vector<WalkEnd>& out) const
 {
+    if (distancesPending()) throw std::logic_error("DlaEngine::walkBatch: flushDistances() first");
     out.assign(size_t(count), WalkEnd{});
     tbb::parallel_for(tbb::blocked_range<uint64_t>(0, count, 16), [&](const tbb::blocked_range<uint64_t>& r) {
         Probes pr(in);

@@ -151,6 +151,12 @@ public:
     void sync(const openvdb::FloatGrid& p);
     /// Marks a cell as ice and updates the distances.
     void freeze(int64_t cell);
+    /// Marks a cell as ice at once (isIce sees it) and leaves its distances to the next
+    /// flushDistances(), which relaxes all such cells in one breadth-first pass. Walks read the
+    /// distances: flush before walking.
+    void freezeDeferred(int64_t cell);
+    void flushDistances();
+    bool distancesPending() const { return !mQueue.empty(); }
     bool isIce(int64_t cell) const;
     /// Lattice distance to the nearest ice: exact below distanceCap(), a lower bound above.
     int iceDistance(const openvdb::Coord& c) const;
