@@ -582,7 +582,7 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
     ts.setOutside(T.background());
     std::vector<double> p0(ps.rows(), 0.0), T0(ps.rows(), 0.0);
     const double theta = mTheta;
-    const double tScale = theta * k.dt, tDiag = 1.0 + theta * k.dt * -stencil.wLapCentre;
+    ts.setUniform(1.0 + theta * k.dt * -stencil.wLapCentre, theta * k.dt); // every row: diag, scale
     const openvdb::FloatGrid* dP = mLastInP.get();
     const openvdb::FloatGrid* dT = mLastInT.get();
     // Coefficients at theta of the step (the midpoint for Crank-Nicolson, the end for implicit
@@ -654,8 +654,6 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
                     p0[s] = b.p[i];
                     T0[s] = b.T[i];
                     // Temperature: theta-weighted lap T; the latent heat is added once p' is known.
-                    ts.diag[s] = tDiag;
-                    ts.scale[s] = tScale;
                     ts.rhs[s] = b.T[i] + (1.0 - theta) * k.dt * row.lapT;
                   });
                 }

@@ -33,6 +33,7 @@
 #include <openvdb/openvdb.h>
 #include <openvdb/tree/LeafManager.h>
 
+#include <algorithm>
 #include <cstdint>
 #include <utility>
 #include <vector>
@@ -47,10 +48,12 @@ struct SolveReport {
     bool converged = false;
 };
 
-/// Where the unknowns live: the active voxels of a topology numbered as rows (leaf order, then
-/// voxel order), each row's neighbour rows (the extra row n stands for every neighbour outside
-/// the topology), and the rows of each colour. Built once per step, shared by the p and T
-/// systems, so that a sweep is a plain indexed loop.
+/// Where the unknowns live: the active voxels of a topology numbered as rows (colour by colour,
+/// each colour in leaf order, then voxel order), each row's neighbour rows (the extra row n
+/// stands for every neighbour outside the topology). A colour's rows are one contiguous range,
+/// so a sweep streams through the row data instead of striding over the other colours' rows
+/// (rows of one colour only read the others', so the numbering changes no result). Built once
+/// per region topology, shared by the p and T systems.
 class SlotLayout {
 public:
     SlotLayout(openvdb::tree::LeafManager<openvdb::FloatTree>& topology, const Stencil& stencil, bool plane);
@@ -72,7 +75,7 @@ public:
     std::vector<openvdb::Coord> rowCoord; ///< per row
     std::vector<int32_t> neighbours;      ///< taps per row: neighbour row, or rowCount() outside
     std::vector<uint8_t> colour;          ///< per row
-    std::vector<std::vector<int32_t>> rowsOfColour;
+    std::vector<size_t> colourStart;      ///< colour c owns rows [colourStart[c], colourStart[c+1])
 };
 
 class ImplicitSystem {
@@ -87,6 +90,16 @@ public:
     /// off-diagonal is scale_i * w_q. useCoefficients() sizes it.
     std::vector<double> coef;
     void useCoefficients() { coef.assign(rows() * size_t(mL.taps), 0.0); }
+    /// Every row has the same diag and scale (the temperature system): the sweeps read two
+    /// constants instead of two arrays. Sets the arrays too (BiCGSTAB and residualMaxNorm read them).
+    void setUniform(double diagValue, double scaleValue)
+    {
+        std::fill(diag.begin(), diag.end(), diagValue);
+        std::fill(scale.begin(), scale.end(), scaleValue);
+        mUniform = true;
+        mUniformDiag = diagValue;
+        mUniformScale = scaleValue;
+    }
     int taps() const { return mL.taps; }
     void setOutside(double v) { x[rows()] = v; }
     double outside() const { return x[rows()]; }
@@ -101,23 +114,39 @@ private:
     /// sums in a canonical (sorted) order, so that a cell and its mirror or rotated image (whose
     /// taps are the same values in another order) get bit-identical sums: the hexagonal D6 and
     /// square D4 symmetry of the solution is then exact.
-    double offDiagonal(size_t r) const
+    double offDiagonal(size_t r) const { return offDiagonal(r, coef.empty() ? scale[r] : 1.0); }
+    double offDiagonal(size_t r, double rowScale) const
     {
         const int32_t* nb = &mL.neighbours[r * mL.taps];
         double pair[4];
         const int np = mL.taps / 2;
         if (coef.empty()) {
             for (int k = 0; k < np; ++k) pair[k] = mL.weights[2 * k] * x[nb[2 * k]] + mL.weights[2 * k + 1] * x[nb[2 * k + 1]];
-            return scale[r] * canonicalSum(pair, np);
+            return rowScale * sortedSum(pair, np);
         }
         const double* c = &coef[r * mL.taps];
         for (int k = 0; k < np; ++k) pair[k] = c[2 * k] * x[nb[2 * k]] + c[2 * k + 1] * x[nb[2 * k + 1]];
-        return canonicalSum(pair, np);
+        return sortedSum(pair, np);
+    }
+    /// canonicalSum (ascending order) with min/max sorting networks for 2 and 3 terms: the same
+    /// sorted values and additions, hence the same bits, without data-dependent branches (the
+    /// insertion sort's mispredicted swaps were a large part of a sweep).
+    static double sortedSum(double* v, int n)
+    {
+        if (n == 3) {
+            const double a = std::min(v[0], v[1]), b = std::max(v[0], v[1]);
+            const double lo = std::min(a, v[2]), t = std::max(a, v[2]);
+            return ((0.0 + lo) + std::min(b, t)) + std::max(b, t);
+        }
+        if (n == 2) return (0.0 + std::min(v[0], v[1])) + std::max(v[0], v[1]);
+        return canonicalSum(v, n);
     }
     SolveReport gaussSeidel(double tolerance, int maxIterations);
     SolveReport bicgstab(double tolerance, int maxIterations);
 
     const SlotLayout& mL;
+    bool mUniform = false;
+    double mUniformDiag = 1.0, mUniformScale = 0.0;
 };
 
 } // namespace frostvdb
