@@ -128,19 +128,8 @@ private:
         for (int k = 0; k < np; ++k) pair[k] = c[2 * k] * x[nb[2 * k]] + c[2 * k + 1] * x[nb[2 * k + 1]];
         return sortedSum(pair, np);
     }
-    /// canonicalSum (ascending order) with min/max sorting networks for 2 and 3 terms: the same
-    /// sorted values and additions, hence the same bits, without data-dependent branches (the
-    /// insertion sort's mispredicted swaps were a large part of a sweep).
-    static double sortedSum(double* v, int n)
-    {
-        if (n == 3) {
-            const double a = std::min(v[0], v[1]), b = std::max(v[0], v[1]);
-            const double lo = std::min(a, v[2]), t = std::max(a, v[2]);
-            return ((0.0 + lo) + std::min(b, t)) + std::max(b, t);
-        }
-        if (n == 2) return (0.0 + std::min(v[0], v[1])) + std::max(v[0], v[1]);
-        return canonicalSum(v, n);
-    }
+    /// canonicalSum: ascending order, branch-free for 2 and 3 terms (Kobayashi.h).
+    static double sortedSum(double* v, int n) { return canonicalSum(v, n); }
     SolveReport gaussSeidel(double tolerance, int maxIterations);
     SolveReport bicgstab(double tolerance, int maxIterations);
 
