@@ -395,5 +395,10 @@ std::vector<std::pair<std::string, double>> DlaEffect::timings() const
             {"tables", mStats.tableSeconds}};
 }
 
+std::vector<std::pair<std::string, double>> DlaEffect::counters() const
+{
+    return {{"distance_rebuilds", mEngine ? double(mEngine->rebuildCount()) : 0.0}};
+}
+
 } // namespace ice
 } // namespace frostvdb

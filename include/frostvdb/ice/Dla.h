@@ -162,6 +162,8 @@ public:
     int iceDistance(const openvdb::Coord& c) const;
     int distanceCap() const { return mCap; }
     uint64_t iceCount() const { return mIceCount; }
+    /// Full rebuilds of the distances (sync found ice that melted), and cells melted in them.
+    uint64_t rebuildCount() const { return mRebuilds; }
 
     int64_t index(const openvdb::Coord& c) const
     {
@@ -213,6 +215,8 @@ public:
 private:
     void rebuild(const openvdb::FloatGrid& p);
     void relaxQueue();
+    /// Takes melted cells out of the ice and repairs the distances around them.
+    void repairMelted(const std::vector<int64_t>& melted);
     int64_t release(int64_t step, uint64_t walker, WalkerRng& rng, const Inputs& in) const;
     WalkEnd walkFrom(WalkerRng& rng, int64_t idx, const Inputs& in, Probes& pr) const;
 
@@ -227,6 +231,7 @@ private:
     double mSphereScale = 1.0;  ///< index Chebyshev reach of a unit plane displacement
     double mGraphScale = 1.0;   ///< lattice (graph) distance reach of a unit plane displacement
     uint64_t mIceCount = 0;
+    uint64_t mRebuilds = 0;
     std::unique_ptr<Sparse> mSparse;
     std::vector<int64_t> mQueue;
     std::vector<std::shared_ptr<const ShellTable>> mTables;
@@ -249,6 +254,7 @@ public:
     void addToFrame(World& world, Frame& frame) override;
     double time() const override { return mTime; }
     std::vector<std::pair<std::string, double>> timings() const override;
+    std::vector<std::pair<std::string, double>> counters() const override;
     bool supportsCheckpoint() const override { return true; }
     void saveState(const World& world, StateWriter& out) const override;
     void loadState(World& world, const StateReader& in) override;
