@@ -126,13 +126,28 @@ ImplicitSystem::ImplicitSystem(const SlotLayout& layout) : mL(layout)
     rhs.assign(n, 0.0);
 }
 
+ImplicitSystem::ImplicitSystem(const SlotLayout& layout, ImplicitSystem& recycle) : mL(layout), mRecycled(true)
+{
+    const size_t n = layout.rowCount();
+    x.swap(recycle.x);
+    diag.swap(recycle.diag);
+    scale.swap(recycle.scale);
+    rhs.swap(recycle.rhs);
+    coef.swap(recycle.coef); // kept in use when it was: useCoefficients() sizes it
+    x.resize(n + 1);
+    diag.resize(n);
+    scale.resize(n);
+    rhs.resize(n);
+    if (!coef.empty()) coef.resize(n * size_t(mL.taps));
+}
+
 double ImplicitSystem::residualMaxNorm() const
 {
     return tbb::parallel_reduce(
         tbb::blocked_range<size_t>(0, rows(), 1024), 0.0,
         [&](const tbb::blocked_range<size_t>& r, double m) {
             for (size_t i = r.begin(); i != r.end(); ++i)
-                m = std::max(m, std::fabs(rhs[i] - diag[i] * x[i] + offDiagonal(i)));
+                m = std::max(m, std::fabs(rhs[i] - rowDiag(i) * x[i] + offDiagonal(i)));
             return m;
         },
         [](double a, double b) { return std::max(a, b); });
@@ -216,10 +231,10 @@ SolveReport ImplicitSystem::bicgstab(double tolerance, int maxIterations)
     Eigen::VectorXd b(n), x0(n);
     for (int64_t r = 0; r < n; ++r) {
         double bi = rhs[r];
-        trip.emplace_back(r, r, diag[r]);
+        trip.emplace_back(r, r, rowDiag(size_t(r)));
         for (int q = 0; q < mL.taps; ++q) {
             const int32_t col = mL.neighbours[size_t(r) * mL.taps + q];
-            const double c = coef.empty() ? scale[r] * mL.weights[q] : coef[size_t(r) * mL.taps + q];
+            const double c = coef.empty() ? rowScale(size_t(r)) * mL.weights[q] : coef[size_t(r) * mL.taps + q];
             if (col < n) trip.emplace_back(r, col, -c);
             else bi += c * outside(); // Dirichlet neighbour: right-hand side
         }

@@ -576,11 +576,17 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
     }
     const SlotLayout& layout = *mLayout;
     const int z0 = mDomain.bbox().min().z();
-    ImplicitSystem ps(layout), ts(layout);
+    // Last step's systems lend their arrays (every row is set below).
+    auto psOwned = mSystemP ? std::make_unique<ImplicitSystem>(layout, *mSystemP) : std::make_unique<ImplicitSystem>(layout);
+    auto tsOwned = mSystemT ? std::make_unique<ImplicitSystem>(layout, *mSystemT) : std::make_unique<ImplicitSystem>(layout);
+    ImplicitSystem &ps = *psOwned, &ts = *tsOwned;
     ps.useCoefficients();
     ps.setOutside(p.background());
     ts.setOutside(T.background());
-    std::vector<double> p0(ps.rows(), 0.0), T0(ps.rows(), 0.0);
+    std::vector<double>& p0 = mStartP;
+    std::vector<double>& T0 = mStartT;
+    p0.resize(ps.rows());
+    T0.resize(ps.rows());
     const double theta = mTheta;
     ts.setUniform(1.0 + theta * k.dt * -stencil.wLapCentre, theta * k.dt); // every row: diag, scale
     const openvdb::FloatGrid* dP = mLastInP.get();
@@ -756,6 +762,8 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
     mLastInOwnedT = mLastInT.get();
     mLastInGeneration = mGeneration;
     mLastStepDt = k.dt;
+    mSystemP = std::move(psOwned);
+    mSystemT = std::move(tsOwned);
 }
 
 uint64_t PhaseFieldSolver::kernelOnly(const openvdb::MaskGrid& region, const openvdb::FloatGrid& p,
