@@ -134,10 +134,13 @@ ImplicitSystem::ImplicitSystem(const SlotLayout& layout, ImplicitSystem& recycle
     scale.swap(recycle.scale);
     rhs.swap(recycle.rhs);
     coef.swap(recycle.coef); // kept in use when it was: useCoefficients() sizes it
+    mUniform = recycle.mUniform;
+    mUniformDiag = recycle.mUniformDiag;
+    mUniformScale = recycle.mUniformScale;
     x.resize(n + 1);
-    diag.resize(n);
-    scale.resize(n);
     rhs.resize(n);
+    if (!mUniform) diag.resize(n);
+    if (!mUniform && coef.empty()) scale.resize(n);
     if (!coef.empty()) coef.resize(n * size_t(mL.taps));
 }
 

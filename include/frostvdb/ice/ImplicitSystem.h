@@ -94,15 +94,20 @@ public:
     /// Optional per-row tap coefficients C_iq (rows x taps, row-major); when empty the row's
     /// off-diagonal is scale_i * w_q. useCoefficients() sizes it.
     std::vector<double> coef;
+    /// Sizes coef; scale is not read with per-row coefficients and is released.
     void useCoefficients()
     {
         if (mRecycled) coef.resize(rows() * size_t(mL.taps));
         else coef.assign(rows() * size_t(mL.taps), 0.0);
+        std::vector<double>().swap(scale);
     }
     /// Every row has the same diag and scale (the temperature system): the sweeps read two
-    /// constants instead of two arrays, which are left as they are.
+    /// constants instead of two arrays, which are released (a system recycled from this one
+    /// stays uniform; call setUniform again for the new step's values).
     void setUniform(double diagValue, double scaleValue)
     {
+        std::vector<double>().swap(diag);
+        std::vector<double>().swap(scale);
         mUniform = true;
         mUniformDiag = diagValue;
         mUniformScale = scaleValue;
