@@ -382,6 +382,45 @@ TEST_CASE("DLA memory follows the ice, not the domain", "[fast][dla]")
     CHECK(bytes[1] < size_t(8192) * 8192 / 1000);
 }
 
+TEST_CASE("Melted ice repairs the walker distances to those of a rebuild from the ice", "[fast][dla]")
+{
+    // Grow and melt random ice over a few syncs; after each, every cell's distance (exact below
+    // the cap, the pyramid's bound above it) equals that of an engine synced afresh, and the
+    // melts were repaired in place (no full rebuild).
+    struct Case { LatticeKind kind; bool box; int n; };
+    for (const Case cs : {Case{LatticeKind::Square, false, 120}, Case{LatticeKind::Hexagonal, false, 120},
+                          Case{LatticeKind::Square, true, 40}}) {
+        const openvdb::Coord size(cs.n, cs.n, cs.box ? cs.n : 1);
+        Domain dom = cs.box ? makeBoxDomain(Lattice(cs.kind), size, 1e-4) : makePlaneDomain(Lattice(cs.kind), size, 1e-4);
+        auto p = openvdb::FloatGrid::create(0.f);
+        ice::DlaParams prm;
+        ice::DlaEngine eng(dom, prm, 5);
+        uint64_t h = 12345;
+        auto draw = [&](int n) { h = h * 6364136223846793005ull + 1442695040888963407ull; return int((h >> 33) % uint64_t(n)); };
+        std::vector<openvdb::Coord> ice;
+        for (int round = 0; round < 6; ++round) {
+            for (int a = 0; a < 60; ++a) { // new ice: short random segments
+                openvdb::Coord c(draw(cs.n), draw(cs.n), cs.box ? draw(cs.n) : 0);
+                for (int l = 0; l < 5; ++l, c.x() = std::min(c.x() + 1, cs.n - 1)) {
+                    p->tree().setValue(c, 1.f);
+                    ice.push_back(c);
+                }
+            }
+            for (int a = 0; a < 8 && round > 0; ++a) // melts: p falls to 0.3 (still active)
+                p->tree().setValue(ice[size_t(draw(int(ice.size())))], 0.3f);
+            eng.sync(*p);
+            ice::DlaEngine fresh(dom, prm, 5);
+            fresh.sync(*p);
+            REQUIRE(eng.iceCount() == fresh.iceCount());
+            int differ = 0;
+            for (auto it = dom.bbox().begin(); it; ++it) differ += eng.iceDistance(*it) != fresh.iceDistance(*it);
+            INFO("lattice " << Lattice::kindName(cs.kind) << (cs.box ? " box" : " plane") << ", round " << round);
+            CHECK(differ == 0);
+        }
+        CHECK(eng.rebuildCount() == 0);
+    }
+}
+
 TEST_CASE("Shell tables are normalised and lattice symmetric", "[fast][dla][jumps]")
 {
     for (auto kind : {LatticeKind::Hexagonal, LatticeKind::Square}) {

@@ -270,7 +270,7 @@ void DlaEffect::step(World& world, const StepInfo& info)
         pAcc.setValue(c, 1.f);
         recordPhaseChange(gAcc, fAcc, c, before, 1.f, time);
         if (tAcc) tAcc->setValue(c, tAcc->getValue(c) + float(mHeat * (1.0 - double(before))));
-        mEngine->freeze(cell);
+        mEngine->freezeDeferred(cell); // distances relaxed once per batch (or before a resumed walk)
         ++mStats.frozen;
         mStats.dpDla += 1.0 - double(before);
     };
@@ -323,12 +323,14 @@ void DlaEffect::step(World& world, const StepInfo& info)
                     }
                 }
                 if (start < 0) continue;
+                mEngine->flushDistances();
                 e = mEngine->walk(info.step, first + w, kResumeSalt, start, in);
                 account(e);
                 if (e.kind != WalkEnd::Stuck) continue;
             }
             hit(e.cell);
         }
+        mEngine->flushDistances();
         mStats.applySeconds += since(t0);
     }
     if (counting) {
@@ -391,6 +393,11 @@ std::vector<std::pair<std::string, double>> DlaEffect::timings() const
             {"distance", mStats.syncSeconds},
             {"steam", mStats.steamSeconds},
             {"tables", mStats.tableSeconds}};
+}
+
+std::vector<std::pair<std::string, double>> DlaEffect::counters() const
+{
+    return {{"distance_rebuilds", mEngine ? double(mEngine->rebuildCount()) : 0.0}};
 }
 
 } // namespace ice

@@ -17,6 +17,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <stdexcept>
 
 namespace frostvdb {
 namespace ice {
@@ -50,9 +51,12 @@ struct DlaEngine::Sparse {
     uint8_t cap = 16;
     KeyMap<uint8_t*> brickOf;                     ///< brick key -> its cells (stable storage)
     std::vector<std::unique_ptr<uint8_t[]>> pool; ///< the bricks
-    /// Level k: blocks of 8 * 2^k cells. occupied[k]: blocks holding ice; near[k]: blocks with
-    /// ice in their 3^d neighbourhood (the complement is where a Chebyshev bound holds).
-    std::vector<KeyMap<uint8_t>> occupied, near;
+    /// Level k: blocks of 8 * 2^k cells. occupied[k]: per block, its ice cells (k = 0) or its
+    /// occupied child blocks (k > 0); near[k]: per block, the occupied blocks in its 3^d
+    /// neighbourhood (the blocks with none are where a Chebyshev bound holds). Counts, so that a
+    /// melt takes its cell out again: the pyramid is always that of the current ice.
+    std::vector<KeyMap<uint32_t>> occupied;
+    std::vector<KeyMap<uint8_t>> near;
 
     void clear()
     {
@@ -85,21 +89,28 @@ struct DlaEngine::Sparse {
     {
         brickForWrite(x >> kBrickLog2, y >> kBrickLog2, z >> kBrickLog2)[cellInBrick(x, y, z)] = uint8_t(d);
     }
-    void addIce(int x, int y, int z)
+    /// Adds (+1) or removes (-1) an ice cell: a block's count changes level by level while a
+    /// block becomes occupied (or empty), and then its neighbourhood's near counts.
+    void changeIce(int x, int y, int z, int sign)
     {
         const int zr = dim == 3 ? 1 : 0;
         for (size_t k = 0; k < occupied.size(); ++k) {
             const int sh = kBrickLog2 + int(k);
             const int bx = x >> sh, by = y >> sh, bz = z >> sh;
-            if (!occupied[k].insert(packKey(bx, by, bz)).second) break; // and every level above
+            uint32_t& n = *occupied[k].insert(packKey(bx, by, bz), 0).first;
+            const uint32_t before = n;
+            n = uint32_t(int64_t(n) + sign);
+            if ((sign > 0 && before != 0) || (sign < 0 && n != 0)) break; // the levels above keep their count
             for (int dz = -zr; dz <= zr; ++dz)
                 for (int dy = -1; dy <= 1; ++dy)
                     for (int dx = -1; dx <= 1; ++dx) {
                         if (bx + dx < 0 || by + dy < 0 || bz + dz < 0) continue;
-                        near[k].insert(packKey(bx + dx, by + dy, bz + dz));
+                        uint8_t& m = *near[k].insert(packKey(bx + dx, by + dy, bz + dz), 0).first;
+                        m = uint8_t(int(m) + sign);
                     }
         }
     }
+    void addIce(int x, int y, int z) { changeIce(x, y, z, +1); }
     /// Chebyshev lower bound of the distance to the ice (0: none known; kNoBound: no ice).
     /// @a hint: the level found last time for a nearby cell (updated), where the scan starts.
     int bound(int x, int y, int z, bool anyIce, int& hint) const
@@ -109,7 +120,8 @@ struct DlaEngine::Sparse {
         // up while free or down until free (a walker's successive cells mostly keep their level)
         auto freeAt = [&](int k) {
             const int sh = kBrickLog2 + k;
-            return !near[size_t(k)].contains(packKey(x >> sh, y >> sh, z >> sh));
+            const uint8_t* n = near[size_t(k)].find(packKey(x >> sh, y >> sh, z >> sh));
+            return !n || *n == 0;
         };
         const int top = int(near.size()) - 1;
         int lo = std::min(std::max(hint, -1), top);
@@ -257,14 +269,28 @@ void DlaEngine::relaxQueue()
 
 void DlaEngine::freeze(int64_t cell)
 {
+    freezeDeferred(cell);
+    flushDistances();
+}
+
+void DlaEngine::freezeDeferred(int64_t cell)
+{
     if (isIce(cell)) return;
     const openvdb::Coord r = coord(cell) - mOrigin;
     mSparse->setFine(r.x(), r.y(), r.z(), 0);
     mSparse->addIce(r.x(), r.y(), r.z());
     ++mIceCount;
-    mQueue.clear();
     mQueue.push_back(cell);
+}
+
+void DlaEngine::flushDistances()
+{
+    // One multi-source BFS from every cell frozen since the last flush (all at distance 0, so
+    // first-in first-out is breadth-first): each cell is lowered once, not once per new ice
+    // cell near it, and the capped distances are the same unique minimum as one-by-one relaxing.
+    if (mQueue.empty()) return;
     relaxQueue();
+    mQueue.clear();
 }
 
 void DlaEngine::rebuild(const openvdb::FloatGrid& p)
@@ -286,6 +312,7 @@ void DlaEngine::rebuild(const openvdb::FloatGrid& p)
         }
     }
     relaxQueue(); // multi-source BFS
+    mQueue.clear();
 }
 
 void DlaEngine::sync(const openvdb::FloatGrid& p)
@@ -331,12 +358,119 @@ void DlaEngine::sync(const openvdb::FloatGrid& p)
     }
     nfresh += tiles.size();
     if (count != mIceCount + nfresh) {
-        rebuild(p); // some ice melted: start again
-        return;
+        // Some ice melted: find it (ice cells whose p is now at most 1/2) and repair the
+        // distances around it; start again from the ice only when not every melted cell is found
+        // (one that left p's active voxels) or when so many melted that a rebuild is cheaper.
+        std::vector<std::vector<int64_t>> lost(nl);
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, nl, 8), [&](const tbb::blocked_range<size_t>& r) {
+            BrickCursor cur(*mSparse); // read only here
+            for (size_t l = r.begin(); l != r.end(); ++l)
+                for (auto it = leaves.leaf(l).cbeginValueOn(); it; ++it) {
+                    if (*it > 0.5f) continue;
+                    const openvdb::Coord c = it.getCoord();
+                    if (!dom.isInside(c)) continue;
+                    const openvdb::Coord q = c - mOrigin;
+                    if (cur.get(q.x(), q.y(), q.z()) == 0) lost[l].push_back(index(c));
+                }
+        });
+        std::vector<int64_t> melted;
+        for (const auto& v : lost) melted.insert(melted.end(), v.begin(), v.end());
+        if (count + melted.size() != mIceCount + nfresh || melted.size() * 16 > mIceCount) {
+            ++mRebuilds;
+            rebuild(p);
+            return;
+        }
+        repairMelted(melted);
     }
     for (const auto& f : fresh)
-        for (int64_t i : f) freeze(i);
-    for (int64_t i : tiles) freeze(i);
+        for (int64_t i : f) freezeDeferred(i);
+    for (int64_t i : tiles) freezeDeferred(i);
+    flushDistances();
+}
+
+void DlaEngine::repairMelted(const std::vector<int64_t>& melted)
+{
+    // The cells whose capped distance can grow lie within Chebyshev distance cap - 1 of a melted
+    // cell (a lattice step moves each index by at most 1). Reset the bricks that cover those
+    // boxes to the cap (ice stays 0), then relax from every cell below the cap in those bricks
+    // and the ring of bricks around them (their values are still right; outside the reset they
+    // cannot change): a breadth-first pass by distance levels gives the unique capped minimum,
+    // the same distances as a rebuild from all the ice.
+    Sparse& S = *mSparse;
+    const int64_t m = (int64_t(1) << 21) - 1;
+    const int zr = mDim == 3 ? 1 : 0;
+    std::vector<uint64_t> reset;
+    for (int64_t cell : melted) {
+        const int x = int(cell & m), y = int((cell >> 21) & m), z = int(cell >> 42);
+        S.setFine(x, y, z, mCap);
+        S.changeIce(x, y, z, -1);
+        --mIceCount;
+        const int reach = mCap - 1;
+        auto bricks = [&](int v, int n) {
+            return std::make_pair(std::max(0, v - reach) >> kBrickLog2, std::min(n - 1, v + reach) >> kBrickLog2);
+        };
+        const auto bx = bricks(x, int(mNx)), by = bricks(y, int(mNy)), bz = bricks(z, int(mNz));
+        for (int k = bz.first; k <= bz.second; ++k)
+            for (int j = by.first; j <= by.second; ++j)
+                for (int i = bx.first; i <= bx.second; ++i) reset.push_back(packKey(i, j, k));
+    }
+    std::sort(reset.begin(), reset.end());
+    reset.erase(std::unique(reset.begin(), reset.end()), reset.end());
+    auto unpack = [m](uint64_t key, int& i, int& j, int& k) {
+        i = int(key & uint64_t(m));
+        j = int((key >> 21) & uint64_t(m));
+        k = int(key >> 42);
+    };
+    for (uint64_t key : reset) {
+        int i, j, k;
+        unpack(key, i, j, k);
+        if (uint8_t* b = const_cast<uint8_t*>(S.brick(i, j, k)))
+            for (int c = 0; c < S.brickVolume; ++c)
+                if (b[c] != 0) b[c] = uint8_t(mCap);
+    }
+    std::vector<uint64_t> sources;
+    for (uint64_t key : reset) {
+        int i, j, k;
+        unpack(key, i, j, k);
+        for (int dz = -zr; dz <= zr; ++dz)
+            for (int dy = -1; dy <= 1; ++dy)
+                for (int dx = -1; dx <= 1; ++dx)
+                    if (i + dx >= 0 && j + dy >= 0 && k + dz >= 0) sources.push_back(packKey(i + dx, j + dy, k + dz));
+    }
+    std::sort(sources.begin(), sources.end());
+    sources.erase(std::unique(sources.begin(), sources.end()), sources.end());
+    std::vector<std::vector<int64_t>> level(static_cast<size_t>(mCap));
+    for (uint64_t key : sources) {
+        int i, j, k;
+        unpack(key, i, j, k);
+        const uint8_t* b = S.brick(i, j, k);
+        if (!b) continue;
+        for (int c = 0; c < S.brickVolume; ++c)
+            if (b[c] < mCap) {
+                const int x = (i << kBrickLog2) | (c & kBMask), y = (j << kBrickLog2) | ((c >> 3) & kBMask),
+                          z = (k << kBrickLog2) | (c >> 6);
+                level[b[c]].push_back(int64_t(packKey(x, y, z)));
+            }
+    }
+    BrickCursor here(S), there(S);
+    for (int d = 0; d + 1 < mCap; ++d) {
+        auto& list = level[size_t(d)];
+        for (size_t q = 0; q < list.size(); ++q) {
+            const int64_t u = list[q];
+            const int x = int(u & m), y = int((u >> 21) & m), z = int(u >> 42);
+            if (here.get(x, y, z) != d) continue;
+            for (const auto& o : mNbr) {
+                const int i = x + o.x(), j = y + o.y(), k = z + o.z();
+                if (i < 0 || j < 0 || k < 0 || i >= mNx || j >= mNy || k >= mNz) continue;
+                if (there.get(i, j, k) > d + 1) {
+                    there.set(i, j, k, d + 1);
+                    level[size_t(d) + 1].push_back(int64_t(packKey(i, j, k)));
+                }
+            }
+        }
+        list.clear();
+        list.shrink_to_fit();
+    }
 }
 
 double DlaEngine::stickingProbability(const Inputs& in, int64_t cell) const
@@ -423,6 +557,7 @@ struct DlaEngine::Probes {
 
 WalkEnd DlaEngine::walk(int64_t step, uint64_t walker, uint64_t salt, int64_t start, const Inputs& in) const
 {
+    if (distancesPending()) throw std::logic_error("DlaEngine::walk: flushDistances() first");
     WalkerRng rng(mSeed, walker, uint64_t(step), salt);
     const int64_t idx = start >= 0 ? start : release(step, walker, rng, in);
     if (idx < 0) return WalkEnd{};
@@ -433,6 +568,7 @@ WalkEnd DlaEngine::walk(int64_t step, uint64_t walker, uint64_t salt, int64_t st
 void DlaEngine::walkBatch(int64_t step, uint64_t first, uint64_t count, const Inputs& in,
                           std::vector<WalkEnd>& out) const
 {
+    if (distancesPending()) throw std::logic_error("DlaEngine::walkBatch: flushDistances() first");
     out.assign(size_t(count), WalkEnd{});
     tbb::parallel_for(tbb::blocked_range<uint64_t>(0, count, 16), [&](const tbb::blocked_range<uint64_t>& r) {
         Probes pr(in);

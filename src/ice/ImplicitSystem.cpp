@@ -25,10 +25,30 @@ SlotLayout::SlotLayout(openvdb::tree::LeafManager<openvdb::FloatTree>& topology,
     taps = int(stencil.taps.size());
     for (const auto& t : stencil.taps) weights.push_back(t.wLap);
 
-    // Rows: leaf order, then voxel order (a prefix sum over the leaves' active counts).
-    std::vector<size_t> firstRow(nLeaves + 1, 0);
-    for (size_t i = 0; i < nLeaves; ++i) firstRow[i + 1] = firstRow[i] + topology.leaf(i).onVoxelCount();
-    const size_t n = firstRow[nLeaves];
+    // Rows: colour by colour, each in leaf order, then voxel order (prefix sums over the leaves'
+    // active counts per colour).
+    auto colourOf = [this](const openvdb::Coord& c) {
+        return colours == 2 ? uint8_t((c.x() + c.y() + c.z()) & 1) : uint8_t(((c.x() + 2 * c.y() + c.z()) % 3 + 3) % 3);
+    };
+    std::vector<size_t> firstRow(nLeaves * size_t(colours), 0); // per leaf and colour
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, nLeaves, 16), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t li = r.begin(); li != r.end(); ++li)
+            for (auto it = topology.leaf(li).cbeginValueOn(); it; ++it) ++firstRow[li * colours + colourOf(it.getCoord())];
+    });
+    colourStart.assign(size_t(colours) + 1, 0);
+    {
+        size_t row = 0;
+        for (int c = 0; c < colours; ++c) {
+            colourStart[size_t(c)] = row;
+            for (size_t li = 0; li < nLeaves; ++li) {
+                const size_t count = firstRow[li * colours + c];
+                firstRow[li * colours + c] = row;
+                row += count;
+            }
+        }
+        colourStart[size_t(colours)] = row;
+    }
+    const size_t n = colourStart[size_t(colours)];
     rowCoord.resize(n);
     colour.resize(n);
     slotRow.assign(nLeaves * size_t(slots), -1);
@@ -59,13 +79,15 @@ SlotLayout::SlotLayout(openvdb::tree::LeafManager<openvdb::FloatTree>& topology,
     };
     tbb::parallel_for(tbb::blocked_range<size_t>(0, nLeaves, 16), [&](const tbb::blocked_range<size_t>& r) {
         for (size_t li = r.begin(); li != r.end(); ++li) {
-            size_t row = firstRow[li];
-            for (auto it = topology.leaf(li).cbeginValueOn(); it; ++it, ++row) {
+            size_t next[3];
+            for (int c = 0; c < colours; ++c) next[c] = firstRow[li * colours + c];
+            for (auto it = topology.leaf(li).cbeginValueOn(); it; ++it) {
                 const openvdb::Coord c = it.getCoord();
+                const uint8_t k = colourOf(c);
+                const size_t row = next[k]++;
                 slotRow[slotOf(li, c)] = int32_t(row);
                 rowCoord[row] = c;
-                colour[row] = colours == 2 ? uint8_t((c.x() + c.y() + c.z()) & 1)
-                                           : uint8_t(((c.x() + 2 * c.y() + c.z()) % 3 + 3) % 3);
+                colour[row] = k;
             }
         }
     });
@@ -77,8 +99,9 @@ SlotLayout::SlotLayout(openvdb::tree::LeafManager<openvdb::FloatTree>& topology,
                 for (int dy = -1; dy <= 1; ++dy)
                     for (int dx = -1; dx <= 1; ++dx) nbLeaf[nbIndex(dx, dy, dz)] = leafAt(o + openvdb::Coord(dx, dy, dz));
             const openvdb::Coord origin = topology.leaf(li).origin();
-            for (size_t row = firstRow[li]; row < firstRow[li + 1]; ++row) {
-                const openvdb::Coord c = rowCoord[row];
+            for (auto it = topology.leaf(li).cbeginValueOn(); it; ++it) {
+                const openvdb::Coord c = it.getCoord();
+                const size_t row = size_t(slotRow[slotOf(li, c)]);
                 for (int q = 0; q < taps; ++q) {
                     const openvdb::Coord nc = c + stencil.taps[q].offset;
                     const openvdb::Coord l = nc - origin;
@@ -92,8 +115,6 @@ SlotLayout::SlotLayout(openvdb::tree::LeafManager<openvdb::FloatTree>& topology,
             }
         }
     });
-    rowsOfColour.assign(colours, {});
-    for (size_t row = 0; row < n; ++row) rowsOfColour[colour[row]].push_back(int32_t(row));
 }
 
 ImplicitSystem::ImplicitSystem(const SlotLayout& layout) : mL(layout)
@@ -105,13 +126,31 @@ ImplicitSystem::ImplicitSystem(const SlotLayout& layout) : mL(layout)
     rhs.assign(n, 0.0);
 }
 
+ImplicitSystem::ImplicitSystem(const SlotLayout& layout, ImplicitSystem& recycle) : mL(layout), mRecycled(true)
+{
+    const size_t n = layout.rowCount();
+    x.swap(recycle.x);
+    diag.swap(recycle.diag);
+    scale.swap(recycle.scale);
+    rhs.swap(recycle.rhs);
+    coef.swap(recycle.coef); // kept in use when it was: useCoefficients() sizes it
+    mUniform = recycle.mUniform;
+    mUniformDiag = recycle.mUniformDiag;
+    mUniformScale = recycle.mUniformScale;
+    x.resize(n + 1);
+    rhs.resize(n);
+    if (!mUniform) diag.resize(n);
+    if (!mUniform && coef.empty()) scale.resize(n);
+    if (!coef.empty()) coef.resize(n * size_t(mL.taps));
+}
+
 double ImplicitSystem::residualMaxNorm() const
 {
     return tbb::parallel_reduce(
         tbb::blocked_range<size_t>(0, rows(), 1024), 0.0,
         [&](const tbb::blocked_range<size_t>& r, double m) {
             for (size_t i = r.begin(); i != r.end(); ++i)
-                m = std::max(m, std::fabs(rhs[i] - diag[i] * x[i] + offDiagonal(i)));
+                m = std::max(m, std::fabs(rhs[i] - rowDiag(i) * x[i] + offDiagonal(i)));
             return m;
         },
         [](double a, double b) { return std::max(a, b); });
@@ -126,52 +165,50 @@ SolveReport ImplicitSystem::solve(LinearSolverKind kind, double tolerance, int m
 SolveReport ImplicitSystem::gaussSeidel(double tolerance, int maxIterations)
 {
     SolveReport rep;
-    // Hexagonal: colours 1 and 2 are updated together from the same values (see the header).
+    // Hexagonal: colours 1 and 2 are updated together from the same values (see the header);
+    // their rows are adjacent, one range.
     const bool pairLast = mL.colours == 3;
+    const auto& cs = mL.colourStart;
     std::vector<double> next;
-    if (pairLast) next.resize(mL.rowsOfColour[1].size() + mL.rowsOfColour[2].size());
+    if (pairLast) next.resize(cs[3] - cs[1]);
     // The update of row i from the current x; returns its residual before the update.
-    auto relax = [&](size_t i, double& v) {
-        v = (rhs[i] + offDiagonal(i)) / diag[i];
-        return std::fabs(v - x[i]) * diag[i];
+    auto relaxRows = [&](size_t begin, size_t end, double* out, double mx) {
+        if (mUniform) {
+            const double d = mUniformDiag, sc = mUniformScale;
+            for (size_t i = begin; i != end; ++i) {
+                const double v = (rhs[i] + offDiagonal(i, sc)) / d;
+                mx = std::max(mx, std::fabs(v - x[i]) * d);
+                out[i - begin] = v;
+            }
+        } else {
+            for (size_t i = begin; i != end; ++i) {
+                const double v = (rhs[i] + offDiagonal(i)) / diag[i];
+                mx = std::max(mx, std::fabs(v - x[i]) * diag[i]);
+                out[i - begin] = v;
+            }
+        }
+        return mx;
     };
     auto maxReduce = [](double a, double b) { return std::max(a, b); };
     for (int it = 0; it < maxIterations; ++it) {
         double worst = 0;
         for (int c = 0; c < mL.colours; ++c) {
-            const auto& list = mL.rowsOfColour[c];
-            if (pairLast && c >= 1) {
-                // Colours 1 and 2: compute both into `next`, then write both.
-                if (c == 2) continue;
-                const auto& list2 = mL.rowsOfColour[2];
-                const size_t n1 = list.size(), n = n1 + list2.size();
-                auto rowAt = [&](size_t k) { return size_t(k < n1 ? list[k] : list2[k - n1]); };
-                const double m = tbb::parallel_reduce(
-                    tbb::blocked_range<size_t>(0, n, 1024), 0.0,
-                    [&](const tbb::blocked_range<size_t>& r, double mx) {
-                        for (size_t k = r.begin(); k != r.end(); ++k) mx = std::max(mx, relax(rowAt(k), next[k]));
-                        return mx;
-                    },
-                    maxReduce);
-                tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 4096), [&](const tbb::blocked_range<size_t>& r) {
-                    for (size_t k = r.begin(); k != r.end(); ++k) x[rowAt(k)] = next[k];
-                });
-                worst = std::max(worst, m);
-                continue;
-            }
+            if (pairLast && c == 2) continue;
+            const size_t begin = cs[size_t(c)], end = pairLast && c == 1 ? cs[3] : cs[size_t(c) + 1];
             // Rows of one colour only read rows of the others: a parallel update in place.
+            // Colours 1 and 2 of the hexagonal lattice: computed into `next`, then written.
+            const bool viaNext = pairLast && c == 1;
+            auto target = [&](size_t i) { return viaNext ? next.data() + (i - begin) : x.data() + i; };
             const double m = tbb::parallel_reduce(
-                tbb::blocked_range<size_t>(0, list.size(), 1024), 0.0,
+                tbb::blocked_range<size_t>(begin, end, 1024), 0.0,
                 [&](const tbb::blocked_range<size_t>& r, double mx) {
-                    for (size_t k = r.begin(); k != r.end(); ++k) {
-                        const size_t i = size_t(list[k]);
-                        double v;
-                        mx = std::max(mx, relax(i, v));
-                        x[i] = v;
-                    }
-                    return mx;
+                    return relaxRows(r.begin(), r.end(), target(r.begin()), mx);
                 },
                 maxReduce);
+            if (viaNext)
+                tbb::parallel_for(tbb::blocked_range<size_t>(begin, end, 4096), [&](const tbb::blocked_range<size_t>& r) {
+                    std::copy(target(r.begin()), target(r.end()), x.data() + r.begin());
+                });
             worst = std::max(worst, m);
         }
         rep.iterations = it + 1;
@@ -197,10 +234,10 @@ SolveReport ImplicitSystem::bicgstab(double tolerance, int maxIterations)
     Eigen::VectorXd b(n), x0(n);
     for (int64_t r = 0; r < n; ++r) {
         double bi = rhs[r];
-        trip.emplace_back(r, r, diag[r]);
+        trip.emplace_back(r, r, rowDiag(size_t(r)));
         for (int q = 0; q < mL.taps; ++q) {
             const int32_t col = mL.neighbours[size_t(r) * mL.taps + q];
-            const double c = coef.empty() ? scale[r] * mL.weights[q] : coef[size_t(r) * mL.taps + q];
+            const double c = coef.empty() ? rowScale(size_t(r)) * mL.weights[q] : coef[size_t(r) * mL.taps + q];
             if (col < n) trip.emplace_back(r, col, -c);
             else bi += c * outside(); // Dirichlet neighbour: right-hand side
         }

@@ -576,13 +576,19 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
     }
     const SlotLayout& layout = *mLayout;
     const int z0 = mDomain.bbox().min().z();
-    ImplicitSystem ps(layout), ts(layout);
+    // Last step's systems lend their arrays (every row is set below).
+    auto psOwned = mSystemP ? std::make_unique<ImplicitSystem>(layout, *mSystemP) : std::make_unique<ImplicitSystem>(layout);
+    auto tsOwned = mSystemT ? std::make_unique<ImplicitSystem>(layout, *mSystemT) : std::make_unique<ImplicitSystem>(layout);
+    ImplicitSystem &ps = *psOwned, &ts = *tsOwned;
     ps.useCoefficients();
     ps.setOutside(p.background());
     ts.setOutside(T.background());
-    std::vector<double> p0(ps.rows(), 0.0), T0(ps.rows(), 0.0);
+    std::vector<double>& p0 = mStartP;
+    std::vector<double>& T0 = mStartT;
+    p0.resize(ps.rows());
+    T0.resize(ps.rows());
     const double theta = mTheta;
-    const double tScale = theta * k.dt, tDiag = 1.0 + theta * k.dt * -stencil.wLapCentre;
+    ts.setUniform(1.0 + theta * k.dt * -stencil.wLapCentre, theta * k.dt); // every row: diag, scale
     const openvdb::FloatGrid* dP = mLastInP.get();
     const openvdb::FloatGrid* dT = mLastInT.get();
     // Coefficients at theta of the step (the midpoint for Crank-Nicolson, the end for implicit
@@ -654,8 +660,6 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
                     p0[s] = b.p[i];
                     T0[s] = b.T[i];
                     // Temperature: theta-weighted lap T; the latent heat is added once p' is known.
-                    ts.diag[s] = tDiag;
-                    ts.scale[s] = tScale;
                     ts.rhs[s] = b.T[i] + (1.0 - theta) * k.dt * row.lapT;
                   });
                 }
@@ -758,6 +762,8 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
     mLastInOwnedT = mLastInT.get();
     mLastInGeneration = mGeneration;
     mLastStepDt = k.dt;
+    mSystemP = std::move(psOwned);
+    mSystemT = std::move(tsOwned);
 }
 
 uint64_t PhaseFieldSolver::kernelOnly(const openvdb::MaskGrid& region, const openvdb::FloatGrid& p,

@@ -53,8 +53,10 @@ int benchSnowflake(const BenchArgs& args)
     row("heat (latent heat and the T solve)", heat);
     row("output (resample to square, VDB, displacement PNG, preview)", sum.outputSeconds);
     row("total (wall)", sum.totalSeconds);
-    std::printf("\nwalker detail: walks %.1f s, sticking %.1f s, distance map %.1f s, jump tables %.1f s\n",
-                detail["dla.walkers"], detail["dla.apply"], detail["dla.distance"], detail["dla.tables"]);
+    std::printf("\nwalker detail: walks %.1f s, sticking %.1f s, distance map %.1f s (%.0f full rebuilds after a "
+                "melt), jump tables %.1f s\n",
+                detail["dla.walkers"], detail["dla.apply"], detail["dla.distance"], detail["dla.distance_rebuilds"],
+                detail["dla.tables"]);
     std::printf("phase field detail: region %.1f s, kernel %.1f s (solves %.1f s), truncation %.1f s; "
                 "mean iterations p %.2f, T %.2f; clipped voxels %.0f\n",
                 detail["phase_field.region"], detail["phase_field.kernel"], detail["phase_field.solve"],

@@ -151,11 +151,19 @@ public:
     void sync(const openvdb::FloatGrid& p);
     /// Marks a cell as ice and updates the distances.
     void freeze(int64_t cell);
+    /// Marks a cell as ice at once (isIce sees it) and leaves its distances to the next
+    /// flushDistances(), which relaxes all such cells in one breadth-first pass. Walks read the
+    /// distances: flush before walking.
+    void freezeDeferred(int64_t cell);
+    void flushDistances();
+    bool distancesPending() const { return !mQueue.empty(); }
     bool isIce(int64_t cell) const;
     /// Lattice distance to the nearest ice: exact below distanceCap(), a lower bound above.
     int iceDistance(const openvdb::Coord& c) const;
     int distanceCap() const { return mCap; }
     uint64_t iceCount() const { return mIceCount; }
+    /// Full rebuilds of the distances (sync found ice that melted), and cells melted in them.
+    uint64_t rebuildCount() const { return mRebuilds; }
 
     int64_t index(const openvdb::Coord& c) const
     {
@@ -207,6 +215,8 @@ public:
 private:
     void rebuild(const openvdb::FloatGrid& p);
     void relaxQueue();
+    /// Takes melted cells out of the ice and repairs the distances around them.
+    void repairMelted(const std::vector<int64_t>& melted);
     int64_t release(int64_t step, uint64_t walker, WalkerRng& rng, const Inputs& in) const;
     WalkEnd walkFrom(WalkerRng& rng, int64_t idx, const Inputs& in, Probes& pr) const;
 
@@ -221,6 +231,7 @@ private:
     double mSphereScale = 1.0;  ///< index Chebyshev reach of a unit plane displacement
     double mGraphScale = 1.0;   ///< lattice (graph) distance reach of a unit plane displacement
     uint64_t mIceCount = 0;
+    uint64_t mRebuilds = 0;
     std::unique_ptr<Sparse> mSparse;
     std::vector<int64_t> mQueue;
     std::vector<std::shared_ptr<const ShellTable>> mTables;
@@ -243,6 +254,7 @@ public:
     void addToFrame(World& world, Frame& frame) override;
     double time() const override { return mTime; }
     std::vector<std::pair<std::string, double>> timings() const override;
+    std::vector<std::pair<std::string, double>> counters() const override;
     bool supportsCheckpoint() const override { return true; }
     void saveState(const World& world, StateWriter& out) const override;
     void loadState(World& world, const StateReader& in) override;

@@ -218,6 +218,14 @@ struct Anisotropy {
 /// (scalar fields: products of weights and values, squares).
 inline double canonicalSum(double* v, int n)
 {
+    // 2 and 3 terms (the plane's pair sums): min/max networks, the same sorted values and
+    // additions without data-dependent branches (mispredicted swaps cost more than the sums)
+    if (n == 3) {
+        const double a = std::min(v[0], v[1]), b = std::max(v[0], v[1]);
+        const double lo = std::min(a, v[2]), t = std::max(a, v[2]);
+        return ((0.0 + lo) + std::min(b, t)) + std::max(b, t);
+    }
+    if (n == 2) return (0.0 + std::min(v[0], v[1])) + std::max(v[0], v[1]);
     for (int a = 1; a < n; ++a)
         for (int b = a; b > 0 && v[b] < v[b - 1]; --b) std::swap(v[b], v[b - 1]);
     double s = 0;
@@ -441,8 +449,13 @@ inline double kobayashiEpsSquared(const float* u, std::size_t i, const FlatStenc
         const double u1 = D[1] + (0.5 * D[0] - 0.5 * D[2]);
         const double u2 = D[2] + (0.5 * D[0] - 0.5 * D[1]);
         double sq[3] = {u0 * u0, u1 * u1, u2 * u2};
-        for (int a = 1; a < 3; ++a)
-            for (int b = a; b > 0 && sq[b] < sq[b - 1]; --b) std::swap(sq[b], sq[b - 1]);
+        {   // sorted by a min/max network (no data-dependent branches), as canonicalSum
+            const double a = std::min(sq[0], sq[1]), b = std::max(sq[0], sq[1]);
+            const double t = std::max(a, sq[2]);
+            sq[0] = std::min(a, sq[2]);
+            sq[1] = std::min(b, t);
+            sq[2] = std::max(b, t);
+        }
         const double S = (sq[0] + sq[1]) + sq[2];
         double c6 = 1.0; // no gradient: theta = 0 (as the generic form)
         if (S > 1e-300) c6 = 108.0 * ((sq[0] * sq[1]) * sq[2]) / (S * S * S) - 1.0;

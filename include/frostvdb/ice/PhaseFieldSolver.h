@@ -137,6 +137,9 @@ private:
     uint64_t mGroupsGeneration = 0;
     std::unique_ptr<SlotLayout> mLayout;      ///< the implicit systems' rows (second order)
     uint64_t mLayoutGeneration = 0;
+    /// Last step's implicit systems and start values, kept for their arrays (see ImplicitSystem).
+    std::unique_ptr<ImplicitSystem> mSystemP, mSystemT;
+    std::vector<double> mStartP, mStartT;
     /// The second-order scheme's memory for its midpoint coefficients.
     openvdb::FloatGrid::Ptr mLastInP, mLastInT; ///< p and T at the start of the last step
     /// The start-value grids as this solver left them (a restored checkpoint replaces them) and
