@@ -105,7 +105,9 @@ V3 GasModel::displacementAt(const V3& x, const FlowTime& t, const FlowList* flow
 {
     V3 D = mC.up * (mC.riseSpeed * t.seconds) + mC.wind * t.seconds;
     if (mC.swirlPeriod > 0) {
-        const double theta = 2.0 * kPi * t.frame / mC.swirlPeriod;
+        // the phase within the current turn: frame / period itself overflows to inf (cos(inf) is
+        // NaN) for periods below about 1e-305 frames; fmod is exact and stays below the period
+        const double theta = 2.0 * kPi * (std::fmod(t.frame, mC.swirlPeriod) / mC.swirlPeriod);
         D += mE1 * (mC.swirlRadius[0] * (std::cos(theta) - 1.0)) + mE2 * (mC.swirlRadius[1] * std::sin(theta));
     }
     if (flows)
@@ -376,10 +378,6 @@ void readCommon(ParamDict& d, GasCommon& c, const GasCommon& def, bool pathKeys)
                                 "height over which the path turbulence grows to its full amount");
     c.pathOctaves.count = int(d.getInt("path_octaves", def.pathOctaves.count, 1, 8, "",
                                        "octaves of the path turbulence"));
-    // theta = 2 pi frame / swirl_period: a period of a few 1e-308 frames overflows it to inf
-    // (cos(inf) is NaN); a period below a thousandth of a frame is no visible swirl anyway.
-    if (c.swirlPeriod > 0 && c.swirlPeriod < 1e-3)
-        d.fail("swirl_period", "must be 0 (no swirl) or at least 0.001 frames, got " + numText(c.swirlPeriod));
 }
 
 namespace {
