@@ -211,6 +211,13 @@ void AutomatonEffect::loadState(World&, const StateReader& in)
     }
 }
 
+std::vector<std::pair<std::string, double>> AutomatonEffect::counters() const
+{
+    double frozen = 0;
+    for (const auto& f : mFlakes) frozen += double(f->frozenCount());
+    return {{"frozen_cells", frozen}};
+}
+
 std::vector<std::pair<std::string, double>> AutomatonEffect::timings() const
 {
     return {{"automaton step", mStepSeconds}, {"automaton output", mOutputSeconds}};

@@ -341,6 +341,25 @@ void GG3DEffect::loadState(World&, const StateReader& in)
     }
 }
 
+MemoryEstimate GG3DEffect::memoryEstimate(const World&) const
+{
+    const double perFlake = double(gg3dMemoryEstimate(mCfg));
+    char what[200];
+    std::snprintf(what, sizeof what, "%d flakes x %.3g bytes of solver arrays at domain_radius %d, layers %d",
+                  mOut.batch, perFlake, mCfg.domainRadius, mCfg.layers);
+    return {perFlake * mOut.batch, std::string(name()) + (mOut.batch > 1 ? ".batch" : ".domain_radius"), what};
+}
+
+std::vector<std::pair<std::string, double>> GG3DEffect::counters() const
+{
+    double grown = 0, stopped = 0;
+    for (const auto& f : mFlakes) {
+        grown = std::max(grown, double(f->steps()));
+        stopped += f->stopped() ? 1 : 0;
+    }
+    return {{"steps_grown", grown}, {"flakes_stopped", stopped}};
+}
+
 std::vector<std::pair<std::string, double>> GG3DEffect::timings() const
 {
     return {{"gg3d step", mStepSeconds}, {"gg3d output", mOutputSeconds}};

@@ -129,7 +129,8 @@ void ParamDict::onlyWhen(bool applies, const std::string& key, const std::string
 void ParamDict::fail(const std::string& key, const std::string& what) const
 {
     const ParamOrigin* o = origin(key);
-    throw SceneError(o ? o->file : std::string(), o ? o->line : 0, qualified(key), what);
+    if (!o) o = &mSectionOrigin;
+    throw SceneError(o->file, o->line, qualified(key), what);
 }
 
 double ParamDict::getFloat(const std::string& key, double def, double lo, double hi,

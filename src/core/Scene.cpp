@@ -113,6 +113,7 @@ Scene Scene::fromString(const std::string& text, const std::string& label)
         if (!table)
             throw SceneError(label, line, name, "top-level keys must be inside a [section]");
         ParamDict dict(name);
+        dict.setSectionOrigin({label, line});
         for (auto& [kk, value] : *table) {
             const std::string key(kk.str());
             if (value.is_table())
@@ -188,6 +189,7 @@ void Scene::applyOverride(const std::string& assignment)
     auto it = mSections.find(section);
     if (it == mSections.end()) {
         it = mSections.emplace(section, ParamDict(section)).first;
+        it->second.setSectionOrigin({mLabel, 0});
         mOrder.push_back(section);
         mSectionLines[section] = 0;
     }
@@ -198,7 +200,10 @@ void Scene::applyOverride(const std::string& assignment)
 ParamDict& Scene::section(const std::string& name)
 {
     auto it = mSections.find(name);
-    if (it == mSections.end()) it = mSections.emplace(name, ParamDict(name)).first;
+    if (it == mSections.end()) {
+        it = mSections.emplace(name, ParamDict(name)).first;
+        it->second.setSectionOrigin({mLabel, 0});
+    }
     return it->second;
 }
 

@@ -230,7 +230,7 @@ Simulation::Simulation(Scene scene) : mScene(std::move(scene))
                              "unknown section (effects: " + known + "; core: scene, domain, region, output)");
         }
         ParamDict& dict = mScene.section(name);
-        mEffects.push_back(info->create(dict, mWorld));
+        atSection(name, "set-up", [&] { mEffects.push_back(info->create(dict, mWorld)); });
         dict.checkAllRead();
     }
     if (mEffects.empty())
@@ -262,7 +262,8 @@ void Simulation::checkMemoryBudget() const
                             mWorld.memoryLimitBytes, mWorld.sceneLabel);
     MemoryEstimate total;
     for (auto& e : mEffects) {
-        MemoryEstimate m = e->memoryEstimate(mWorld);
+        MemoryEstimate m;
+        atSection(e->name(), "memory estimate", [&] { m = e->memoryEstimate(mWorld); });
         if (m.key.empty()) m.key = e->name();
         checkMemoryEstimate(m, mWorld.memoryLimitBytes, mWorld.sceneLabel);
         if (m.bytes > total.bytes) total.key = m.key;
@@ -274,11 +275,12 @@ void Simulation::checkMemoryBudget() const
 
 Simulation::~Simulation() = default;
 
-/// Runs one effect call; an exception from a library (OpenVDB, toml++, libpng, the allocator)
-/// becomes one line naming the effect's section, so the user knows which part of the scene to
-/// change. Errors frostvdb raises itself already name their key and pass unchanged.
+/// Runs one call of section @a section's effect (its creation, estimate, initialisation, steps,
+/// output); an exception from a library (OpenVDB, toml++, libpng, the allocator) becomes one
+/// line naming the section, so the user knows which part of the scene to change. Errors
+/// frostvdb raises itself already name their key and pass unchanged.
 template <typename F>
-void Simulation::atEffect(const Effect& e, const char* phase, F&& call)
+void Simulation::atSection(const std::string& section, const char* phase, F&& call) const
 {
     try {
         call();
@@ -289,16 +291,22 @@ void Simulation::atEffect(const Effect& e, const char* phase, F&& call)
     } catch (const WriteError&) {
         throw;
     } catch (const std::bad_alloc&) {
-        throw SceneError(mWorld.sceneLabel, mScene.sectionLine(e.name()), "[" + e.name() + "]",
+        throw SceneError(mWorld.sceneLabel, mScene.sectionLine(section), "[" + section + "]",
                          std::string("out of memory during ") + phase +
-                             " (the estimate before the run was below run.memory_limit; lower this section's sizes)");
+                             " (no estimate foresaw it; lower this section's sizes)");
     } catch (const openvdb::Exception& x) {
-        throw SceneError(mWorld.sceneLabel, mScene.sectionLine(e.name()), "[" + e.name() + "]",
+        throw SceneError(mWorld.sceneLabel, mScene.sectionLine(section), "[" + section + "]",
                          std::string("OpenVDB refused the ") + phase + ": " + shortMessage(x.what(), 200));
     } catch (const std::exception& x) {
-        throw SceneError(mWorld.sceneLabel, mScene.sectionLine(e.name()), "[" + e.name() + "]",
+        throw SceneError(mWorld.sceneLabel, mScene.sectionLine(section), "[" + section + "]",
                          std::string(phase) + " failed: " + shortMessage(x.what(), 200));
     }
+}
+
+template <typename F>
+void Simulation::atEffect(const Effect& e, const char* phase, F&& call)
+{
+    atSection(e.name(), phase, std::forward<F>(call));
 }
 
 Effect* Simulation::effect(const std::string& section) const
@@ -640,6 +648,7 @@ void Simulation::simulateFrames(int64_t first, int64_t last, const RunOptions& o
     const int64_t startFrame = std::max(stateless ? first : int64_t(1), mStep / mWorld.stepsPerFrame + 1);
     const int64_t stepsToRun = stateless ? std::max<int64_t>(0, last - startFrame + 1) * mWorld.stepsPerFrame
                                          : std::max<int64_t>(0, last * mWorld.stepsPerFrame - mStep);
+    mWorld.progress = opt.progress;
     Progress progress(mWorld.sceneName, stepsToRun, "steps", opt.progress);
     int64_t done = 0;
     for (int64_t f = startFrame; f <= last; ++f) {

@@ -14,6 +14,7 @@
 
 #include <frostvdb/core/Effect.h>
 #include <frostvdb/core/Error.h>
+#include <frostvdb/core/Progress.h>
 
 #include <openvdb/tools/Composite.h>
 #include <openvdb/tools/GridTransformer.h>
@@ -130,6 +131,11 @@ protected:
             throw SceneError(world.sceneLabel, 0, "vector_field.file", "a .vdb file with a vector grid is required");
         auto t = VectorFieldTable::load(mSettings.file, mSettings.grid);
         mSettings.applyTo(*t);
+        // the gas's `vel` is about scale x the table's speed: keep it well inside a float
+        if (!(t->maxSpeed() * std::fabs(t->scale) <= 1e30))
+            throw SceneError(world.sceneLabel, 0, "vector_field.scale",
+                             "scale " + std::to_string(t->scale) + " x the table's largest speed " +
+                                 std::to_string(t->maxSpeed()) + " m/s exceeds 1e30 m/s (a float `vel` overflows)");
         return t;
     }
 
@@ -169,6 +175,13 @@ public:
     {
         mXform = gasTransform(world);
         mWorld = &world;
+        // The flows are known now (their sections initialise first): check the first and the
+        // last frame before any other effect spends time on the run.
+        mFlows = world.state<FlowState>().list();
+        for (int64_t f : {int64_t(1), world.frames}) {
+            const GasContext ctx = GasContext::at(double(f), mModel->common().fps, &mFlows);
+            checkBudgets(world, ctx);
+        }
     }
     void step(World& world, const StepInfo& info) override
     {
@@ -199,6 +212,10 @@ public:
     {
         return {{"build", mBuildSeconds}};
     }
+    std::vector<std::pair<std::string, double>> counters() const override
+    {
+        return {{"voxels_evaluated", double(mVoxelsEvaluated)}, {"frames_built", double(mFramesBuilt)}};
+    }
     /// The largest frame without flows (they are known only at initialisation); build() checks
     /// again with the flows before each frame.
     MemoryEstimate memoryEstimate(const World& world) const override
@@ -214,6 +231,7 @@ public:
     }
     const GasModel& model() const { return *mModel; }
     void setPublish(bool p) { mPublish = p; }
+    void setMaxVoxels(double v) { mMaxVoxels = v; }
 
 private:
     void build(World& world, int64_t frameNumber)
@@ -222,20 +240,58 @@ private:
         mFlows = world.state<FlowState>().list();
         const GasContext ctx = GasContext::at(double(frameNumber), mModel->common().fps, &mFlows);
         const auto xf = mXform ? mXform : gasTransform(world);
-        const std::string key = flowKey().empty() ? extentKey() : flowKey();
-        const auto e = estimateGasBuild(*mModel, ctx, *xf, mBuild, world.sceneLabel, key);
-        checkMemoryEstimate(describe(e, world, key), world.memoryLimitBytes, world.sceneLabel);
-        mGrids = buildGasGrids(*mModel, ctx, xf, mBuild);
+        const double candidates = checkBudgets(world, ctx);
+        GasBuildOptions opt = mBuild;
+        std::unique_ptr<Progress> progress;
+        if (world.progress && candidates * 512.0 > kProgressVoxels) {
+            // a frame of many voxels is one long step: say how far it is
+            progress = std::make_unique<Progress>(mSection + " frame " + std::to_string(frameNumber),
+                                                  int64_t(candidates), "leaves");
+            opt.progress = [&](uint64_t done, uint64_t) { progress->update(int64_t(done)); };
+        }
+        mGrids = buildGasGrids(*mModel, ctx, xf, opt);
+        if (progress) progress->finish();
         mFrameBuilt = frameNumber;
+        ++mFramesBuilt;
         mVoxelsEvaluated += mGrids.evaluatedVoxels;
         mGrids.density->insertMeta("frostvdb_gas", openvdb::StringMetadata(mSection));
         if (mPublish) publish(world, mGrids.density);
         mBuildSeconds += std::chrono::duration<double>(Clock::now() - t0).count();
     }
-    /// The key that sets the gas's extent (what to change when it is too large).
+    /// Refuses a frame whose build would not fit run.memory_limit (every leaf of the bounds'
+    /// index box kept) or would evaluate more than max_voxels (the leaves that may hold gas):
+    /// both before a voxel is evaluated, naming the key that sets the extent. Returns the
+    /// candidate leaves, or the leaves of the whole box (an upper bound, not counted further)
+    /// when the box is within the budget and too small to report progress.
+    double checkBudgets(const World& world, const GasContext& ctx) const
+    {
+        const auto xf = mXform ? mXform : gasTransform(world);
+        const std::string key = flowKey().empty() ? extentKey() : flowKey();
+        const auto e = estimateGasBuild(*mModel, ctx, *xf, mBuild, world.sceneLabel, key);
+        checkMemoryEstimate(describe(e, world, key), world.memoryLimitBytes, world.sceneLabel);
+        if (e.boxLeaves * 512.0 <= std::min(mMaxVoxels, kProgressVoxels)) return e.boxLeaves;
+        const double candidates = double(countCandidateLeaves(*mModel, ctx, *xf));
+        if (candidates * 512.0 > mMaxVoxels) {
+            char buf[400];
+            std::snprintf(buf, sizeof buf,
+                          "frame %g evaluates about %.3g voxels (gas bounds %.3g x %.3g x %.3g m at domain.voxel_size "
+                          "%.3g m), more than %s.max_voxels = %.3g allows: shrink the gas, raise domain.voxel_size "
+                          "or raise %s.max_voxels",
+                          ctx.time.frame, candidates * 512.0, e.hi.x - e.lo.x, e.hi.y - e.lo.y, e.hi.z - e.lo.z,
+                          xf->voxelSize()[0], mSection.c_str(), mMaxVoxels, mSection.c_str());
+            throw SceneError(world.sceneLabel, 0, key, buf);
+        }
+        return candidates;
+    }
+    /// The key that sets the gas's extent (what to change when it is too large): the larger of
+    /// the radius and the height for steam and fire, the box otherwise.
     std::string extentKey() const
     {
-        return mSection + (mSection == "steam" || mSection == "fire" ? ".height" : ".box_max");
+        double radius = 0, height = 0;
+        if (auto s = dynamic_cast<const SteamModel*>(mModel.get())) radius = s->radius, height = s->height;
+        else if (auto f = dynamic_cast<const FireModel*>(mModel.get())) radius = f->radius, height = f->height;
+        else return mSection + ".box_max";
+        return mSection + (2.0 * radius > height ? ".radius" : ".height");
     }
     /// A flow that widens the gas (an envelope shift), if any: it then drives the extent.
     std::string flowKey() const
@@ -315,7 +371,20 @@ private:
     bool mPublish = true;
     double mBuildSeconds = 0;
     uint64_t mVoxelsEvaluated = 0;
+    uint64_t mFramesBuilt = 0;
+    double mMaxVoxels = 2e8;
+    /// Frames evaluating more voxels than this report progress (a second or more of work).
+    static constexpr double kProgressVoxels = 4e6;
 };
+
+/// The time budget of one gas frame, in voxels evaluated (the cost follows them: each is a
+/// turbulence sum and, with `vel`, three displacements).
+double readMaxVoxels(ParamDict& d)
+{
+    return d.getFloat("max_voxels", 2e8, 1e3, 1e15, "voxels",
+                      "refuse a frame that would evaluate more voxels than this (the leaves that may hold gas, at "
+                      "domain.voxel_size); one core evaluates about 4e6 fire voxels with vel per second");
+}
 
 bool readPublish(ParamDict& d)
 {
@@ -332,6 +401,7 @@ public:
         auto m = readSteam(d);
         auto e = std::make_unique<SteamEffect>("steam", std::move(m), GasBuildOptions());
         e->setPublish(readPublish(d));
+        e->setMaxVoxels(readMaxVoxels(d));
         return e;
     }
 };
@@ -343,6 +413,7 @@ public:
     {
         auto e = std::make_unique<FogEffect>("fog", readFog(d), GasBuildOptions());
         e->setPublish(readPublish(d));
+        e->setMaxVoxels(readMaxVoxels(d));
         return e;
     }
 };
@@ -354,6 +425,7 @@ public:
     {
         auto e = std::make_unique<BasicGasEffect>("gas", readBasicGas(d), GasBuildOptions());
         e->setPublish(readPublish(d));
+        e->setMaxVoxels(readMaxVoxels(d));
         return e;
     }
 };
@@ -372,6 +444,7 @@ public:
                                        "temperature where flame = 1 (temperature = ambient + flame (peak - ambient))");
         auto e = std::make_unique<FireEffect>("fire", std::move(m), o);
         e->setPublish(readPublish(d));
+        e->setMaxVoxels(readMaxVoxels(d));
         return e;
     }
 };

@@ -50,6 +50,53 @@ LeafT* newLeaf(const Coord& origin, typename LeafT::ValueType bg)
 
 } // namespace
 
+namespace {
+
+/// Origins of the leaves of the index box of the model's bounds that may hold gas, in a fixed
+/// order (x, then y, then z), so the build is the same whatever the thread count.
+template <typename Visit>
+void visitCandidateLeaves(const GasModel& model, const GasContext& ctx, const openvdb::math::Transform& xform,
+                          Visit&& visit)
+{
+    V3 lo, hi;
+    model.bounds(ctx, lo, hi);
+    // index-space box of the world bounds
+    Coord imin(std::numeric_limits<int>::max()), imax(std::numeric_limits<int>::min());
+    for (int c = 0; c < 8; ++c) {
+        const Vec3d w((c & 1) ? hi.x : lo.x, (c & 2) ? hi.y : lo.y, (c & 4) ? hi.z : lo.z);
+        const Vec3d i = xform.worldToIndex(w);
+        for (int a = 0; a < 3; ++a) {
+            imin[a] = std::min(imin[a], int(std::floor(i[a])) - 1);
+            imax[a] = std::max(imax[a], int(std::ceil(i[a])) + 1);
+        }
+    }
+    const double dx = xform.voxelSize()[0];
+    const double leafRadius = 0.5 * std::sqrt(3.0) * 7.0 * dx + 1e-9;
+    for (int i = imin.x() & ~7; i <= imax.x(); i += 8)
+        for (int j = imin.y() & ~7; j <= imax.y(); j += 8)
+            for (int k = imin.z() & ~7; k <= imax.z(); k += 8) {
+                const Vec3d w = xform.indexToWorld(Vec3d(i + 3.5, j + 3.5, k + 3.5));
+                if (model.mayHold(V3(w.x(), w.y(), w.z()), leafRadius, ctx)) visit(Coord(i, j, k));
+            }
+}
+
+std::vector<Coord> candidateLeafOrigins(const GasModel& model, const GasContext& ctx,
+                                        const openvdb::math::Transform& xform)
+{
+    std::vector<Coord> origins;
+    visitCandidateLeaves(model, ctx, xform, [&](const Coord& c) { origins.push_back(c); });
+    return origins;
+}
+
+} // namespace
+
+uint64_t countCandidateLeaves(const GasModel& model, const GasContext& ctx, const openvdb::math::Transform& xform)
+{
+    uint64_t n = 0;
+    visitCandidateLeaves(model, ctx, xform, [&](const Coord&) { ++n; });
+    return n;
+}
+
 GasBuildEstimate estimateGasBuild(const GasModel& model, const GasContext& ctx,
                                   const openvdb::math::Transform& xform, const GasBuildOptions& opt,
                                   const std::string& label, const std::string& key)
@@ -97,28 +144,7 @@ GasGrids buildGasGrids(const GasModel& model, const GasContext& ctx,
     GasGrids out;
     const GasCommon& C = model.common();
 
-    V3 lo, hi;
-    model.bounds(ctx, lo, hi);
-    // index-space box of the world bounds
-    Coord imin(std::numeric_limits<int>::max()), imax(std::numeric_limits<int>::min());
-    for (int c = 0; c < 8; ++c) {
-        const Vec3d w((c & 1) ? hi.x : lo.x, (c & 2) ? hi.y : lo.y, (c & 4) ? hi.z : lo.z);
-        const Vec3d i = xform->worldToIndex(w);
-        for (int a = 0; a < 3; ++a) {
-            imin[a] = std::min(imin[a], int(std::floor(i[a])) - 1);
-            imax[a] = std::max(imax[a], int(std::ceil(i[a])) + 1);
-        }
-    }
-    const double dx = xform->voxelSize()[0];
-    const double leafRadius = 0.5 * std::sqrt(3.0) * 7.0 * dx + 1e-9;
-
-    std::vector<Coord> origins;
-    for (int i = imin.x() & ~7; i <= imax.x(); i += 8)
-        for (int j = imin.y() & ~7; j <= imax.y(); j += 8)
-            for (int k = imin.z() & ~7; k <= imax.z(); k += 8) {
-                const Vec3d w = xform->indexToWorld(Vec3d(i + 3.5, j + 3.5, k + 3.5));
-                if (model.mayHold(V3(w.x(), w.y(), w.z()), leafRadius, ctx)) origins.emplace_back(i, j, k);
-            }
+    const std::vector<Coord> origins = candidateLeafOrigins(model, ctx, *xform);
     out.candidateLeaves = origins.size();
     out.evaluatedVoxels = origins.size() * 512ull;
 
@@ -129,6 +155,12 @@ GasGrids buildGasGrids(const GasModel& model, const GasContext& ctx,
     const bool wantVel = opt.velocity;
     const bool fire = opt.fire;
 
+    // Named at the gas that made it (a guard: the scene keys keep every term finite).
+    auto notFinite = [&](const char* grid, const Coord& ijk) {
+        throw SimulationError(std::string("gas '") + model.kind() + "': " + grid + " is not finite at voxel " +
+                              std::to_string(ijk.x()) + "," + std::to_string(ijk.y()) + "," + std::to_string(ijk.z()) +
+                              " frame " + std::to_string(ctx.time.frame));
+    };
     auto work = [&](const tbb::blocked_range<size_t>& r) {
         GasSample s;
         for (size_t li = r.begin(); li != r.end(); ++li) {
@@ -142,17 +174,18 @@ GasGrids buildGasGrids(const GasModel& model, const GasContext& ctx,
                 const V3 x(w.x(), w.y(), w.z());
                 model.evaluate(x, ctx, s);
                 const float d = float(s.density);
+                // finiteness first: a NaN would fail the threshold test and vanish unseen
+                if (!std::isfinite(d)) notFinite("density", ijk);
                 if (!(d > thr)) continue;
-                if (!std::isfinite(d))
-                    throw SimulationError(std::string("gas '") + model.kind() + "': density is not finite at voxel " +
-                                          std::to_string(ijk.x()) + "," + std::to_string(ijk.y()) + "," +
-                                          std::to_string(ijk.z()) + " frame " + std::to_string(ctx.time.frame));
                 any = true;
                 dl->setValueOn(off, d);
                 if (wantVel) {
                     if (!vl) vl.reset(newLeaf<VecLeaf>(origins[li], openvdb::Vec3s(0.f)));
                     const V3 v = model.velocity(x, ctx);
-                    vl->setValueOn(off, openvdb::Vec3s(float(v.x), float(v.y), float(v.z)));
+                    const openvdb::Vec3s vs(float(v.x), float(v.y), float(v.z));
+                    if (!(std::isfinite(vs.x()) && std::isfinite(vs.y()) && std::isfinite(vs.z())))
+                        notFinite("vel", ijk);
+                    vl->setValueOn(off, vs);
                 }
                 if (fire) {
                     if (!fl) fl.reset(newLeaf<FloatLeaf>(origins[li], 0.f));
@@ -174,8 +207,15 @@ GasGrids buildGasGrids(const GasModel& model, const GasContext& ctx,
             cLeaves[li] = cl.release();
         }
     };
-    if (opt.grain == 0) work(tbb::blocked_range<size_t>(0, n));
-    else tbb::parallel_for(tbb::blocked_range<size_t>(0, n, opt.grain), work);
+    // A long frame is built in about 100 chunks with a progress call after each; every leaf is
+    // built alone, so chunking changes nothing in the result.
+    const size_t chunk = opt.progress ? std::max<size_t>(64, n / 100) : std::max<size_t>(n, 1);
+    for (size_t b = 0; b < n; b += chunk) {
+        const size_t e = std::min(n, b + chunk);
+        if (opt.grain == 0) work(tbb::blocked_range<size_t>(b, e));
+        else tbb::parallel_for(tbb::blocked_range<size_t>(b, e, opt.grain), work);
+        if (opt.progress) opt.progress(e, n);
+    }
 
     auto makeF = [&](const std::string& name, float bg, std::vector<FloatLeaf*>& leaves, bool fog) {
         auto g = openvdb::FloatGrid::create(bg);
@@ -264,6 +304,15 @@ std::shared_ptr<VectorFieldTable> VectorFieldTable::load(const std::string& path
             throw SceneError(path, 0, "vector_field.grid", "grid '" + gridName + "' is not a vector grid");
         if (t->mImpl->grid->activeVoxelCount() == 0)
             throw SceneError(path, 0, "vector_field.grid", "grid '" + gridName + "' has no active voxels");
+        // a NaN or inf in the table would reach every gas's `vel` (and stop the run at output)
+        for (auto it = t->mImpl->grid->cbeginValueAll(); it; ++it) {
+            const openvdb::Vec3s v = *it;
+            if (std::isfinite(v.x()) && std::isfinite(v.y()) && std::isfinite(v.z())) continue;
+            const Coord c = it.getCoord();
+            throw SceneError(path, 0, "vector_field.file",
+                             "grid '" + gridName + "' holds a non-finite velocity at voxel " + std::to_string(c.x()) +
+                                 "," + std::to_string(c.y()) + "," + std::to_string(c.z()));
+        }
         finishTable(*t->mImpl);
         return t;
     }
@@ -288,6 +337,13 @@ std::shared_ptr<VectorFieldTable> VectorFieldTable::fromLattice(const V3& origin
     t->mImpl->grid = g;
     finishTable(*t->mImpl);
     return t;
+}
+
+double VectorFieldTable::maxSpeed() const
+{
+    double m = 0;
+    for (auto it = mImpl->grid->cbeginValueOn(); it; ++it) m = std::max(m, double((*it).length()));
+    return m;
 }
 
 V3 VectorFieldTable::sample(const V3& x) const

@@ -5,6 +5,7 @@
 #include <frostvdb/core/Params.h>
 
 #include <cmath>
+#include <cstdio>
 #include <limits>
 
 namespace frostvdb::gas {
@@ -14,6 +15,13 @@ namespace {
 constexpr double kBig = 1e6;
 
 V3 toV3(const std::vector<double>& v) { return {v.at(0), v.at(1), v.at(2)}; }
+
+std::string numText(double v)
+{
+    char buf[32];
+    std::snprintf(buf, sizeof buf, "%.4g", v);
+    return buf;
+}
 
 /// A unit vector perpendicular to @a n.
 V3 anyPerpendicular(const V3& n)
@@ -97,7 +105,9 @@ V3 GasModel::displacementAt(const V3& x, const FlowTime& t, const FlowList* flow
 {
     V3 D = mC.up * (mC.riseSpeed * t.seconds) + mC.wind * t.seconds;
     if (mC.swirlPeriod > 0) {
-        const double theta = 2.0 * kPi * t.frame / mC.swirlPeriod;
+        // the phase within the current turn: frame / period itself overflows to inf (cos(inf) is
+        // NaN) for periods below about 1e-305 frames; fmod is exact and stays below the period
+        const double theta = 2.0 * kPi * (std::fmod(t.frame, mC.swirlPeriod) / mC.swirlPeriod);
         D += mE1 * (mC.swirlRadius[0] * (std::cos(theta) - 1.0)) + mE2 * (mC.swirlRadius[1] * std::sin(theta));
     }
     if (flows)
@@ -370,6 +380,30 @@ void readCommon(ParamDict& d, GasCommon& c, const GasCommon& def, bool pathKeys)
                                        "octaves of the path turbulence"));
 }
 
+namespace {
+
+double turbulenceMax(const GasCommon& c)
+{
+    // the table's last entry stands for turbulence 2 and beyond; exact pow reaches the bound
+    return c.powerTable ? std::min(2.0, c.octaves.bound()) : c.octaves.bound();
+}
+
+/// The largest density the power shaping (s max_density)^exponent can give, times
+/// density_scale, for shaped values s up to @a shapeMax. Above a float's range (3.4e38) the grid
+/// would hold inf (and the build stop on it); refused before the run, naming the exponent.
+void checkDensityRange(ParamDict& d, const GasCommon& c, double shapeMax)
+{
+    const double turbMax = shapeMax;
+    const double peak = c.densityScale * std::pow(turbMax * c.maxDensity, c.exponent);
+    if (!(peak <= 1e38))
+        d.fail("exponent", "(" + numText(turbMax) + " x max_density " + numText(c.maxDensity) + ")^exponent " +
+                               numText(c.exponent) + " x density_scale " + numText(c.densityScale) +
+                               " reaches " + numText(peak) +
+                               ", beyond a 32-bit float grid (3.4e38): lower exponent, max_density or density_scale");
+}
+
+} // namespace
+
 std::unique_ptr<SteamModel> readSteam(ParamDict& d)
 {
     GasCommon def;
@@ -387,6 +421,7 @@ std::unique_ptr<SteamModel> readSteam(ParamDict& d)
     def.growthHeight = 0.15;
     GasCommon c;
     readCommon(d, c, def);
+    checkDensityRange(d, c, turbulenceMax(c));
     auto m = std::make_unique<SteamModel>(c);
     m->center = readPoint(d, "center", {0, 0, 0}, "m", "centre of the liquid surface the steam rises from");
     m->radius = d.getFloat("radius", 0.04, 1e-6, kBig, "m", "cup radius: no steam outside it");
@@ -414,6 +449,7 @@ std::unique_ptr<FireModel> readFire(ParamDict& d)
     def.growthHeight = 0.3;
     GasCommon c;
     readCommon(d, c, def);
+    checkDensityRange(d, c, 1.0); // the flame shape lies in [0, 1]
     auto m = std::make_unique<FireModel>(c);
     m->center = readPoint(d, "center", {0, 0, 0}, "m", "centre of the base of the fire");
     m->radius = d.getFloat("radius", 0.15, 1e-6, kBig, "m", "radius of the fire");
@@ -480,6 +516,9 @@ std::unique_ptr<BasicGasModel> readBasicGas(ParamDict& d)
                                           "power: Ebert's basic_gas; veins: sine veins; molten_marble: hypertexture");
     m->shape = shape == "veins" ? BasicGasModel::Shape::Veins
              : shape == "molten_marble" ? BasicGasModel::Shape::MoltenMarble : BasicGasModel::Shape::Power;
+    // veins lie in [0, 1]; molten marble is clamped to [0.2, 1] and needs no check
+    if (m->shape == BasicGasModel::Shape::Power) checkDensityRange(d, c, turbulenceMax(c));
+    if (m->shape == BasicGasModel::Shape::Veins) checkDensityRange(d, c, 1.0);
     readBox(d, m->box, {-0.25, -0.25, 0}, {0.25, 0.25, 0.5}, 0.05);
     auto fr = d.getFloatArray("form_frames", {1.0, 48.0}, {2}, -kBig, kBig, "frame",
                               "molten_marble: [start, end] frames over which the veins form (turbulence added)");

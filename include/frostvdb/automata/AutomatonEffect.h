@@ -44,6 +44,8 @@ public:
     void addToFrame(World& world, Frame& frame) override;
     bool writePreview(World& world, const Frame& frame, const std::string& pngPath) override;
     std::vector<std::pair<std::string, double>> timings() const override;
+    /// frozen_cells: cells frozen over all flakes at the last step.
+    std::vector<std::pair<std::string, double>> counters() const override;
     /// batch flakes x (lattice cells + the output grids of one flake, whose `ice` voxel count
     /// grows with voxels_per_cell^2 (3D: ^3)).
     MemoryEstimate memoryEstimate(const World& world) const override;

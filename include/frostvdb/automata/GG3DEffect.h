@@ -64,6 +64,12 @@ public:
     void addToFrame(World& world, Frame& frame) override;
     bool writePreview(World& world, const Frame& frame, const std::string& pngPath) override;
     std::vector<std::pair<std::string, double>> timings() const override;
+    /// The solvers' arrays of every flake (each box grown to the whole domain), against
+    /// run.memory_limit as well as this section's own memory_budget.
+    MemoryEstimate memoryEstimate(const World& world) const override;
+    /// steps_grown: the most steps a flake took (a flake stops at stop_radius, so this is below
+    /// the run's step count when it stopped early); flakes_stopped.
+    std::vector<std::pair<std::string, double>> counters() const override;
     /// Checkpoints: each flake's counters and active-box arrays (GG3D::stateScalars, visitArrays).
     bool supportsCheckpoint() const override { return true; }
     void saveState(const World& world, StateWriter& out) const override;

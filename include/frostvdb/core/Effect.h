@@ -61,6 +61,7 @@ struct World {
     RegionSettings region;
     double worldScale = 1.0; ///< output.world_scale: multiplies the world size of everything written
     double memoryLimitBytes = 0; ///< [run] memory_limit resolved (0: no limit); see core/Budget.h
+    bool progress = false;       ///< the run reports progress on stderr (effects with long single steps may too)
 
     /// Typed state several effects share beyond grids (the ice clock ice::IceShared, the gas
     /// flows gas::FlowState), one object per type, created on first request. Declare it with

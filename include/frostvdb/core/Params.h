@@ -39,6 +39,9 @@ public:
     explicit ParamDict(std::string section = {}) : mSection(std::move(section)) {}
 
     const std::string& section() const { return mSection; }
+    /// Where the section starts (scene file, line of its header): the origin of messages about
+    /// keys the scene does not give (a default that does not fit the rest of the scene).
+    void setSectionOrigin(ParamOrigin o) { mSectionOrigin = std::move(o); }
     void set(const std::string& key, ParamValue value, ParamOrigin origin);
     /// Stores an array of tables (TOML `[[section.key]]` or `key = [{...}, {...}]`); each element
     /// is a ParamDict of its own whose section reads "section.key#N" (N from 1) in messages.
@@ -103,6 +106,7 @@ private:
     std::string qualified(const std::string& key) const;
 
     std::string mSection;
+    ParamOrigin mSectionOrigin;
     std::map<std::string, Entry> mEntries;
     std::map<std::string, TableEntry> mTables;
     std::vector<ParamDict> mNoTables; ///< what getTables returns for an absent key

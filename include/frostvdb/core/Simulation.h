@@ -121,6 +121,8 @@ private:
     // Pieces of run(), kept small so other drivers (checkpoint/resume) can reuse them.
     template <typename F>
     void atEffect(const Effect& e, const char* phase, F&& call);
+    template <typename F>
+    void atSection(const std::string& section, const char* phase, F&& call) const;
     void checkMemoryBudget() const;
     void checkFrameRange(int64_t first, int64_t last) const;
     RunSummary startSummary(const RunOptions& opt, int64_t first, int64_t last) const;

@@ -29,6 +29,9 @@ public:
     void addToFrame(World& world, Frame& frame) override;
     bool writePreview(World& world, const Frame& frame, const std::string& pngPath) override;
     std::vector<std::pair<std::string, double>> timings() const override;
+    /// The particle arrays and the hash of `particles` particles (capacity doubling included);
+    /// the output grids follow the branches' thickness and are not counted.
+    MemoryEstimate memoryEstimate(const World& world) const override;
 
     const Aggregate& aggregate() const { return *mAggregate; }
 

@@ -260,6 +260,8 @@ public:
 
     /// Trilinear lookup of the stored velocity (m/s) at a world position (zero outside).
     V3 sample(const V3& x) const;
+    /// The largest stored speed (m/s); load() refuses tables holding a non-finite value.
+    double maxSpeed() const;
     double percent(const V3& x, const FlowTime& t) const override;
     V3 displacement(const V3& x, const FlowTime& t) const override
     {

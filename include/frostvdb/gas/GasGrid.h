@@ -8,6 +8,8 @@
 
 #include <openvdb/openvdb.h>
 
+#include <functional>
+
 namespace frostvdb {
 struct World;
 }
@@ -21,6 +23,9 @@ struct GasBuildOptions {
     double peakTemperature = 1700.0;    ///< K at flame = 1
     bool colour = true;             ///< fire: build `Cd`
     size_t grain = 4;               ///< leaves per task; 0: serial
+    /// Called on the building thread with (leaves done, leaves in all) after each of about 100
+    /// chunks of the frame (a long frame reports progress); empty: one pass, no calls.
+    std::function<void(uint64_t, uint64_t)> progress;
 };
 
 struct GasGrids {
@@ -45,6 +50,11 @@ struct GasBuildEstimate {
 GasBuildEstimate estimateGasBuild(const GasModel& model, const GasContext& ctx,
                                   const openvdb::math::Transform& xform, const GasBuildOptions& opt,
                                   const std::string& label, const std::string& key);
+
+/// The 8^3 leaves of the index box of the model's bounds whose bounding sphere may hold gas
+/// (GasModel::mayHold): what buildGasGrids evaluates, counted without evaluating a voxel.
+/// Bounds must have passed estimateGasBuild (they fit the index range).
+uint64_t countCandidateLeaves(const GasModel& model, const GasContext& ctx, const openvdb::math::Transform& xform);
 
 /// The transform gas grids use: the scene's field transform when it is a uniform scale (so gas
 /// and ice share it), else a uniform transform with the domain's voxel size.
