@@ -260,3 +260,29 @@ TEST_CASE("Large displacement maps are UDIM tiles, only those with ice, equal to
     REQUIRE(one.size() == 1);
     CHECK(one[0] == dir + "/e.png");
 }
+
+TEST_CASE("Export clips a large hexagonal plane leaf by leaf to OpenVDB's clip values",
+          "[fast][export]")
+{
+    // A small blob in a 4096^2 plane: the export's own clip to the one-voxel-thick raster (OpenVDB's
+    // GridBase::clip refills straddling tiles; 182 MB of a 2048^2 bench scale run) must give the
+    // same active voxels and values as OpenVDB's clip, with leaves only near the blob.
+    const Domain dom = hexPlane(4096);
+    Vec3d centre;
+    auto hex = hexBlob(dom, centre, 6 * kH);
+    const auto out = exportGrids({hex}, dom, false);
+    auto sq = openvdb::gridPtrCast<openvdb::FloatGrid>(out[0]);
+    REQUIRE(sq);
+    auto ref = openvdb::gridPtrCast<openvdb::FloatGrid>(resampleGrid(*hex, *squareTransform(dom)));
+    const SquareRaster sr = squareRaster(dom);
+    ref->clip(openvdb::CoordBBox(Coord(sr.a0, sr.b0, 0), Coord(sr.a1, sr.b1, 0)));
+    CHECK(sq->activeVoxelCount() == ref->activeVoxelCount());
+    CHECK(sq->activeVoxelCount() > 0);
+    auto racc = ref->getConstAccessor();
+    for (auto it = sq->cbeginValueOn(); it; ++it) {
+        CHECK(racc.isValueOn(it.getCoord()));
+        CHECK(racc.getValue(it.getCoord()) == *it);
+    }
+    CHECK(sq->tree().leafCount() <= ref->tree().leafCount()); // leaves only near the blob
+    CHECK(sq->tree().leafCount() <= hex->tree().leafCount() * 4);
+}

@@ -16,6 +16,7 @@
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
+#include <unordered_map>
 #include <cmath>
 #include <stdexcept>
 
@@ -170,6 +171,16 @@ struct BrickCursor {
     }
 };
 
+/// Which voxels of each leaf of p were above 1/2 at the last sync (leaves with none are
+/// absent): a leaf whose set is unchanged holds no new ice, so sync looks up the ice flags only
+/// in leaves that changed, not at every ice cell every step.
+struct DlaEngine::SyncCache {
+    struct Hash {
+        size_t operator()(const openvdb::Coord& c) const { return size_t(c.hash<20>()); }
+    };
+    std::unordered_map<openvdb::Coord, openvdb::util::NodeMask<3>, Hash> above;
+};
+
 DlaEngine::~DlaEngine() = default;
 
 size_t DlaEngine::memoryBytes() const
@@ -317,24 +328,43 @@ void DlaEngine::rebuild(const openvdb::FloatGrid& p)
 
 void DlaEngine::sync(const openvdb::FloatGrid& p)
 {
-    // p > 1/2 cells: counted and the new ones collected leaf by leaf in parallel (the order of
-    // freezing does not matter: the capped distances are the unique BFS minimum)
+    // p > 1/2 cells: counted per leaf in parallel; the new ones (leaves whose set changed since
+    // the last sync) collected (the order of freezing does not matter: the capped distances are
+    // the unique BFS minimum).
+    using Mask = openvdb::util::NodeMask<3>;
+    if (!mSyncCache) mSyncCache = std::make_unique<SyncCache>();
     openvdb::tree::LeafManager<const openvdb::FloatTree> leaves(p.tree());
     const size_t nl = leaves.leafCount();
     std::vector<uint64_t> counts(nl, 0);
     std::vector<std::vector<int64_t>> fresh(nl);
+    std::vector<Mask> above(nl);
+    std::vector<char> changed(nl, 0);
     const openvdb::CoordBBox dom = mDomain.bbox();
+    const auto& cache = mSyncCache->above;
     tbb::parallel_for(tbb::blocked_range<size_t>(0, nl, 8), [&](const tbb::blocked_range<size_t>& r) {
         BrickCursor cur(*mSparse); // read only here
         for (size_t l = r.begin(); l != r.end(); ++l) {
             const auto& leaf = leaves.leaf(l);
-            for (auto it = leaf.cbeginValueOn(); it; ++it) {
-                if (!(*it > 0.5f)) continue;
-                const openvdb::Coord c = it.getCoord();
-                if (!dom.isInside(c)) continue;
-                ++counts[l];
+            const bool inside = dom.isInside(leaf.getNodeBoundingBox());
+            Mask& m = above[l];
+            const float* v = leaf.buffer().data();
+            for (openvdb::Index w = 0; w < Mask::WORD_COUNT; ++w)
+                for (uint64_t bits = leaf.getValueMask().template getWord<uint64_t>(w); bits; bits &= bits - 1) {
+                    const openvdb::Index n = openvdb::Index(w * 64 + __builtin_ctzll(bits));
+                    if (v[n] > 0.5f && (inside || dom.isInside(leaf.offsetToGlobalCoord(n)))) m.setOn(n);
+                }
+            counts[l] = m.countOn();
+            const auto known = cache.find(leaf.origin());
+            if (known == cache.end() ? m.isOff() : known->second == m) continue; // nothing new here
+            changed[l] = 1;
+            for (openvdb::Index w = 0; w < Mask::WORD_COUNT; ++w) {
+              uint64_t bits = m.template getWord<uint64_t>(w);
+              if (known != cache.end()) bits &= ~known->second.template getWord<uint64_t>(w); // ice at the last sync
+              for (; bits; bits &= bits - 1) {
+                const openvdb::Coord c = leaf.offsetToGlobalCoord(openvdb::Index(w * 64 + __builtin_ctzll(bits)));
                 const openvdb::Coord q = c - mOrigin;
                 if (cur.get(q.x(), q.y(), q.z()) != 0) fresh[l].push_back(index(c));
+              }
             }
         }
     });
@@ -357,6 +387,8 @@ void DlaEngine::sync(const openvdb::FloatGrid& p)
         }
     }
     nfresh += tiles.size();
+    // The sets seen now, for the next sync (a leaf that left p with ice in it changes the count).
+    auto& store = mSyncCache->above;
     if (count != mIceCount + nfresh) {
         // Some ice melted: find it (ice cells whose p is now at most 1/2) and repair the
         // distances around it; start again from the ice only when not every melted cell is found
@@ -364,7 +396,8 @@ void DlaEngine::sync(const openvdb::FloatGrid& p)
         std::vector<std::vector<int64_t>> lost(nl);
         tbb::parallel_for(tbb::blocked_range<size_t>(0, nl, 8), [&](const tbb::blocked_range<size_t>& r) {
             BrickCursor cur(*mSparse); // read only here
-            for (size_t l = r.begin(); l != r.end(); ++l)
+            for (size_t l = r.begin(); l != r.end(); ++l) {
+                if (!changed[l]) continue; // a melt changes the leaf's set; a missed one forces a rebuild below
                 for (auto it = leaves.leaf(l).cbeginValueOn(); it; ++it) {
                     if (*it > 0.5f) continue;
                     const openvdb::Coord c = it.getCoord();
@@ -372,15 +405,24 @@ void DlaEngine::sync(const openvdb::FloatGrid& p)
                     const openvdb::Coord q = c - mOrigin;
                     if (cur.get(q.x(), q.y(), q.z()) == 0) lost[l].push_back(index(c));
                 }
+            }
         });
         std::vector<int64_t> melted;
         for (const auto& v : lost) melted.insert(melted.end(), v.begin(), v.end());
         if (count + melted.size() != mIceCount + nfresh || melted.size() * 16 > mIceCount) {
             ++mRebuilds;
             rebuild(p);
+            store.clear();
+            for (size_t l = 0; l < nl; ++l)
+                if (!above[l].isOff()) store[leaves.leaf(l).origin()] = above[l];
             return;
         }
         repairMelted(melted);
+    }
+    for (size_t l = 0; l < nl; ++l) {
+        if (!changed[l]) continue;
+        if (above[l].isOff()) store.erase(leaves.leaf(l).origin());
+        else store[leaves.leaf(l).origin()] = above[l];
     }
     for (const auto& f : fresh)
         for (int64_t i : f) freezeDeferred(i);

@@ -41,6 +41,7 @@ struct Block {
     bool plane;
     std::vector<float> p, T, a, cx, cy, gx, gy, gz;
     std::vector<float> melt, pe, te; ///< melt map; midpoint estimates (second-order scheme)
+    std::vector<double> dp, chi;     ///< forward Euler on planes: dp and noise draws per cell
     /// Plane blocks: per row, the cells (bit x) whose coefficients pass 1 must compute: the
     /// group's leaves present in the region plus a ring of one cell.
     std::vector<uint64_t> need;
@@ -50,6 +51,8 @@ struct Block {
     {
         const size_t n = size_t(bx) * by * bz;
         for (auto* v : {&p, &T, &a, &cx, &cy, &gx, &gy, &gz, &melt, &pe, &te}) v->assign(n, 0.f);
+        dp.assign(n, 0.0);
+        chi.assign(n, 0.0);
         need.assign(size_t(by), 0);
     }
     size_t index(int x, int y, int z) const { return (size_t(z) * by + y) * bx + x; }
@@ -59,6 +62,32 @@ struct Block {
         return groupOrigin - openvdb::Coord(kHalo, kHalo, plane ? 0 : kHalo);
     }
 };
+
+/// The inner row code of forward Euler, shared by the engine's plane blocks and the plain dense
+/// loop (DensePhaseField), so both run the same machine code (one out-of-line copy each): a row
+/// of pass 1 over cells [i0, i1), then a row of pass 2 writing p', T' (and dp when asked) at the
+/// same indices. @a melt: the melt map at the same indices (null: T_e everywhere); @a chi: the
+/// noise draws at the same indices (null: no noise).
+__attribute__((noinline)) void auxRow(const float* p, size_t i0, size_t i1, const FlatStencil& st,
+                                      const Anisotropy& an, float* a, float* cx, float* cy, float* gx, float* gy,
+                                      float* gz)
+{
+    for (size_t i = i0; i < i1; ++i) kobayashiAux(p, i, st, an, a, cx, cy, gx, gy, gz);
+}
+
+__attribute__((noinline)) void eulerRow(const float* p, const float* T, const float* a, const float* cx,
+                                        const float* cy, const float* gx, const float* gy, const float* gz,
+                                        size_t i0, size_t i1, const FlatStencil& st, const KobayashiParams& k,
+                                        const float* melt, const double* chi, float* pOut, float* tOut,
+                                        double* dpOut)
+{
+    for (size_t i = i0; i < i1; ++i) {
+        const double Te = melt ? k.localMeltTemperature(melt[i]) : k.meltTemperature;
+        const double dp = kobayashiEuler(p, T, a, cx, cy, gx, gy, gz, i, st, k, Te, chi ? chi[i] : 0.0, pOut[i],
+                                         tOut[i]);
+        if (dpOut) dpOut[i] = dp;
+    }
+}
 
 } // namespace
 
@@ -314,6 +343,88 @@ struct LeafKernel {
     Accumulators* acc = nullptr;
     Failure* failure = nullptr;
 
+    /// Pass 1 on a plane block, by runs of needed cells along each row (auxRow, the dense loop's row).
+    static void auxRuns(Block& b, const FlatStencil& st, const Anisotropy& an)
+    {
+        for (int y = 1; y < b.by - 1; ++y) {
+            uint64_t bits = b.need[size_t(y)];
+            const size_t row = b.index(0, y, 0);
+            while (bits) {
+                const int x0 = __builtin_ctzll(bits);
+                const uint64_t run = bits + (uint64_t(1) << x0); // clears the run of ones at x0
+                const int x1 = run ? __builtin_ctzll(run & ~bits) : 64;
+                bits &= run;
+                auxRow(b.p.data(), row + size_t(x0), row + size_t(x1), st, an, b.a.data(), b.cx.data(), b.cy.data(),
+                       b.gx.data(), b.gy.data(), b.gz.data());
+            }
+        }
+    }
+
+    /// Pass 2 on one leaf of a plane block: the dense loop's row code over the leaf's 8 rows of
+    /// 8 cells into the block's scratch (pe, te, dp), then written to the leaf's active voxels
+    /// with the bounds check and the accumulators.
+    void planeLeaf(Block& b, const openvdb::Coord& go, int z0, const FlatStencil& st, FloatLeaf& pl, FloatLeaf& tl,
+                   float tn1, std::vector<Accumulators::Pending>*& pending) const
+    {
+        const openvdb::Coord bo = b.origin(go);
+        const openvdb::Coord lo = pl.origin();
+        const int ox = lo.x() - bo.x(), oy = lo.y() - bo.y();
+        if (k.noise != 0)
+            for (int y = 0; y < kDim; ++y)
+                for (int x = 0; x < kDim; ++x)
+                    b.chi[b.index(ox + x, oy + y, 0)] =
+                        noiseDraw(k, seed, stepIndex, openvdb::Coord(lo.x() + x, lo.y() + y, z0));
+        for (int y = 0; y < kDim; ++y) {
+            const size_t i0 = b.index(ox, oy + y, 0);
+            eulerRow(b.p.data(), b.T.data(), b.a.data(), b.cx.data(), b.cy.data(), b.gx.data(), b.gy.data(),
+                     b.gz.data(), i0, i0 + kDim, st, k, melt ? b.melt.data() : nullptr,
+                     k.noise != 0 ? b.chi.data() : nullptr, b.pe.data(), b.te.data(), b.dp.data());
+        }
+        float* pv = pl.buffer().data();
+        float* tv = tl.buffer().data();
+        FloatLeaf* gl = acc && acc->growth ? acc->growth->probeLeaf(lo) : nullptr;
+        FloatLeaf* fl = acc && acc->freeze ? acc->freeze->probeLeaf(lo) : nullptr;
+        // The accumulator leaves' buffers and masks directly: what setValueOn does, per voxel.
+        float* gv = gl ? gl->buffer().data() : nullptr;
+        float* fv = fl ? fl->buffer().data() : nullptr;
+        const bool growth = acc && acc->growth, freeze = acc && acc->freeze;
+        const int zz = z0 - lo.z();
+        const auto& mask = pl.getValueMask();
+        for (int x = 0; x < kDim; ++x) {
+            uint64_t bits = mask.template getWord<uint64_t>(openvdb::Index(x));
+            while (bits) {
+                const int bit = __builtin_ctzll(bits);
+                bits &= bits - 1;
+                const int y = bit >> 3;
+                const size_t i = b.index(ox + x, oy + y, 0);
+                const openvdb::Index n = openvdb::Index(x * 64 + bit);
+                const float pn = b.pe[i], tn = b.te[i];
+                if (failure && (!std::isfinite(pn) || pn < -0.05f || pn > 1.05f || !std::isfinite(tn))) {
+                    const openvdb::Coord c(lo.x() + x, lo.y() + y, lo.z() + zz);
+                    if (!std::isfinite(pn) || pn < -0.05f || pn > 1.05f) failure->report(c, "p (ice)", pn);
+                    if (!std::isfinite(tn)) failure->report(c, "T (temperature)", tn);
+                }
+                pv[n] = pn;
+                tv[n] = tn;
+                const double dp = b.dp[i];
+                if (growth && dp > 0) {
+                    if (gv) {
+                        gv[n] = gv[n] + float(dp);
+                        gl->getValueMask().setOn(n);
+                    } else acc->queue(pending).push_back({openvdb::Coord(lo.x() + x, lo.y() + y, lo.z() + zz), float(dp), true});
+                }
+                if (freeze && pn > 0.5f) {
+                    if (fv) {
+                        if (!fl->getValueMask().isOn(n)) {
+                            fv[n] = tn1;
+                            fl->getValueMask().setOn(n);
+                        }
+                    } else acc->queue(pending).push_back({openvdb::Coord(lo.x() + x, lo.y() + y, lo.z() + zz), tn1, false});
+                }
+            }
+        }
+    }
+
     void run(openvdb::tree::LeafManager<openvdb::FloatTree>& pLeaves,
              openvdb::tree::LeafManager<openvdb::FloatTree>& tLeaves, const LeafGroups& groups) const
     {
@@ -350,9 +461,16 @@ struct LeafKernel {
                     if (!heatOnly[q]) full[nFull++] = present[q];
                 }
                 markNeeded(b, go, full, nFull);
-                if (nFull) auxPass(b, b.p, st, an);
+                if (nFull) {
+                    if (plane) auxRuns(b, st, an);
+                    else auxPass(b, b.p, st, an);
+                }
                 for (size_t q = 0; q < count; ++q) {
                     const size_t li = groups.leaves[first + q];
+                    if (!heatOnly[q] && plane) {
+                        planeLeaf(b, go, z0, st, pLeaves.leaf(li), tLeaves.leaf(li), tn1, pending);
+                        continue;
+                    }
                     if (heatOnly[q]) {
                         float* pv = pLeaves.leaf(li).buffer().data();
                         float* tv = tLeaves.leaf(li).buffer().data();
@@ -799,17 +917,13 @@ void DensePhaseField::step()
     // keeps the far-field values (Dirichlet), as the sparse solver's reads outside the domain do.
     tbb::parallel_for(tbb::blocked_range<int>(1, mNy + 2 * kHalo - 1, 16), [&](const tbb::blocked_range<int>& r) {
         for (int y = r.begin(); y != r.end(); ++y)
-            for (int x = 1; x < W - 1; ++x)
-                kobayashiAux(mP.data(), size_t(y) * mStride + x, st, an, mA.data(), mCx.data(), mCy.data(),
-                             mGx.data(), mGy.data(), mGz.data());
+            auxRow(mP.data(), size_t(y) * mStride + 1, size_t(y) * mStride + size_t(W - 1), st, an, mA.data(),
+                   mCx.data(), mCy.data(), mGx.data(), mGy.data(), mGz.data());
     });
     tbb::parallel_for(tbb::blocked_range<int>(0, mNy, 16), [&](const tbb::blocked_range<int>& r) {
         for (int j = r.begin(); j != r.end(); ++j)
-            for (int i = 0; i < mNx; ++i) {
-                const size_t idx = index(i, j);
-                kobayashiEuler(mP.data(), mT.data(), mA.data(), mCx.data(), mCy.data(), mGx.data(), mGy.data(),
-                               mGz.data(), idx, st, mParams, mParams.meltTemperature, 0.0, mPn[idx], mTn[idx]);
-            }
+            eulerRow(mP.data(), mT.data(), mA.data(), mCx.data(), mCy.data(), mGx.data(), mGy.data(), mGz.data(),
+                     index(0, j), index(mNx, j), st, mParams, nullptr, nullptr, mPn.data(), mTn.data(), nullptr);
     });
     // Halo cells are never written, so both buffer pairs keep the far field there.
     std::swap(mP, mPn);

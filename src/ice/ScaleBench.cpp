@@ -85,6 +85,8 @@ int runOne(int n, const BenchArgs& args, const std::string& report)
     std::printf("| - walks / sticking / distance map / tables | %.2f / %.2f / %.2f / %.2f |\n", detail["dla.walkers"],
                 detail["dla.apply"], detail["dla.distance"], detail["dla.tables"]);
     std::printf("| phase field (incl. heat) | %.2f |\n", eff["phase_field"]);
+    std::printf("| - region / kernel / truncation | %.2f / %.2f / %.2f |\n", detail["phase_field.region"],
+                detail["phase_field.kernel"], detail["phase_field.truncate"]);
     for (auto& [k, v] : eff)
         if (k != "dla" && k != "phase_field") std::printf("| %s | %.2f |\n", k.c_str(), v);
     std::printf("| output (last frame: VDB, displacement, preview) | %.2f |\n", sum.outputSeconds);

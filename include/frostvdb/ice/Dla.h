@@ -211,6 +211,7 @@ public:
     struct Sparse; ///< the bricks and the pyramid (DlaEngine.cpp)
     struct Walker; ///< one walk in progress (DlaEngine.cpp)
     struct Probes; ///< per-task accessors of the optional grids (DlaEngine.cpp)
+    struct SyncCache; ///< p > 1/2 per leaf at the last sync (DlaEngine.cpp)
 
 private:
     void rebuild(const openvdb::FloatGrid& p);
@@ -233,6 +234,7 @@ private:
     uint64_t mIceCount = 0;
     uint64_t mRebuilds = 0;
     std::unique_ptr<Sparse> mSparse;
+    std::unique_ptr<SyncCache> mSyncCache;
     std::vector<int64_t> mQueue;
     std::vector<std::shared_ptr<const ShellTable>> mTables;
     std::vector<int16_t> mTableForRadius; ///< radius -> index in mTables of the largest <= it (-1)
