@@ -5,6 +5,8 @@
 #include <frostvdb/core/Error.h>
 #include <frostvdb/core/Random.h>
 #include <frostvdb/ice/IceState.h>
+#include <frostvdb/shell/ShellDla.h>
+#include <frostvdb/shell/ShellDomain.h>
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
@@ -86,9 +88,8 @@ std::unique_ptr<Effect> DlaEffect::create(ParamDict& d, const World& world)
     d.onlyWhen(p.jumps, "jump_max_radius", "jumps = false");
     if (p.jumpMaxRadius > 0 && p.jumpMaxRadius < p.jumpMinRadius)
         d.fail("jump_max_radius", "must be 0 or >= jump_min_radius");
-    if (world.domain && !world.domain.flat() && world.domain.intrinsicDimension() == 2) // a surface in 3D
-        throw SceneError(world.sceneLabel, 0, "dla",
-                         "walkers on a curved surface (the shell domain) are not available yet; use [phase_field] alone");
+    if (world.domain && shell::bandOf(world.domain)) // walkers on the surface: shell/ShellDla.h
+        return shell::makeShellDla(p, d, world);
     if (world.domain && world.domain.bbox().min() != openvdb::Coord(0)) // the dense walker arrays index from 0
         throw SceneError(world.sceneLabel, 0, "domain.origin",
                          "[dla] needs a domain whose first cell is at the world origin (origin = [0, 0, 0])");

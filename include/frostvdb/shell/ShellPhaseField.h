@@ -56,6 +56,9 @@ public:
     void setWind(const openvdb::Vec3d& wind);
     /// Largest dt at which the upwind advection with the diffusion stays a positive combination.
     double windStabilityLimit() const;
+    /// A tangential wind per band voxel (same units; empty: none), e.g. shell/ShellWind.h's
+    /// potential flow. Replaces setWind's.
+    void setWindField(std::vector<openvdb::Vec3f> wind) { mWind = std::move(wind); }
     /// Per-voxel melt temperature scale in [0, 1] (empty: 1 everywhere).
     void setMelt(std::vector<float> melt) { mMelt = std::move(melt); }
 
