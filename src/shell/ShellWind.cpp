@@ -104,7 +104,7 @@ std::vector<Vec3f> potentialFlowWind(const ShellBand& band, const Vec3d& freeStr
         vt::GridSampler<openvdb::FloatGrid::ConstAccessor, vt::BoxSampler> s(acc, potential->transform());
         for (size_t i = r.begin(); i < r.end(); ++i) {
             const Vec3d x = band.closestPoint(i) + band.frame(i).normal * off;
-            Phi[i] = float(freeStream.dot(band.closestPoint(i)) - double(s.wsSample(x)));
+            Phi[i] = float(freeStream.dot(x) - double(s.wsSample(x)));
         }
     });
     // surface gradient: central differences of the closest-point data, projected
@@ -132,12 +132,20 @@ std::vector<Vec3f> potentialFlowWind(const ShellBand& band, const Vec3d& freeStr
         v -= nn * v.dot(nn);
         out[i] = Vec3f(v);
     }
-    if (full) { // the tool's own 3D velocity 1.5 flow voxels off the surface (for checks)
-        auto flow = vt::computePotentialFlow(*potential, *neumann, U);
-        auto acc = flow->getConstAccessor();
-        vt::GridSampler<openvdb::Vec3SGrid::ConstAccessor, vt::BoxSampler> s(acc, flow->transform());
-        for (size_t i = 0; i < n; ++i)
-            (*full)[i] = -s.wsSample(band.closestPoint(i) + band.frame(i).normal * (1.5 * off));
+    if (full) { // grad Phi in 3D, 1.5 flow voxels off the surface (central differences of half a voxel)
+        auto acc = potential->getConstAccessor();
+        vt::GridSampler<openvdb::FloatGrid::ConstAccessor, vt::BoxSampler> s(acc, potential->transform());
+        auto total = [&](const Vec3d& x) { return freeStream.dot(x) - double(s.wsSample(x)); };
+        for (size_t i = 0; i < n; ++i) {
+            const Vec3d x = band.closestPoint(i) + band.frame(i).normal * (1.5 * off);
+            Vec3d g;
+            for (int a = 0; a < 3; ++a) {
+                Vec3d e(0.0);
+                e[a] = 0.5 * off;
+                g[a] = (total(x + e) - total(x - e)) / off;
+            }
+            (*full)[i] = Vec3f(g);
+        }
     }
     if (stats) stats->solveSeconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     return out;

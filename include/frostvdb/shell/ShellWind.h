@@ -33,7 +33,7 @@ struct PotentialFlowStats {
 /// each band voxel's closest point (the flow's voxels just outside the surface, trilinear) and
 /// projected on its tangent plane. @a padding: voxels of fluid around the band's bounding box
 /// (the flow domain, whose outer faces hold the free stream). @a full (optional) receives the
-/// 3D velocity before projection, per band voxel.
+/// flow's 3D velocity (grad Phi) 1.5 flow voxels off the surface, per band voxel (for checks).
 std::vector<openvdb::Vec3f> potentialFlowWind(const ShellBand& band, const openvdb::Vec3d& freeStream, int padding,
                                               PotentialFlowStats* stats = nullptr,
                                               std::vector<openvdb::Vec3f>* full = nullptr);
