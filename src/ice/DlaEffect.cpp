@@ -47,7 +47,8 @@ std::unique_ptr<Effect> DlaEffect::create(ParamDict& d, const World& world)
     }
     const std::string rel = d.getString("release", "uniform", {"uniform", "perimeter"},
                                         "where walkers start: uniform over the domain's empty cells, or on its "
-                                        "perimeter (the cells of its edges/faces)");
+                                        "perimeter (the cells of its edges/faces); on a shell: uniform by area "
+                                        "over the surface, or on the open mesh's border");
     p.release = rel == "perimeter" ? DlaRelease::Perimeter : DlaRelease::Uniform;
     p.hits = int(d.getInt("hits", 1, 1, 1000000, "walkers",
                           "n, multiple-hit averaging: a cell freezes after n walkers stuck at it (1: plain DLA; "
@@ -74,7 +75,7 @@ std::unique_ptr<Effect> DlaEffect::create(ParamDict& d, const World& world)
                                    "smallest jump radius (below it walkers step cell by cell)"));
     p.jumpMaxRadius = int(d.getInt("jump_max_radius", 0, 0, 1000, "cells",
                                    "largest exact jump table radius (beyond it: sphere_jumps); 0: 128 on a plane, "
-                                   "32 in a box"));
+                                   "32 in a box; on a shell the largest geodesic jump, 0: 64"));
     p.batch = int(d.getInt("batch", 1024, 1, int64_t(1) << 30, "walkers",
                            "walkers per parallel batch: a batch walks against the ice at its start, sticks are "
                            "applied in walker order (smaller is closer to the paper's one-by-one release)"));

@@ -226,10 +226,7 @@ std::unique_ptr<Effect> makeShellDla(const ice::DlaParams& params, ParamDict& d,
     if (params.steamHumidity > 0)
         d.fail("steam_humidity", "steam humidity is not available on shell domains (allowed: 0)");
     if (params.release == ice::DlaRelease::Perimeter) {
-        auto band = bandOf(world.domain);
-        bool open = false;
-        for (size_t i = 0; i < band->size() && !open; ++i) open = band->lateralOffset(i) > 0.5f;
-        if (!open) d.fail("release", "perimeter on a shell releases on the open mesh's border; this mesh is closed (allowed: uniform)");
+        if (bandOf(world.domain)->borderEdgeCount() == 0) d.fail("release", "perimeter on a shell releases on the open mesh's border; this mesh is closed (allowed: uniform)");
     }
     return std::make_unique<ShellDlaEffect>(params);
 }

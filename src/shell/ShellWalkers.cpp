@@ -72,16 +72,19 @@ const VoxelFrame* frameWith(const ShellBand& b, IndexAccessor& acc, const Vec3d&
     return id < 0 ? nullptr : &b.frame(size_t(id));
 }
 
-/// Moves @a x by @a length along the tangent direction @a dir: unit sub-steps, each projected back
-/// to the surface, the direction carried to the new tangent plane (a discrete geodesic).
-bool shootWith(const ShellBand& b, IndexAccessor& acc, Vec3d& x, Vec3d dir, double length)
+/// Moves @a x by @a length along the tangent direction @a dir: sub-steps of at most kShootStep
+/// voxels, each projected back to the surface, the direction carried to the new tangent plane (a
+/// discrete geodesic). A sub-step leaves the surface by s^2 / 2R (0.9 voxels at a curvature
+/// radius of 5 voxels), well inside the band.
+constexpr double kShootStep = 3.0;
+bool shootWith(const ShellBand& b, IndexAccessor& acc, Vec3d& x, Vec3d dir, double length, bool open)
 {
     double left = length;
     while (left > 1e-12) {
-        const double s = std::min(1.0, left);
+        const double s = std::min(kShootStep, left);
         Vec3d q;
         double lat = 0;
-        if (!projectWith(b, acc, x + dir * s, q, &lat) || lat > 0.5) return false;
+        if (!projectWith(b, acc, x + dir * s, q, &lat) || (open && lat > 0.5)) return false;
         const VoxelFrame* f = frameWith(b, acc, q);
         if (!f) return false;
         Vec3d nd = q - x;
@@ -128,16 +131,43 @@ double SurfacePointIndex::distance(const Vec3d& x) const
     });
     const double best = std::sqrt(best2);
     if (best <= kBucket) return best;
-    // free 3x3x3 neighbourhood at level k: no point within 4 * 2^k
+    return std::min(best, coarseBound(x));
+}
+
+double SurfacePointIndex::coarseBound(const Vec3d& x) const
+{
+    // free 3x3x3 neighbourhood at level k: no point within 4 * 2^k (of any point of x's fine
+    // bucket, which lies inside x's bucket at every level)
     double lower = kBucket;
     for (int k = 1; k < kLevels; ++k) {
         const double size = kBucket * double(1 << k);
         const auto& set = mCoarse[size_t(k)];
-        if (anyNeighbourBucket(x, size, [&](uint64_t key) { return set.count(key) > 0; }))
-            return std::min(best, lower);
+        if (anyNeighbourBucket(x, size, [&](uint64_t key) { return set.count(key) > 0; })) return lower;
         lower = size;
     }
     return kFar; // nothing within the top level's reach
+}
+
+double SurfacePointIndex::Cursor::distance(const Vec3d& x)
+{
+    if (mIndex.mCount == 0) return kFar;
+    const uint64_t key = packKey(x, kBucket);
+    if (key != mKey) {
+        mKey = key;
+        mPoints.clear();
+        anyNeighbourBucket(x, kBucket, [&](uint64_t k) {
+            auto it = mIndex.mFine.find(k);
+            if (it != mIndex.mFine.end()) mPoints.insert(mPoints.end(), it->second.begin(), it->second.end());
+            return false;
+        });
+        mCoarse = -1; // computed when first needed
+    }
+    double best2 = kFar * kFar;
+    for (const Vec3d& q : mPoints) best2 = std::min(best2, (q - x).lengthSqr());
+    const double best = std::sqrt(best2);
+    if (best <= kBucket) return best;
+    if (mCoarse < 0) mCoarse = mIndex.coarseBound(x);
+    return std::min(best, mCoarse);
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -145,11 +175,13 @@ double SurfacePointIndex::distance(const Vec3d& x) const
 
 ShellWalkers::ShellWalkers(std::shared_ptr<const ShellBand> band, const ice::DlaParams& params, uint64_t seed)
     : mBand(std::move(band)), mParams(params), mSeed(seed),
-      mMaxJump(params.jumpMaxRadius > 0 ? params.jumpMaxRadius : 64)
+      mMaxJump(params.jumpMaxRadius > 0 ? params.jumpMaxRadius : 64), mOpen(mBand->borderEdgeCount() > 0)
 {
     const ShellBand& b = *mBand;
+    const bool open = b.borderEdgeCount() > 0;
     for (size_t i = 0; i < b.size(); ++i) {
-        if (b.lateralOffset(i) > 0.5f) mBorder.insert(b.closestPoint(i)); // cp on the border
+        // beyond an open border (near the surface's plane): the closest point is on the border
+        if (open && b.lateralOffset(i) > 0.5f && std::fabs(b.normalOffset(i)) <= 1.0f) mBorder.insert(b.closestPoint(i));
         else if (std::fabs(b.normalOffset(i)) <= 0.5f && b.lateralOffset(i) <= 0.25f) mLayer.push_back(i);
     }
     if (mBorder.size() > 0)
@@ -190,7 +222,7 @@ bool ShellWalkers::project(const Vec3d& y, Vec3d& out, double* lateral) const
 bool ShellWalkers::shoot(Vec3d& x, Vec3d dir, double length) const
 {
     auto acc = mBand->indexGrid().getConstAccessor();
-    return shootWith(*mBand, acc, x, dir, length);
+    return shootWith(*mBand, acc, x, dir, length, mOpen);
 }
 
 std::vector<size_t> ShellWalkers::markDisc(const Vec3d& x) const
@@ -248,9 +280,10 @@ ShellWalkEnd ShellWalkers::walk(int64_t step, uint64_t walker, uint64_t salt, co
         const int32_t id = acc.getValue(Coord::round(p));
         return id < 0 ? Vec3d(0.0) : Vec3d((*in.drift)[size_t(id)]);
     };
+    SurfacePointIndex::Cursor ice(mIce), border(mBorder);
     double steps = 0;
     for (;;) {
-        const double d = mIce.distance(x);
+        const double d = ice.distance(x);
         if (d <= kStickRadius) { // next to ice: the sticking roll
             double s = 1.0;
             if (in.melt) {
@@ -274,19 +307,19 @@ ShellWalkEnd ShellWalkers::walk(int64_t step, uint64_t walker, uint64_t salt, co
         if (!f) break;
         const Vec3d v = driftAt(x);
         if (mParams.jumps) { // walk on spheres: a uniform point of the free geodesic circle
-            double r = std::min({d - 2.0, mBorder.distance(x) - 1.0, double(mMaxJump)});
+            double r = std::min({d - 2.0, border.distance(x) - 1.0, double(mMaxJump)});
             const double vm = v.length();
             if (vm > 0) r = std::min(r, std::sqrt(0.5 / vm)); // the drift over the jump stays < 1/2
             if (r >= double(mParams.jumpMinRadius)) {
                 const double a = 2.0 * M_PI * rng.uniform();
-                if (!shootWith(b, acc, x, f->tangent * std::cos(a) + f->bitangent * std::sin(a), r)) break;
+                if (!shootWith(b, acc, x, f->tangent * std::cos(a) + f->bitangent * std::sin(a), r, mOpen)) break;
                 steps += r * r; // mean exit time of the unit-step walk from a disc of radius r
                 ++end.jumps;
                 end.hasPrev = false;
                 if (vm > 0) {
                     Vec3d q;
                     double lat = 0;
-                    if (!projectWith(b, acc, x + v * (r * r), q, &lat) || lat > 0.5) break;
+                    if (!projectWith(b, acc, x + v * (r * r), q, &lat) || (mOpen && lat > 0.5)) break;
                     x = q;
                 }
                 continue;
@@ -298,9 +331,9 @@ ShellWalkEnd ShellWalkers::walk(int64_t step, uint64_t walker, uint64_t salt, co
         const Vec3d y = x + f->tangent * std::cos(a) + f->bitangent * std::sin(a) + v;
         Vec3d q;
         double lat = 0;
-        if (!projectWith(b, acc, y, q, &lat) || lat > 0.5) break; // left the mesh's border
+        if (!projectWith(b, acc, y, q, &lat) || (mOpen && lat > 0.5)) break; // left the mesh's border
         steps += 1;
-        const double dq = mIce.distance(q);
+        const double dq = ice.distance(q);
         // ice cannot be entered: a walker next to ice whose step lands on it stays
         if (d <= kStickRadius && dq < 0.5) continue;
         if (d > kStickRadius && dq <= kStickRadius) {
@@ -310,10 +343,10 @@ ShellWalkEnd ShellWalkers::walk(int64_t step, uint64_t walker, uint64_t salt, co
             double lo = 0, hi = 1;
             for (int it = 0; it < 12; ++it) {
                 const double mid = 0.5 * (lo + hi);
-                (mIce.distance(x + (q - x) * mid) <= kStickRadius ? hi : lo) = mid;
+                (ice.distance(x + (q - x) * mid) <= kStickRadius ? hi : lo) = mid;
             }
             Vec3d c;
-            if (projectWith(b, acc, x + (q - x) * hi, c, nullptr) && mIce.distance(c) <= kStickRadius) q = c;
+            if (projectWith(b, acc, x + (q - x) * hi, c, nullptr) && ice.distance(c) <= kStickRadius) q = c;
         }
         end.prev = x;
         end.hasPrev = true;

@@ -83,6 +83,7 @@ std::vector<Vec3f> potentialFlowWind(const ShellBand& band, const Vec3d& freeStr
     const int c = std::clamp(half / 24, 1, 4);
     auto sdf = objectLevelSet(band, c);
     const Vec3f U(freeStream);
+    if (padding <= 0) padding = half; // the flow domain reaches about 2x the object's half size out
     auto mask = vt::createPotentialFlowMask(*sdf, std::max(4, padding / c));
     auto neumann = vt::createPotentialFlowNeumannVelocities(*sdf, *mask, openvdb::Vec3SGrid::ConstPtr(), U);
     openvdb::math::pcg::State state = openvdb::math::pcg::terminationDefaults<float>();

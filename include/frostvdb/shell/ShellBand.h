@@ -116,6 +116,9 @@ public:
     /// Bytes held by the band (the per-voxel arrays and the index grid).
     size_t memoryBytes() const;
 
+    /// Number of the mesh's boundary edges (0: a closed mesh). (Appended for the walkers.)
+    size_t borderEdgeCount() const { return mBorderA.size(); }
+
 private:
     ShellBand() = default;
     double mVoxelSize = 1;

@@ -17,7 +17,7 @@
 /// Empty-space jumps (walk on spheres): where the Euclidean distance d to the nearest ice (a lower
 /// bound of the geodesic one) is large, the walker jumps to a uniform point of the geodesic
 /// circle of radius r = d - 2 around it (also kept 1 voxel inside the open border), found by
-/// shooting a geodesic: unit sub-steps along a direction that is re-projected on each tangent
+/// shooting a geodesic: sub-steps of up to 3 voxels along a direction re-projected on each tangent
 /// plane. Every point of that disc is more than one spacing from the ice, so the walk inside it
 /// is free and its exit point is uniform on the circle (exactly on a flat or spherical surface,
 /// to first order in curvature elsewhere); the jump counts r^2 lattice steps (the mean exit time).
@@ -55,7 +55,25 @@ public:
     double distance(const openvdb::Vec3d& x) const;
     static constexpr double kFar = 1e9;
 
+    /// Repeated queries along a walk: the points of the 3x3x3 fine buckets around the last
+    /// query's bucket and the coarse levels' bound are kept until the walk leaves that bucket
+    /// (the index must not change meanwhile). Same results as distance().
+    class Cursor {
+    public:
+        explicit Cursor(const SurfacePointIndex& index) : mIndex(index) {}
+        double distance(const openvdb::Vec3d& x);
+
+    private:
+        const SurfacePointIndex& mIndex;
+        uint64_t mKey = ~uint64_t(0);
+        std::vector<openvdb::Vec3d> mPoints;
+        double mCoarse = -1; ///< bound from the coarse levels (-1: not computed yet)
+    };
+
 private:
+    /// The coarse levels' lower bound for any point of the fine bucket holding @a x.
+    double coarseBound(const openvdb::Vec3d& x) const;
+
     std::unordered_map<uint64_t, std::vector<openvdb::Vec3d>> mFine;
     std::array<std::unordered_set<uint64_t>, kLevels> mCoarse; ///< level k: buckets of 4 * 2^k
     size_t mCount = 0;
@@ -126,13 +144,14 @@ public:
     int maxJump() const { return mMaxJump; }
 
 private:
-    /// Moves @a x by @a length along tangent direction @a dir (geodesic shooting, unit sub-steps).
+    /// Moves @a x by @a length along tangent direction @a dir (geodesic shooting, sub-steps of up to 3 voxels).
     bool shoot(openvdb::Vec3d& x, openvdb::Vec3d dir, double length) const;
 
     std::shared_ptr<const ShellBand> mBand;
     ice::DlaParams mParams;
     uint64_t mSeed;
     int mMaxJump;
+    bool mOpen; ///< the mesh has a border (walkers beyond it are removed)
     std::vector<size_t> mLayer, mBorderLayer;
     SurfacePointIndex mIce, mBorder;
 };

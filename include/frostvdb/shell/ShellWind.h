@@ -31,8 +31,8 @@ struct PotentialFlowStats {
 
 /// The potential flow past the band's (closed) object with free stream @a freeStream, sampled at
 /// each band voxel's closest point (the flow's voxels just outside the surface, trilinear) and
-/// projected on its tangent plane. @a padding: voxels of fluid around the band's bounding box
-/// (the flow domain, whose outer faces hold the free stream). @a full (optional) receives the
+/// projected on its tangent plane. @a padding: voxels of fluid around the object (the flow
+/// domain, whose outer boundary holds the free stream; 0: the object's half size). @a full (optional) receives the
 /// flow's 3D velocity (grad Phi) 1.5 flow voxels off the surface, per band voxel (for checks).
 std::vector<openvdb::Vec3f> potentialFlowWind(const ShellBand& band, const openvdb::Vec3d& freeStream, int padding,
                                               PotentialFlowStats* stats = nullptr,
