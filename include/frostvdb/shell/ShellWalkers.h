@@ -94,9 +94,11 @@ public:
     /// A walker sticks when ice lies within this distance (one lattice spacing), voxels.
     static constexpr double kStickRadius = 1.0;
     /// A stick freezes the band voxels whose closest point lies within this distance (voxels):
-    /// the 8 inner tricubic nodes of the stick point lie within sqrt(3)/2 of it, so the
-    /// closest-point re-extension of the phase field keeps p = 1 there.
-    static constexpr double kMarkRadius = 0.9;
+    /// a disc of about one voxel of area (pi 0.6^2 = 1.13), as a plane's stick freezes one cell.
+    /// (0.9 would survive the phase field's re-extension alone, as the 8 inner tricubic nodes of
+    /// the stick point lie within sqrt(3)/2 of it, but froze 2.5 voxels of surface per stick and
+    /// a hybrid run on a sphere iced over.)
+    static constexpr double kMarkRadius = 0.6;
 
     /// @a params: the [dla] keys (humidity, hits, max_steps, jumps, jump_min_radius,
     /// jump_max_radius (0: 64), release uniform | perimeter = the open mesh's border).
