@@ -250,3 +250,42 @@ TEST_CASE("Shell [dla] + [phase_field] scene: walkers before the phase field, bi
     CHECK(test::sameVdbContent(paths[0], paths[1], &why));
     INFO(why);
 }
+
+TEST_CASE("Shell walkers drift with the tangential wind: more sticks on the upwind side", "[fast][shell][dla]")
+{
+    // a static ice disc at the centre of a plate tilted 30 degrees; walkers released uniformly;
+    // a drift of 0.2 voxels per step along the plate's +x (and one along its normal, which the
+    // projection removes): the share of sticks on the -x (upwind) half
+    const RhombusPlate plate = makeRhombus(30.0);
+    const openvdb::Vec2d centre = Lattice(LatticeKind::Hexagonal).planePosition(kN / 2, kN / 2);
+    auto upwindShare = [&](const Vec3d& driftPlate) {
+        ice::DlaParams prm;
+        shell::ShellWalkers w(plate.band, prm, 9);
+        std::vector<float> p(plate.band->size(), 0.f);
+        w.sync(p);
+        for (int k = 0; k < 24; ++k) { // a ring of ice points of radius 4
+            Vec3d q;
+            const double a = 2 * M_PI * k / 24;
+            REQUIRE(w.project(plate.toWorld(centre + openvdb::Vec2d(4 * std::cos(a), 4 * std::sin(a))), q));
+            w.addIce(q);
+        }
+        std::vector<openvdb::Vec3f> drift(plate.band->size(), openvdb::Vec3f(plate.placement.transform3x3(driftPlate)));
+        shell::ShellWalkers::Inputs in;
+        in.drift = &drift;
+        std::vector<shell::ShellWalkEnd> ends;
+        w.walkBatch(0, 0, 3000, in, ends);
+        double up = 0, all = 0;
+        for (const auto& e : ends) {
+            if (e.kind != shell::ShellWalkEnd::Stuck) continue;
+            all += 1;
+            if (plate.toPlane(e.point).x() < centre.x()) up += 1;
+        }
+        return up / std::max(1.0, all);
+    };
+    const double calm = upwindShare(Vec3d(0.0)), windy = upwindShare(Vec3d(0.2, 0, 0)),
+                 normal = upwindShare(Vec3d(0, 0, 0.2));
+    INFO("upwind share: calm " << calm << ", drift along the plate " << windy << ", along the normal " << normal);
+    CHECK(std::fabs(calm - 0.5) < 0.06);
+    CHECK(windy > 0.7);
+    CHECK(std::fabs(normal - calm) < 0.03);
+}
