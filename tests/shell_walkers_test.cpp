@@ -163,6 +163,12 @@ TEST_CASE("Shell walkers stay on the surface of a sphere and stick on the ice", 
     ice::DlaParams prm;
     shell::ShellWalkers w(band, prm, 7);
     std::vector<float> p(band->size(), 0.f);
+    {   // no ice on a closed surface: nothing to stick to, no border to leave by; the walkers end
+        w.sync(p);
+        std::vector<shell::ShellWalkEnd> none;
+        w.walkBatch(0, 0, 50, {}, none);
+        for (const auto& e : none) REQUIRE(e.kind == shell::ShellWalkEnd::Killed);
+    }
     Vec3d top;
     REQUIRE(w.project(Vec3d(0, 0, R), top));
     for (size_t i : w.markDisc(top)) p[i] = 1.f;

@@ -261,6 +261,8 @@ ShellWalkEnd ShellWalkers::walk(int64_t step, uint64_t walker, uint64_t salt, co
     ice::WalkerRng rng(mSeed, walker, uint64_t(step), salt);
     auto acc = b.indexGrid().getConstAccessor();
     ShellWalkEnd end;
+    // a closed surface without ice: nothing to stick to and no border to leave by
+    if (mIce.size() == 0 && !mOpen) return end;
     Vec3d x;
     if (start) {
         x = *start;
