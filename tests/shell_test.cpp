@@ -18,6 +18,8 @@
 #include <filesystem>
 #include <fstream>
 #include <functional>
+#include <map>
+#include <array>
 
 #include <cmath>
 
@@ -483,4 +485,209 @@ TEST_CASE("Shell orientation against the interface width eps / h (measurement, n
         WARN("eps " << eps << " (eps/h " << eps / (3.0 / 64.0) << "): area 0 deg " << a[0] << ", 30 deg " << a[1]
                     << " (" << 100 * (a[1] / a[0] - 1) << " %),\n  45 deg " << a[2] << " (" << 100 * (a[2] / a[0] - 1) << " %)");
     }
+}
+
+namespace {
+
+/// A phase field on a tilted plate with a seed disc of radius 3 at its centre, run @a steps with
+/// noise, on a whole band (@a lazy false, stepped whole) or a lazily built one stepped around the
+/// ice with region tolerance @a tol. Returns p and T by voxel.
+struct RegionRun {
+    std::map<openvdb::Coord, std::pair<float, float>> values;
+    size_t bandVoxels = 0, steppedVoxels = 0;
+};
+
+RegionRun runRegion(double L, bool lazy, double tol, int steps)
+{
+    MeshPlacement m;
+    m.rotateDegrees = Vec3d(30, 30, 0);
+    TriangleMesh mesh = makePlate(L, int(L / 8));
+    mesh.transform(m);
+    shell::BandSettings bs;
+    bs.voxelSize = 1.0;
+    bs.crystalAxis = m.matrix().transform3x3(Vec3d(1, 0, 0));
+    auto band = lazy ? shell::ShellBand::buildLazy(mesh, bs) : shell::ShellBand::build(mesh, bs);
+    KobayashiParams k = plateParams();
+    k.noise = 0.01;
+    shell::ShellPhaseField pf(band, k, 3.0 / 64.0);
+    pf.setActiveRegion(lazy, tol);
+    band->nearSurfacePoint(Vec3d(0.0), 6.0); // builds the seed's leaves on a lazy band
+    pf.grow();
+    for (size_t i = 0; i < band->size(); ++i) pf.p()[i] = seedProfile(band->closestPoint(i).length());
+    for (int s = 0; s < steps; ++s) pf.step((s + 1) * k.dt, s, 7, nullptr);
+    RegionRun r;
+    for (size_t i = 0; i < band->size(); ++i) r.values[band->coord(i)] = {pf.p()[i], pf.T()[i]};
+    r.bandVoxels = band->size();
+    r.steppedVoxels = pf.steppedVoxels();
+    return r;
+}
+
+/// Largest |p - p_ref| and |T - T_ref| over the reference's voxels (a voxel the run did not
+/// build counts as background: p 0, T 0).
+double maxDifference(const RegionRun& a, const RegionRun& ref)
+{
+    double d = 0;
+    for (const auto& [c, v] : ref.values) {
+        const auto it = a.values.find(c);
+        const std::pair<float, float> w = it == a.values.end() ? std::make_pair(0.f, 0.f) : it->second;
+        d = std::max({d, double(std::fabs(w.first - v.first)), double(std::fabs(w.second - v.second))});
+    }
+    return d;
+}
+
+} // namespace
+
+TEST_CASE("Shell active region: at tolerance 0 the same bits as the whole band, converging as it shrinks",
+          "[fast][shell][region]")
+{
+    const double L = 64;
+    const int steps = 60;
+    const RegionRun whole = runRegion(L, false, 0.0, steps);
+    const RegionRun exact = runRegion(L, true, 0.0, steps);
+    INFO("whole band " << whole.bandVoxels << " voxels; lazy band " << exact.bandVoxels << ", stepped "
+                       << exact.steppedVoxels);
+    CHECK(maxDifference(exact, whole) == 0.0); // bit-identical wherever either has a voxel
+    for (const auto& [c, v] : exact.values) REQUIRE(whole.values.count(c) == 1); // the same band
+    double last = 1.0;
+    for (double tol : {1e-2, 1e-4, 1e-6}) {
+        const double d = maxDifference(runRegion(L, true, tol, steps), whole);
+        WARN("tolerance " << tol << ": max |difference| " << d);
+        CHECK(d <= last);
+        CHECK(d <= 10 * tol); // the error stays of the order of what is left out
+        last = d;
+    }
+}
+
+TEST_CASE("Shell active region: a huge plate with a small crystal builds only the band around it",
+          "[fast][shell][region]")
+{
+    // a 4096^2 tilted plate (~190 M band voxels if built whole); 40 steps of a radius-3 seed
+    const RegionRun r = runRegion(4096, true, 1e-6, 40);
+    WARN("built " << r.bandVoxels << ", stepped " << r.steppedVoxels);
+    CHECK(r.bandVoxels < 200000);       // the seed's neighbourhood, not the plate
+    CHECK(r.steppedVoxels < r.bandVoxels);
+    double pMax = 0;
+    for (const auto& [c, v] : r.values) pMax = std::max(pMax, double(v.first));
+    CHECK(pMax > 0.9); // the crystal is there
+}
+
+TEST_CASE("Shell active region: bit-identical at 1 and 2 threads", "[fast][shell][region][determinism]")
+{
+    RegionRun r[2];
+    for (int t : {1, 2}) {
+        tbb::global_control c(tbb::global_control::max_allowed_parallelism, size_t(t));
+        r[t - 1] = runRegion(64, true, 1e-6, 40);
+    }
+    CHECK(r[0].values.size() == r[1].values.size());
+    CHECK(maxDifference(r[0], r[1]) == 0.0);
+    CHECK(maxDifference(r[1], r[0]) == 0.0);
+}
+
+TEST_CASE("Shell active region: a run resumed from its fields and region state steps the same bits",
+          "[fast][shell][region][determinism]")
+{
+    const double tol = 1e-3; // a region that leaves small values out, so its state matters
+    MeshPlacement m;
+    m.rotateDegrees = Vec3d(30, 30, 0);
+    TriangleMesh mesh = makePlate(64, 8);
+    mesh.transform(m);
+    shell::BandSettings bs;
+    bs.voxelSize = 1.0;
+    bs.crystalAxis = m.matrix().transform3x3(Vec3d(1, 0, 0));
+    KobayashiParams k = plateParams();
+    k.noise = 0.01;
+    struct Run {
+        std::shared_ptr<const shell::ShellBand> band;
+        std::unique_ptr<shell::ShellPhaseField> pf;
+    };
+    auto start = [&] {
+        Run r;
+        r.band = shell::ShellBand::buildLazy(mesh, bs);
+        r.pf = std::make_unique<shell::ShellPhaseField>(r.band, k, 3.0 / 64.0);
+        r.pf->setActiveRegion(true, tol);
+        return r;
+    };
+    auto steps = [&](Run& r, int from, int to) {
+        for (int s = from; s < to; ++s) r.pf->step((s + 1) * k.dt, s, 7, nullptr);
+    };
+    auto seed = [&](Run& r) {
+        r.band->nearSurfacePoint(Vec3d(0.0), 6.0);
+        r.pf->grow();
+        for (size_t i = 0; i < r.band->size(); ++i) r.pf->p()[i] = seedProfile(r.band->closestPoint(i).length());
+    };
+    Run a = start();
+    seed(a);
+    steps(a, 0, 60);
+    Run b = start();
+    seed(b);
+    steps(b, 0, 30);
+    // the checkpoint: the fields by voxel and the region state
+    std::map<openvdb::Coord, std::array<float, 4>> saved;
+    for (size_t i = 0; i < b.band->size(); ++i)
+        saved[b.band->coord(i)] = {b.pf->p()[i], b.pf->T()[i], b.pf->growthValues()[i], b.pf->freezeValues()[i]};
+    auto boxes = openvdb::Int32Grid::create(0);
+    auto stepped = openvdb::MaskGrid::create();
+    b.pf->regionState(*boxes, *stepped);
+    // resume: a fresh band built where the fields are off their backgrounds, then the region
+    Run c = start();
+    std::vector<openvdb::Coord> origins;
+    for (const auto& [coord, v] : saved)
+        if (v[0] != 0.f || v[1] != 0.f) origins.push_back(shell::leafOrigin(coord));
+    c.band->materialise(origins);
+    c.pf->grow();
+    for (size_t i = 0; i < c.band->size(); ++i) {
+        const auto it = saved.find(c.band->coord(i));
+        if (it == saved.end()) continue;
+        c.pf->p()[i] = it->second[0];
+        c.pf->T()[i] = it->second[1];
+        c.pf->growthValues()[i] = it->second[2];
+        c.pf->freezeValues()[i] = it->second[3];
+    }
+    c.pf->restoreRegion(*boxes, *stepped);
+    steps(c, 30, 60);
+    CHECK(c.pf->steppedVoxels() == a.pf->steppedVoxels());
+    std::map<openvdb::Coord, std::array<float, 4>> ref;
+    for (size_t i = 0; i < a.band->size(); ++i)
+        ref[a.band->coord(i)] = {a.pf->p()[i], a.pf->T()[i], a.pf->growthValues()[i], a.pf->freezeValues()[i]};
+    size_t differ = 0;
+    for (size_t i = 0; i < c.band->size(); ++i) {
+        const auto it = ref.find(c.band->coord(i));
+        const std::array<float, 4> want = it == ref.end() ? std::array<float, 4>{0.f, 0.f, 0.f, 0.f} : it->second;
+        const std::array<float, 4> got = {c.pf->p()[i], c.pf->T()[i], c.pf->growthValues()[i], c.pf->freezeValues()[i]};
+        differ += got == want ? 0 : 1;
+    }
+    CHECK(differ == 0);
+}
+
+TEST_CASE("Shell scene: the active region at tolerance 0 writes the whole band's ice, seeds on the border too",
+          "[fast][shell][region]")
+{
+    // an open plate (a border) with a point seed and an edge seed: built lazily where they are
+    // stamped, against [region] dense = true (the whole band)
+    const std::string obj = (std::filesystem::temp_directory_path() / "frostvdb_shell_region_plate.obj").string();
+    {
+        std::ofstream f(obj);
+        f << "v -0.004 -0.003 0\nv 0.004 -0.003 0\nv 0.004 0.003 0\nv -0.004 0.003 0\nf 1 2 3\nf 1 3 4\n";
+    }
+    const std::string scene = "[scene]\nname = \"rg\"\nframes = 1\nsteps_per_frame = 40\n"
+                              "[domain]\nkind = \"shell\"\nvoxel_size = 0.0001\nmesh = \"" + obj + "\"\n"
+                              "mesh_rotate = [30, 20, 0]\n"
+                              "[[crystal.seed]]\nshape = \"point\"\nposition = [0.5, 0.5, 0.5]\nradius = 3\n"
+                              "[[crystal.seed]]\nshape = \"edge\"\nedges = \"border\"\nwidth = 1\n"
+                              "[phase_field]\nnoise = 0.01\n";
+    std::map<openvdb::Coord, float> ice[2];
+    for (int dense : {0, 1}) {
+        auto sim = test::makeSim(scene + (dense ? "[region]\ndense = true\n" : "[region]\ntolerance = 0\n"));
+        RunOptions ro;
+        ro.progress = false;
+        ro.outDir = test::tempDir("shell_region" + std::to_string(dense));
+        sim.run(ro);
+        openvdb::io::File f(ro.outDir + "/rg.0001.vdb");
+        f.open();
+        auto g = openvdb::gridPtrCast<openvdb::FloatGrid>(f.readGrid("ice"));
+        for (auto it = g->cbeginValueOn(); it; ++it) ice[dense][it.getCoord()] = *it;
+    }
+    CHECK(ice[0].size() > 100);
+    CHECK(ice[0] == ice[1]);
+    std::filesystem::remove(obj);
 }

@@ -4,6 +4,7 @@
 
 #include <frostvdb/io/Png.h>
 #include <frostvdb/shell/ShellDomain.h>
+#include <frostvdb/shell/ShellPhaseField.h>
 #include <frostvdb/shell/ShellTexture.h>
 #include <frostvdb/shell/ShellWind.h>
 
@@ -91,11 +92,18 @@ TEST_CASE("Shell UV textures: seed_texture seeds, melt_texture maps, through the
     const auto* tex = shell::texturesOf(sim.world().domain);
     REQUIRE(tex);
     auto band = shell::bandOf(sim.world().domain);
-    auto at = [&](const std::vector<float>& m, int i, int j) { return m[size_t(band->indexOf(openvdb::Coord(i, j, 0)))]; };
-    CHECK(at(tex->seed, -10, 5) == Approx(1.f));
-    CHECK(at(tex->seed, 10, 5) == Approx(0.f));
-    CHECK(at(tex->melt, 5, -13) == Approx(0.f));  // v < 1/4: dark
-    CHECK(at(tex->melt, 5, 10) == Approx(1.f));
+    // the band is lazy: the seeds' triangles were built at domain creation (every seed exists
+    // before the first step); other leaves are built when asked, and sampled then
+    CHECK(band->indexOf(openvdb::Coord(-10, 5, 0)) >= 0);
+    auto idx = [&](int i, int j) {
+        const openvdb::Coord c(i, j, 0);
+        band->materialiseBox(openvdb::CoordBBox(c, c));
+        return size_t(band->indexOf(c));
+    };
+    CHECK(tex->seedAt(*band, idx(-10, 5)) == Approx(1.f));
+    CHECK(tex->seedAt(*band, idx(10, 5)) == Approx(0.f));
+    CHECK(tex->meltAt(*band, idx(5, -13)) == Approx(0.f));  // v < 1/4: dark
+    CHECK(tex->meltAt(*band, idx(5, 10)) == Approx(1.f));
     RunOptions ro;
     ro.progress = false;
     ro.outDir = (dir / "out").string();
@@ -114,4 +122,53 @@ TEST_CASE("Shell UV textures: seed_texture seeds, melt_texture maps, through the
     INFO(missing);
     CHECK(missing.find("melt_texture") != std::string::npos);
     CHECK(missing.find("nope.png") != std::string::npos);
+}
+
+TEST_CASE("Shell melt map on a lazy band: leaves built later get their texture's melt value", "[fast][shell]")
+{
+    // a 3 x 3 cm plate with UVs u = x, v = y; a melt texture dark where v < 1/4
+    namespace fs = std::filesystem;
+    const fs::path dir = test::tempDir("shell_uv_lazy");
+    const std::string obj = (dir / "plate.obj").string();
+    {
+        std::ofstream f(obj);
+        for (int j = 0; j < 3; ++j)
+            for (int i = 0; i < 3; ++i) f << "v " << 0.015 * (i - 1) << " " << 0.015 * (j - 1) << " 0\nvt " << 0.5 * i << " " << 0.5 * j << "\n";
+        for (int j = 0; j < 2; ++j)
+            for (int i = 0; i < 2; ++i) {
+                const int a = j * 3 + i + 1, b = a + 1, c = a + 3, d = c + 1;
+                f << "f " << a << "/" << a << " " << b << "/" << b << " " << d << "/" << d << "\n";
+                f << "f " << a << "/" << a << " " << d << "/" << d << " " << c << "/" << c << "\n";
+            }
+    }
+    std::vector<float> melt(64);
+    for (int y = 0; y < 8; ++y)
+        for (int x = 0; x < 8; ++x) melt[size_t(8 * y + x)] = y >= 6 ? 0.f : 1.f;
+    writePngGray((dir / "melt.png").string(), 8, 8, melt, 8);
+    const TriangleMesh mesh = loadMesh(obj);
+    shell::BandSettings bs;
+    bs.voxelSize = 0.001;
+    auto band = shell::ShellBand::buildLazy(mesh, bs);
+    auto tex = std::make_shared<shell::SurfaceTextures>(mesh);
+    tex->melt = std::make_shared<const shell::Texture>(shell::loadTexture((dir / "melt.png").string()));
+    KobayashiParams kp;
+    shell::ShellPhaseField pf(band, kp, 1.0);
+    const openvdb::Coord dark(5, -13, 0), bright(5, 10, 0);
+    REQUIRE(band->indexOf(dark) < 0); // not built yet
+    pf.setMeltSource(shell::meltSource(nullptr, *band, tex.get()), shell::meltMap(*band, nullptr, tex.get()));
+    // the active region would build these leaves as the ice reaches them
+    band->materialiseBox(openvdb::CoordBBox(dark, dark));
+    band->materialiseBox(openvdb::CoordBBox(bright, bright));
+    pf.grow();
+    REQUIRE(pf.melt().size() == band->size());
+    CHECK(pf.melt()[size_t(band->indexOf(dark))] == 0.f);
+    CHECK(pf.melt()[size_t(band->indexOf(bright))] == 1.f);
+    // the same values as the whole band's melt map, voxel by voxel (no voxel depends on build order)
+    band->materialiseAll();
+    pf.grow();
+    const auto whole = shell::meltMap(*band, nullptr, tex.get());
+    REQUIRE(whole.size() == pf.melt().size());
+    size_t differ = 0;
+    for (size_t i = 0; i < whole.size(); ++i) differ += whole[i] != pf.melt()[i] ? 1 : 0;
+    CHECK(differ == 0);
 }

@@ -19,17 +19,30 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <map>
 #include <memory>
 #include <sstream>
 #include <string>
+#include <thread>
 #include <vector>
 
 namespace frostvdb {
 
 namespace {
+
+// The 1-minute load average as text ("0.42"), or "unknown" where the OS does not give one: the report
+// states the load it was measured under instead of a sentence that goes stale.
+std::string loadAverageText()
+{
+    double load[1] = {0.0};
+    if (getloadavg(load, 1) != 1) return "unknown";
+    char text[32];
+    std::snprintf(text, sizeof text, "%.2f", load[0]);
+    return text;
+}
 
 using Clock = std::chrono::steady_clock;
 double since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
@@ -259,8 +272,10 @@ int benchAccuracy(const BenchArgs& args)
           fmt("%g", tEnd) + " (" + std::to_string(stepsFor(tEnd, 0.0002)) + " euler steps of 0.0002, " +
           std::to_string(stepsFor(tEnd, 0.0008)) +
           " lw_cn steps of 0.0008). Times are wall-clock seconds of the stepping loop on this machine "
-          "(2 cores, shared by 8 helpers building and testing at the same time when these figures were "
-          "measured: expect noise of 10-50%).\n\n");
+          "(" + std::to_string(std::thread::hardware_concurrency()) + " hardware threads; load average " +
+          loadAverageText() + " when the bench started, and at its end below: a load above the thread "
+          "count means other work shared the cores and the times carry that noise; errors and orders "
+          "do not depend on it).\n\n");
 
     // ---------------------------------------------------------------- Table 2
     R.out("## 1. The paper's Table 2, re-run\n\n"
@@ -688,7 +703,8 @@ int benchAccuracy(const BenchArgs& args)
           "had frozen and the last step thawed back; see section 5; `bench snowflake` now reports 0 clipped "
           "voxels). A run-time clip remains only for a solve that is not a positive scheme (BiCGSTAB stopped "
           "early), and it is counted.\n\n");
-    R.out("---\nBench wall time: " + fmt("%.0f", since(tStart)) + " s.\n");
+    R.out("---\nBench wall time: " + fmt("%.0f", since(tStart)) + " s; load average at the end " +
+          loadAverageText() + ".\n");
     R.out("\n## 8. The fluid band against the full-domain solve\n\nMeasured by the fluid tests, not this "
           "bench: see [fluid.md](fluid.md#band-error-against-the-full-domain-solve).\n");
     {

@@ -5,6 +5,7 @@
 #include <frostvdb/io/Png.h>
 #include <frostvdb/io/VdbCheck.h>
 
+#include <openvdb/tools/Count.h>
 #include <openvdb/io/File.h>
 #include <openvdb/tools/Interpolation.h>
 #include <openvdb/tools/Prune.h>
@@ -369,10 +370,9 @@ void sampleMap(const Domain& dom, const MapSource& src, bool requireUnit,
     if (requireUnit && !ls) {
         float mn = grid->background(), mx = grid->background();
         if (grid->activeVoxelCount() > 0) {
-            float a, b;
-            grid->evalMinMax(a, b);
-            mn = std::min(mn, a);
-            mx = std::max(mx, b);
+            const auto range = openvdb::tools::minMax(grid->tree());
+            mn = std::min(mn, range.min());
+            mx = std::max(mx, range.max());
         }
         if (!(mn >= 0.f && mx <= 1.f)) {
             std::ostringstream os;

@@ -141,18 +141,35 @@ void PhaseFieldEffect::initialize(World& world)
     mTime = 0.0;
     if (auto band = shell::bandOf(world.domain)) {
         mShell = std::make_unique<shell::ShellPhaseField>(band, solverParams, world.domain.lattice().spacing());
-        // the tangential wind, shared with [dla]'s walker drift (shell/ShellWind.h)
-        auto& wind = world.state<shell::ShellWindState>().tangential;
-        wind = mPotentialWind ? shell::potentialFlowWind(*band, mWind, 0) : shell::uniformWind(*band, mWind);
-        mShell->setWindField(wind);
+        if (mPotentialWind) {
+            // The potential flow is solved around the whole object (its solid is the whole band),
+            // so the band is built whole first; the active region still steps only near the ice.
+            band->materialiseAll();
+        }
+        // [region]: the band around the ice (tolerance) or the whole band (dense, the reference)
+        mShell->setActiveRegion(!world.region.dense, world.region.tolerance);
+        if (mPotentialWind) {
+            mShell->setWindField(shell::potentialFlowWind(*band, mWind, 0));
+        } else {
+            mShell->setWind(mWind); // projected on each leaf's tangent planes as it is built
+        }
+        // the tangential wind shared with [dla]'s walker drift (shell/ShellWind.h): [dla] on a
+        // shell builds the band whole at creation, so this holds every voxel when it is used
+        if (band->whole()) {
+            world.state<shell::ShellWindState>().tangential = mShell->windField();
+        }
         gatherShell(world);
         const auto& lum = band->colourLuminance();
         if (band->colourUse() == shell::BandSettings::ColourUse::Seed) // ice where the colour is bright
             for (size_t i = 0; i < lum.size(); ++i)
                 if (lum[i] > 0.5f) mShell->p()[i] = 1.f;
-        if (const auto* tex = shell::texturesOf(world.domain)) // seed_texture: ice where bright
-            for (size_t i = 0; i < tex->seed.size(); ++i)
-                if (tex->seed[i] > 0.5f) mShell->p()[i] = 1.f;
+        // seed_texture: ice where bright (the domain built every leaf that can hold a seed)
+        if (const auto* tex = shell::texturesOf(world.domain); tex && tex->seed) {
+            auto& p = mShell->p();
+            band->forEachVoxel(nullptr, [&](size_t i) {
+                if (tex->seedAt(*band, i) > 0.5f) p[i] = 1.f;
+            });
+        }
         mShell->extendAll(); // seeds were stamped in 3D: make them closest-point data
         scatterShell(world);
         return;
@@ -167,16 +184,19 @@ void PhaseFieldEffect::initialize(World& world)
 void PhaseFieldEffect::gatherShell(World& world)
 {
     const shell::ShellBand& band = mShell->band();
-    shell::fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kPhase), mShell->p());
-    shell::fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kTemperature), mShell->T());
+    // (building the band's leaves wherever p or T is off its background: seeds)
+    shell::fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kPhase), mShell->p(), true);
+    shell::fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kTemperature), mShell->T(), true);
     std::vector<float> v;
     shell::fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kGrowth), v);
     mShell->growthValues() = v;
     shell::fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kFreezeTime), v);
     mShell->freezeValues() = v;
-    // the melt field x the colour melt map x melt_texture (shell/ShellTexture.h)
-    auto melt = world.fields.get<openvdb::FloatGrid>(ice::kMelt);
-    mShell->setMelt(shell::meltMap(band, melt.get(), shell::texturesOf(world.domain)));
+    // the melt field x the colour melt map x melt_texture (shell/ShellTexture.h): now for the
+    // voxels built so far, and for each leaf the active region builds later
+    openvdb::FloatGrid::ConstPtr melt = world.fields.get<openvdb::FloatGrid>(ice::kMelt);
+    const auto* tex = shell::texturesOf(world.domain);
+    mShell->setMeltSource(shell::meltSource(melt, band, tex), shell::meltMap(band, melt.get(), tex));
 }
 
 void PhaseFieldEffect::scatterShell(World& world)
@@ -254,7 +274,15 @@ bool PhaseFieldEffect::writePreview(World&, const Frame& frame, const std::strin
 void PhaseFieldEffect::saveState(const World& world, StateWriter& out) const
 {
     out.putDouble("time", mTime);
-    if (mShell) return; // explicit: the band fields are World fields, no history
+    if (mShell) { // explicit: the band fields are World fields, no history; the active region is ours
+        if (!mShell->activeRegion()) return;
+        auto boxes = openvdb::Int32Grid::create(0);
+        auto stepped = openvdb::MaskGrid::create();
+        mShell->regionState(*boxes, *stepped);
+        out.putGrid("shell_region_boxes", boxes);
+        out.putGrid("shell_region_stepped", stepped);
+        return;
+    }
     for (auto& [name, grid] : mSolver->historyGrids()) out.putGrid(name, *grid);
     out.putDouble("last_step_dt", mSolver->lastStepDt());
     const auto cadence = mSolver->cadenceState(*world.fields.get<openvdb::FloatGrid>(ice::kPhase),
@@ -275,6 +303,9 @@ void PhaseFieldEffect::loadState(World& world, const StateReader& in)
     mTime = in.getDouble("time");
     if (mShell) {
         gatherShell(world);
+        if (in.has("shell_region_stepped"))
+            mShell->restoreRegion(*in.getGrid<openvdb::Int32Grid>("shell_region_boxes"),
+                                  *in.getGrid<openvdb::MaskGrid>("shell_region_stepped"));
         return;
     }
     for (auto& [name, grid] : mSolver->historyGrids()) *grid = in.getGrid<openvdb::FloatGrid>(name);

@@ -1,21 +1,22 @@
 /// @file ShellBand.cpp
-/// @brief Builds the shell's narrow band from a mesh (mesh-to-volume, exact closest points,
-/// frames, neighbours, tricubic stencils) and does the closest-point extension.
+/// @brief Builds the shell's narrow band from a mesh, leaf by leaf (a triangle hierarchy, exact
+/// closest points, frames, neighbours, tricubic stencils), and does the closest-point extension.
 #include <frostvdb/shell/ShellBand.h>
 
+#include <frostvdb/core/Budget.h>
 #include <frostvdb/dla3d/MeshConstraint.h> // closestPointOnTriangle
-
-#include <openvdb/tools/MeshToVolume.h>
 
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <numeric>
 #include <stdexcept>
 
 namespace frostvdb::shell {
 
+using openvdb::BBoxd;
 using openvdb::Coord;
 using openvdb::Vec3d;
 
@@ -40,6 +41,24 @@ double pointSegmentDistance(const Vec3d& p, const Vec3d& a, const Vec3d& b)
     return (p - (a + ab * t)).length();
 }
 
+/// Squared distance from @a p to box @a b (0 inside).
+double boxDistanceSqr(const Vec3d& p, const BBoxd& b)
+{
+    double d = 0;
+    for (int a = 0; a < 3; ++a) {
+        const double e = std::max({b.min()[a] - p[a], 0.0, p[a] - b.max()[a]});
+        d += e * e;
+    }
+    return d;
+}
+
+bool overlaps(const BBoxd& a, const BBoxd& b)
+{
+    for (int k = 0; k < 3; ++k)
+        if (a.max()[k] < b.min()[k] || b.max()[k] < a.min()[k]) return false;
+    return true;
+}
+
 /// The frame at a closest point: normal @a n; tangent = @a axis projected on the tangent plane
 /// (the secondary axis where the first is within ~3 degrees of the normal).
 VoxelFrame frameFor(const Vec3d& n, const BandSettings& s)
@@ -55,161 +74,478 @@ VoxelFrame frameFor(const Vec3d& n, const BandSettings& s)
     return f;
 }
 
+/// Origins of the leaves that hold any voxel of @a box.
+void leavesOfBox(const openvdb::CoordBBox& box, std::vector<Coord>& out)
+{
+    const Coord lo = leafOrigin(box.min()), hi = leafOrigin(box.max());
+    for (int x = lo.x(); x <= hi.x(); x += kLeafDim)
+        for (int y = lo.y(); y <= hi.y(); y += kLeafDim)
+            for (int z = lo.z(); z <= hi.z(); z += kLeafDim) out.emplace_back(x, y, z);
+}
+
+openvdb::CoordBBox coordBox(const Vec3d& lo, const Vec3d& hi)
+{
+    return openvdb::CoordBBox(Coord(int(std::floor(lo.x())), int(std::floor(lo.y())), int(std::floor(lo.z()))),
+                              Coord(int(std::ceil(hi.x())), int(std::ceil(hi.y())), int(std::ceil(hi.z()))));
+}
+
+void sortUnique(std::vector<Coord>& v)
+{
+    std::sort(v.begin(), v.end());
+    v.erase(std::unique(v.begin(), v.end()), v.end());
+}
+
 } // namespace
 
-std::shared_ptr<const ShellBand> ShellBand::build(const TriangleMesh& mesh, const BandSettings& settings)
+// ---------------------------------------------------------------------------------------------
+// TriangleBvh
+
+TriangleBvh::TriangleBvh(const std::vector<Vec3d>& points, const std::vector<openvdb::Vec3I>& triangles)
+    : mPoints(&points), mTriangles(&triangles)
+{
+    const uint32_t n = uint32_t(triangles.size());
+    mBoxes.resize(n);
+    std::vector<Vec3d> centres(n);
+    for (uint32_t t = 0; t < n; ++t) {
+        BBoxd b(points[triangles[t][0]], points[triangles[t][0]]);
+        b.expand(points[triangles[t][1]]);
+        b.expand(points[triangles[t][2]]);
+        mBoxes[t] = b;
+        centres[t] = b.getCenter();
+    }
+    mOrder.resize(n);
+    std::iota(mOrder.begin(), mOrder.end(), 0u);
+    if (n) buildNode(mOrder, 0, n, mBoxes, centres);
+}
+
+int32_t TriangleBvh::buildNode(std::vector<uint32_t>& order, uint32_t first, uint32_t count, std::vector<BBoxd>& boxes,
+                               std::vector<Vec3d>& centres)
+{
+    const int32_t id = int32_t(mNodes.size());
+    mNodes.emplace_back();
+    BBoxd box = boxes[order[first]];
+    for (uint32_t k = first + 1; k < first + count; ++k) box.expand(boxes[order[k]]);
+    mNodes[size_t(id)].box = box;
+    if (count <= 4) {
+        mNodes[size_t(id)].first = first;
+        mNodes[size_t(id)].count = count;
+        return id;
+    }
+    // median split of the centres along the box's longest axis (ties by index: deterministic)
+    const Vec3d ext = box.extents();
+    const int a = ext[0] >= ext[1] && ext[0] >= ext[2] ? 0 : (ext[1] >= ext[2] ? 1 : 2);
+    const uint32_t half = count / 2;
+    std::nth_element(order.begin() + first, order.begin() + first + half, order.begin() + first + count,
+                     [&](uint32_t l, uint32_t r) {
+                         return centres[l][a] < centres[r][a] || (centres[l][a] == centres[r][a] && l < r);
+                     });
+    const int32_t left = buildNode(order, first, half, boxes, centres);
+    const int32_t right = buildNode(order, first + half, count - half, boxes, centres);
+    mNodes[size_t(id)].left = left;
+    mNodes[size_t(id)].right = right;
+    return id;
+}
+
+void TriangleBvh::query(const BBoxd& box, std::vector<uint32_t>& out) const
+{
+    out.clear();
+    if (mNodes.empty()) return;
+    int32_t stack[128];
+    int top = 0;
+    stack[top++] = 0;
+    while (top) {
+        const Node& n = mNodes[size_t(stack[--top])];
+        if (!overlaps(n.box, box)) continue;
+        if (n.left < 0) {
+            for (uint32_t k = n.first; k < n.first + n.count; ++k)
+                if (overlaps(mBoxes[mOrder[k]], box)) out.push_back(mOrder[k]);
+            continue;
+        }
+        stack[top++] = n.left;
+        stack[top++] = n.right;
+    }
+    std::sort(out.begin(), out.end());
+}
+
+bool TriangleBvh::closestPointWithin(const Vec3d& p, double maxDistSqr, Vec3d& out, uint32_t& tri, double& distSqr) const
+{
+    double best = maxDistSqr;
+    bool found = false;
+    if (mNodes.empty()) return false;
+    int32_t stack[128];
+    int top = 0;
+    stack[top++] = 0;
+    while (top) {
+        const Node& n = mNodes[size_t(stack[--top])];
+        if (boxDistanceSqr(p, n.box) > best) continue;
+        if (n.left < 0) {
+            for (uint32_t k = n.first; k < n.first + n.count; ++k) {
+                const uint32_t t = mOrder[k];
+                if (boxDistanceSqr(p, mBoxes[t]) > best) continue;
+                const auto& f = (*mTriangles)[t];
+                const Vec3d q =
+                    dla3d::closestPointOnTriangle(p, (*mPoints)[f[0]], (*mPoints)[f[1]], (*mPoints)[f[2]]);
+                const double d = (q - p).lengthSqr();
+                // the lowest triangle index wins ties, whatever order the nodes are visited in
+                if (d < best || (d == best && (!found || t < tri))) { best = d; tri = t; out = q; found = true; }
+            }
+            continue;
+        }
+        // nearer child last, so it is searched first
+        const double dl = boxDistanceSqr(p, mNodes[size_t(n.left)].box), dr = boxDistanceSqr(p, mNodes[size_t(n.right)].box);
+        if (dl <= dr) { stack[top++] = n.right; stack[top++] = n.left; }
+        else { stack[top++] = n.left; stack[top++] = n.right; }
+    }
+    distSqr = best;
+    return found;
+}
+
+Vec3d TriangleBvh::closestPoint(const Vec3d& p, uint32_t* tri) const
+{
+    Vec3d out = p;
+    uint32_t t = 0;
+    double d = 0;
+    closestPointWithin(p, std::numeric_limits<double>::max(), out, t, d);
+    if (tri) *tri = t;
+    return out;
+}
+
+size_t TriangleBvh::memoryBytes() const
+{
+    return mNodes.size() * sizeof(Node) + mOrder.size() * sizeof(uint32_t) + mBoxes.size() * sizeof(BBoxd);
+}
+
+// ---------------------------------------------------------------------------------------------
+// ShellBand: construction
+
+struct ShellBand::LeafData {
+    std::vector<Coord> coords;
+    std::vector<Vec3d> cp;
+    std::vector<uint32_t> tri;
+    std::vector<float> dist, normalOffset, lateral, luminance;
+    std::vector<VoxelFrame> frames;
+};
+
+void ShellBand::init(const TriangleMesh& mesh, const BandSettings& settings)
 {
     if (mesh.empty()) throw std::runtime_error(mesh.source + ": mesh has no triangles");
-    std::shared_ptr<ShellBand> band(new ShellBand());
-    ShellBand& b = *band;
     const double h = settings.voxelSize;
-    b.mVoxelSize = h;
-    b.mFrostThickness = settings.frostThickness;
-    b.mColourUse = settings.colourUse;
-    b.mTransform = openvdb::math::Transform::createLinearTransform(h);
-
-    // Index-space copy of the mesh (meshToVolume's adapter works in index space).
-    std::vector<Vec3d> pts(mesh.points.size());
-    std::vector<openvdb::Vec3s> ptsS(mesh.points.size());
-    for (size_t v = 0; v < pts.size(); ++v) {
-        pts[v] = Vec3d(mesh.points[v]) / h;
-        ptsS[v] = openvdb::Vec3s(pts[v]);
-    }
-    b.mSurfaceVoxels = mesh.totalArea() / (h * h);
-    const std::vector<Vec3d> vnormal = mesh.vertexNormals();
-    const auto vtris = mesh.vertexTriangles();
-
-    openvdb::tools::QuadAndTriangleDataAdapter<openvdb::Vec3s, openvdb::Vec3I> adapter(ptsS, mesh.triangles);
-    openvdb::Int32Grid primitive;
-    const float bandVoxels = float(kHalfWidth + 1.5); // the exact distance below decides membership
-    auto udf = openvdb::tools::meshToVolume<openvdb::FloatGrid>(adapter, *b.mTransform, bandVoxels, bandVoxels,
-                                                                openvdb::tools::UNSIGNED_DISTANCE_FIELD, &primitive);
-
-    // Candidates in tree order (deterministic), then the exact closest point per voxel in parallel.
-    std::vector<Coord> cand;
-    std::vector<uint32_t> candTri;
-    {
-        auto acc = primitive.getConstAccessor();
-        const float keep = float((kHalfWidth + 1.0) * h);
-        for (auto it = udf->cbeginValueOn(); it; ++it) {
-            if (!it.isVoxelValue() || *it > keep) continue;
-            const int32_t t = acc.getValue(it.getCoord());
-            if (t < 0 || size_t(t) >= mesh.triangles.size()) continue;
-            cand.push_back(it.getCoord());
-            candTri.push_back(uint32_t(t));
-        }
-    }
-    const size_t nc = cand.size();
-    std::vector<Vec3d> cp(nc);
-    std::vector<uint32_t> tri(nc);
-    std::vector<double> dist(nc);
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, nc), [&](const tbb::blocked_range<size_t>& r) {
-        std::vector<uint32_t> ring;
-        for (size_t i = r.begin(); i < r.end(); ++i) {
-            const Vec3d x(cand[i].x(), cand[i].y(), cand[i].z());
-            // the primitive meshToVolume found and its one-ring (ties at edges and vertices)
-            ring.clear();
-            for (int v = 0; v < 3; ++v) {
-                const auto& vt = vtris[mesh.triangles[candTri[i]][v]];
-                ring.insert(ring.end(), vt.begin(), vt.end());
-            }
-            std::sort(ring.begin(), ring.end());
-            ring.erase(std::unique(ring.begin(), ring.end()), ring.end());
-            double best = std::numeric_limits<double>::max();
-            for (uint32_t t : ring) {
-                const auto& f = mesh.triangles[t];
-                const Vec3d q = dla3d::closestPointOnTriangle(x, pts[f[0]], pts[f[1]], pts[f[2]]);
-                const double d = (q - x).lengthSqr();
-                if (d < best) { best = d; cp[i] = q; tri[i] = t; }
-            }
-            dist[i] = std::sqrt(best);
-        }
-    });
-
-    // Members: exact distance within the half-width.
-    b.mIndex = openvdb::Int32Grid::create(-1);
-    b.mIndex->setTransform(b.mTransform);
-    {
-        auto acc = b.mIndex->getAccessor();
-        for (size_t i = 0; i < nc; ++i) {
-            if (dist[i] > kHalfWidth) continue;
-            acc.setValue(cand[i], int32_t(b.mCoords.size()));
-            b.mCoords.push_back(cand[i]);
-            b.mCp.push_back(cp[i]);
-            b.mTriangle.push_back(tri[i]);
-            b.mDistance.push_back(float(dist[i]));
-        }
-    }
-    const size_t n = b.mCoords.size();
-    if (n == 0) throw std::runtime_error(mesh.source + ": the shell band is empty (mesh smaller than a voxel?)");
-    b.mMask = openvdb::MaskGrid::create();
-    b.mMask->setTransform(b.mTransform);
-    b.mMask->tree().topologyUnion(b.mIndex->tree());
-
-    b.mFrames.resize(n);
-    if (mesh.colours.size() == mesh.points.size()) b.mLuminance.resize(n);
-    b.mNormalOffset.resize(n);
-    b.mLateral.resize(n);
-    b.mNeighbours.resize(6 * n);
-    b.mNodes.resize(64 * n);
-    b.mWeights.resize(n);
-    bool missing = false;
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, n), [&](const tbb::blocked_range<size_t>& r) {
-        auto acc = b.mIndex->getConstAccessor();
-        for (size_t i = r.begin(); i < r.end(); ++i) {
-            const Coord& c = b.mCoords[i];
-            const auto& f = mesh.triangles[b.mTriangle[i]];
-            const Vec3d bc = barycentric(b.mCp[i], pts[f[0]], pts[f[1]], pts[f[2]]);
-            Vec3d nrm = vnormal[f[0]] * bc[0] + vnormal[f[1]] * bc[1] + vnormal[f[2]] * bc[2];
-            if (nrm.length() < 1e-9) nrm = mesh.normal(b.mTriangle[i]);
-            nrm.normalize();
-            b.mFrames[i] = frameFor(nrm, settings);
-            if (!b.mLuminance.empty()) {
-                double l = 0;
-                for (int v = 0; v < 3; ++v) {
-                    const auto& c = mesh.colours[f[v]];
-                    l += bc[v] * (0.2126 * c.x() + 0.7152 * c.y() + 0.0722 * c.z());
-                }
-                b.mLuminance[i] = float(std::clamp(l, 0.0, 1.0));
-            }
-            const Vec3d off = Vec3d(c.x(), c.y(), c.z()) - b.mCp[i];
-            const double s = off.dot(nrm);
-            b.mNormalOffset[i] = float(s);
-            b.mLateral[i] = float((off - nrm * s).length());
-            static const Coord nb[6] = {Coord(-1, 0, 0), Coord(1, 0, 0), Coord(0, -1, 0),
-                                        Coord(0, 1, 0), Coord(0, 0, -1), Coord(0, 0, 1)};
-            for (int k = 0; k < 6; ++k) b.mNeighbours[6 * i + size_t(k)] = acc.getValue(c + nb[k]);
-            // tricubic stencil at cp
-            const Vec3d& q = b.mCp[i];
-            const Coord base(int(std::floor(q.x())), int(std::floor(q.y())), int(std::floor(q.z())));
-            double w[3][4];
-            for (int a = 0; a < 3; ++a) cubicWeights(q[a] - base[a], w[a]);
-            for (int a = 0; a < 3; ++a)
-                for (int k = 0; k < 4; ++k) b.mWeights[i][size_t(4 * a + k)] = float(w[a][k]);
-            int32_t* nodes = &b.mNodes[64 * i];
-            for (int z = 0; z < 4; ++z)
-                for (int y = 0; y < 4; ++y)
-                    for (int x = 0; x < 4; ++x) {
-                        const int32_t id = acc.getValue(base + Coord(x - 1, y - 1, z - 1));
-                        if (id < 0) missing = true; // cannot happen when the distances are exact
-                        nodes[16 * z + 4 * y + x] = id;
-                    }
-        }
-    });
-    if (missing)
-        throw std::runtime_error(mesh.source + ": internal error: a tricubic node of the shell band is missing");
-
+    mSettings = settings;
+    mVoxelSize = h;
+    mFrostThickness = settings.frostThickness;
+    mColourUse = settings.colourUse;
+    mSource = mesh.source;
+    mTransform = openvdb::math::Transform::createLinearTransform(h);
+    mPts.resize(mesh.points.size());
+    for (size_t v = 0; v < mPts.size(); ++v) mPts[v] = Vec3d(mesh.points[v]) / h;
+    mTris = mesh.triangles;
+    mVNormal = mesh.vertexNormals();
+    mTriNormal.resize(mTris.size());
+    for (size_t t = 0; t < mTris.size(); ++t) mTriNormal[t] = mesh.normal(t);
+    if (mesh.colours.size() == mesh.points.size()) mVColour = mesh.colours;
+    mSurfaceVoxels = mesh.totalArea() / (h * h);
+    mBvh = TriangleBvh(mPts, mTris);
+    BBoxd box(mPts[0], mPts[0]);
+    for (const auto& p : mPts) box.expand(p);
+    mBounds = coordBox(box.min() - Vec3d(kHalfWidth), box.max() + Vec3d(kHalfWidth));
     for (const auto& e : mesh.boundaryEdges()) {
-        b.mBorderA.push_back(pts[e.first]);
-        b.mBorderB.push_back(pts[e.second]);
+        mBorderA.push_back(mPts[e.first]);
+        mBorderB.push_back(mPts[e.second]);
     }
+    mIndex = openvdb::Int32Grid::create(-1);
+    mIndex->setTransform(mTransform);
+    mMask = openvdb::MaskGrid::create();
+    mMask->setTransform(mTransform);
+}
+
+std::shared_ptr<const ShellBand> ShellBand::buildLazy(const TriangleMesh& mesh, const BandSettings& settings)
+{
+    std::shared_ptr<ShellBand> band(new ShellBand());
+    band->init(mesh, settings);
     return band;
 }
 
+std::shared_ptr<const ShellBand> ShellBand::build(const TriangleMesh& mesh, const BandSettings& settings)
+{
+    auto band = buildLazy(mesh, settings);
+    band->materialiseAll();
+    return band;
+}
+
+bool ShellBand::voxelGeometry(const Coord& c, Vec3d& cp, uint32_t& tri, double& dist) const
+{
+    double d2 = 0;
+    if (!mBvh.closestPointWithin(Vec3d(c.x(), c.y(), c.z()), kHalfWidth * kHalfWidth, cp, tri, d2)) return false;
+    dist = std::sqrt(d2);
+    return true;
+}
+
+VoxelFrame ShellBand::frameOn(uint32_t t, const Vec3d& cp, Vec3d* bary) const
+{
+    const auto& f = mTris[t];
+    const Vec3d bc = barycentric(cp, mPts[f[0]], mPts[f[1]], mPts[f[2]]);
+    if (bary) *bary = bc;
+    Vec3d nrm = mVNormal[f[0]] * bc[0] + mVNormal[f[1]] * bc[1] + mVNormal[f[2]] * bc[2];
+    if (nrm.length() < 1e-9) nrm = mTriNormal[t];
+    nrm.normalize();
+    return frameFor(nrm, mSettings);
+}
+
+void ShellBand::computeLeaf(const Coord& origin, LeafData& out) const
+{
+    std::vector<uint32_t> cand;
+    const Vec3d lo(origin.x(), origin.y(), origin.z());
+    mBvh.query(BBoxd(lo - Vec3d(kHalfWidth), lo + Vec3d(kLeafDim - 1 + kHalfWidth)), cand);
+    if (cand.empty()) return;
+    // voxels in the leaf's offset order (x, then y, then z slowest-to-fastest as OpenVDB stores them)
+    for (int x = 0; x < kLeafDim; ++x)
+        for (int y = 0; y < kLeafDim; ++y)
+            for (int z = 0; z < kLeafDim; ++z) {
+                const Coord c = origin + Coord(x, y, z);
+                Vec3d cp;
+                uint32_t t = 0;
+                double d = 0;
+                if (!voxelGeometry(c, cp, t, d)) continue;
+                Vec3d bc;
+                const VoxelFrame fr = frameOn(t, cp, &bc);
+                out.coords.push_back(c);
+                out.cp.push_back(cp);
+                out.tri.push_back(t);
+                out.dist.push_back(float(d));
+                out.frames.push_back(fr);
+                if (!mVColour.empty()) {
+                    double l = 0;
+                    for (int v = 0; v < 3; ++v) {
+                        const auto& col = mVColour[mTris[t][v]];
+                        l += bc[v] * (0.2126 * col.x() + 0.7152 * col.y() + 0.0722 * col.z());
+                    }
+                    out.luminance.push_back(float(std::clamp(l, 0.0, 1.0)));
+                }
+                const Vec3d off = Vec3d(c.x(), c.y(), c.z()) - cp;
+                const double s = off.dot(fr.normal);
+                out.normalOffset.push_back(float(s));
+                out.lateral.push_back(float((off - fr.normal * s).length()));
+            }
+}
+
+int32_t ShellBand::leafSlot(const Coord& origin) const
+{
+    const auto it = mSlotOf.find(origin);
+    return it == mSlotOf.end() ? -1 : it->second;
+}
+
+size_t ShellBand::materialise(std::vector<Coord> origins) const
+{
+    std::lock_guard<std::mutex> lock(mMutex);
+    return materialiseLocked(std::move(origins));
+}
+
+size_t ShellBand::materialiseLocked(std::vector<Coord> origins) const
+{
+    sortUnique(origins);
+    origins.erase(std::remove_if(origins.begin(), origins.end(), [&](const Coord& o) { return mSlotOf.count(o) > 0; }),
+                  origins.end());
+    if (origins.empty()) return 0;
+    std::vector<LeafData> data(origins.size());
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, origins.size(), 1), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t k = r.begin(); k < r.end(); ++k) computeLeaf(origins[k], data[k]);
+    });
+    const size_t before = mCoords.size();
+    for (size_t k = 0; k < origins.size(); ++k) {
+        LeafData& d = data[k];
+        Leaf leaf;
+        leaf.origin = origins[k];
+        leaf.begin = uint32_t(mCoords.size());
+        leaf.end = uint32_t(mCoords.size() + d.coords.size());
+        mSlotOf[origins[k]] = int32_t(mLeaves.size());
+        mLeaves.push_back(leaf);
+        if (d.coords.empty()) continue;
+        auto* il = mIndex->tree().touchLeaf(origins[k]);
+        auto* ml = mMask->tree().touchLeaf(origins[k]);
+        for (size_t j = 0; j < d.coords.size(); ++j) {
+            il->setValueOn(d.coords[j], int32_t(leaf.begin + j));
+            ml->setValueOn(d.coords[j]);
+        }
+        mCoords.insert(mCoords.end(), d.coords.begin(), d.coords.end());
+        mCp.insert(mCp.end(), d.cp.begin(), d.cp.end());
+        mTriangle.insert(mTriangle.end(), d.tri.begin(), d.tri.end());
+        mDistance.insert(mDistance.end(), d.dist.begin(), d.dist.end());
+        mFrames.insert(mFrames.end(), d.frames.begin(), d.frames.end());
+        mLuminance.insert(mLuminance.end(), d.luminance.begin(), d.luminance.end());
+        mNormalOffset.insert(mNormalOffset.end(), d.normalOffset.begin(), d.normalOffset.end());
+        mLateral.insert(mLateral.end(), d.lateral.begin(), d.lateral.end());
+    }
+    const size_t n = mCoords.size();
+    mNeighbours.resize(6 * n, -1);
+    mNodes.resize(64 * n, -1);
+    mWeights.resize(n);
+    return n - before;
+}
+
+void ShellBand::prepare(std::vector<Coord> origins) const
+{
+    std::lock_guard<std::mutex> lock(mMutex);
+    prepareLocked(std::move(origins));
+}
+
+void ShellBand::prepareLocked(std::vector<Coord> origins) const
+{
+    sortUnique(origins);
+    // the leaves and their 26 neighbours must be built: neighbours and tricubic nodes lie there
+    std::vector<Coord> ring;
+    for (const Coord& o : origins) {
+        const int32_t s = leafSlot(o);
+        if (s >= 0 && mLeaves[size_t(s)].prepared) continue;
+        for (int dx = -1; dx <= 1; ++dx)
+            for (int dy = -1; dy <= 1; ++dy)
+                for (int dz = -1; dz <= 1; ++dz) ring.push_back(o + Coord(dx * kLeafDim, dy * kLeafDim, dz * kLeafDim));
+    }
+    if (ring.empty()) return;
+    materialiseLocked(ring);
+    std::vector<uint32_t> todo;
+    for (const Coord& o : origins) {
+        const int32_t s = leafSlot(o);
+        if (!mLeaves[size_t(s)].prepared) todo.push_back(uint32_t(s));
+    }
+    bool missing = false;
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, todo.size(), 1), [&](const tbb::blocked_range<size_t>& r) {
+        auto acc = mIndex->getConstAccessor();
+        static const Coord nb[6] = {Coord(-1, 0, 0), Coord(1, 0, 0), Coord(0, -1, 0),
+                                    Coord(0, 1, 0),  Coord(0, 0, -1), Coord(0, 0, 1)};
+        for (size_t k = r.begin(); k < r.end(); ++k) {
+            const Leaf& l = mLeaves[todo[k]];
+            for (size_t i = l.begin; i < l.end; ++i) {
+                const Coord& c = mCoords[i];
+                for (int n = 0; n < 6; ++n) mNeighbours[6 * i + size_t(n)] = acc.getValue(c + nb[n]);
+                const Vec3d& q = mCp[i];
+                const Coord base(int(std::floor(q.x())), int(std::floor(q.y())), int(std::floor(q.z())));
+                double w[3][4];
+                for (int a = 0; a < 3; ++a) cubicWeights(q[a] - base[a], w[a]);
+                for (int a = 0; a < 3; ++a)
+                    for (int j = 0; j < 4; ++j) mWeights[i][size_t(4 * a + j)] = float(w[a][j]);
+                int32_t* nodes = &mNodes[64 * i];
+                for (int z = 0; z < 4; ++z)
+                    for (int y = 0; y < 4; ++y)
+                        for (int x = 0; x < 4; ++x) {
+                            const int32_t id = acc.getValue(base + Coord(x - 1, y - 1, z - 1));
+                            if (id < 0) missing = true; // cannot happen when the distances are exact
+                            nodes[16 * z + 4 * y + x] = id;
+                        }
+            }
+        }
+    });
+    if (missing) throw std::runtime_error(mSource + ": internal error: a tricubic node of the shell band is missing");
+    for (uint32_t s : todo) mLeaves[s].prepared = true;
+}
+
+void ShellBand::leavesOfTriangle(uint32_t t, std::vector<Coord>& out) const
+{
+    const auto& f = mTris[t];
+    BBoxd b(mPts[f[0]], mPts[f[0]]);
+    b.expand(mPts[f[1]]);
+    b.expand(mPts[f[2]]);
+    std::vector<Coord> box;
+    leavesOfBox(coordBox(b.min() - Vec3d(kHalfWidth), b.max() + Vec3d(kHalfWidth)), box);
+    // a leaf's voxels lie within 3.5 sqrt 3 of its centre
+    const double reach = kHalfWidth + 0.5 * (kLeafDim - 1) * std::sqrt(3.0) + 1e-6;
+    for (const Coord& o : box) {
+        const Vec3d centre = Vec3d(o.x(), o.y(), o.z()) + Vec3d(0.5 * (kLeafDim - 1));
+        const Vec3d q = dla3d::closestPointOnTriangle(centre, mPts[f[0]], mPts[f[1]], mPts[f[2]]);
+        if ((q - centre).length() <= reach) out.push_back(o);
+    }
+}
+
+void ShellBand::materialiseAll() const
+{
+    std::lock_guard<std::mutex> lock(mMutex);
+    if (mWhole) return;
+    // Refuse before allocating: about 11.5 band voxels per surface voxel at about 600 bytes each
+    // (measured, docs/shells.md), plus the solver's arrays.
+    const double estimate = mSurfaceVoxels * 11.5 * 660.0;
+    const double available = double(availableMemoryBytes());
+    if (available > 0 && estimate > available)
+        throw std::runtime_error(mSource + ": the whole shell band would need about " + formatBytes(estimate) +
+                                 " (mesh area / voxel_size^2 x 11.5 band voxels x 660 bytes), more than the " +
+                                 formatBytes(available) + " available; raise voxel_size, scale the mesh down or "
+                                 "use the sparse region ([region] dense = false)");
+    std::vector<Coord> reached;
+    for (uint32_t t = 0; t < mTris.size(); ++t) leavesOfTriangle(t, reached);
+    sortUnique(reached);
+    materialiseLocked(reached);
+    // every other leaf is provably empty (leavesOfTriangle is conservative): record it as such
+    // instead of searching it, so preparing the reached leaves builds nothing more
+    for (const Coord& o : reached)
+        for (int dx = -1; dx <= 1; ++dx)
+            for (int dy = -1; dy <= 1; ++dy)
+                for (int dz = -1; dz <= 1; ++dz) {
+                    const Coord n = o + Coord(dx * kLeafDim, dy * kLeafDim, dz * kLeafDim);
+                    if (mSlotOf.count(n)) continue;
+                    Leaf l;
+                    l.origin = n;
+                    l.begin = l.end = uint32_t(mCoords.size());
+                    l.prepared = true;
+                    mSlotOf[n] = int32_t(mLeaves.size());
+                    mLeaves.push_back(l);
+                }
+    prepareLocked(reached);
+    if (mCoords.empty()) throw std::runtime_error(mSource + ": the shell band is empty (mesh smaller than a voxel?)");
+    mWhole = true;
+}
+
+void ShellBand::materialiseTriangles(const std::vector<uint32_t>& triangles) const
+{
+    std::vector<Coord> origins;
+    for (uint32_t t : triangles) leavesOfTriangle(t, origins);
+    materialise(std::move(origins));
+}
+
+size_t ShellBand::materialiseBox(const openvdb::CoordBBox& box) const
+{
+    std::vector<Coord> origins;
+    leavesOfBox(box, origins);
+    return materialise(std::move(origins));
+}
+
+// ---------------------------------------------------------------------------------------------
+// ShellBand: queries
+
 int32_t ShellBand::indexOf(const Coord& c) const { return mIndex->tree().getValue(c); }
+
+bool ShellBand::contains(const Coord& c) const
+{
+    if (leafSlot(leafOrigin(c)) >= 0) return indexOf(c) >= 0;
+    Vec3d cp;
+    uint32_t t;
+    double d;
+    return voxelGeometry(c, cp, t, d);
+}
+
+VoxelFrame ShellBand::frameAt(const Coord& c) const
+{
+    const int32_t i = indexOf(c);
+    if (i >= 0) return mFrames[size_t(i)];
+    if (leafSlot(leafOrigin(c)) >= 0) return VoxelFrame{};
+    Vec3d cp;
+    uint32_t t;
+    double d;
+    return voxelGeometry(c, cp, t, d) ? frameOn(t, cp) : VoxelFrame{};
+}
 
 std::vector<size_t> ShellBand::nearBorder(double width) const
 {
+    if (!mWhole) { // build the leaves along the border first
+        std::vector<Coord> origins;
+        const double reach = width + kHalfWidth + 1.0;
+        for (size_t e = 0; e < mBorderA.size(); ++e) {
+            const Vec3d a = mBorderA[e], b = mBorderB[e];
+            const int n = std::max(1, int(std::ceil((b - a).length() / 4.0)));
+            for (int k = 0; k <= n; ++k) {
+                const Vec3d p = a + (b - a) * (double(k) / n);
+                leavesOfBox(coordBox(p - Vec3d(reach), p + Vec3d(reach)), origins);
+            }
+        }
+        materialise(std::move(origins));
+    }
     std::vector<char> hit(size(), 0);
     tbb::parallel_for(tbb::blocked_range<size_t>(0, size()), [&](const tbb::blocked_range<size_t>& r) {
         for (size_t i = r.begin(); i < r.end(); ++i)
@@ -224,89 +560,88 @@ std::vector<size_t> ShellBand::nearBorder(double width) const
 
 std::vector<size_t> ShellBand::nearSurfacePoint(const Vec3d& centre, double radius) const
 {
+    if (!mWhole) {
+        const double reach = radius + kHalfWidth + 1.0;
+        materialiseBox(coordBox(centre - Vec3d(reach), centre + Vec3d(reach)));
+    }
     std::vector<size_t> out;
     for (size_t i = 0; i < size(); ++i)
         if ((mCp[i] - centre).length() <= radius) out.push_back(i);
     return out;
 }
 
-Vec3d ShellBand::nearestSurfacePoint(const Vec3d& p) const
-{
-    double best = std::numeric_limits<double>::max();
-    Vec3d out = p;
-    for (const auto& q : mCp) {
-        const double d = (q - p).lengthSqr();
-        if (d < best) { best = d; out = q; }
-    }
-    return out;
-}
+Vec3d ShellBand::nearestSurfacePoint(const Vec3d& p) const { return mBvh.closestPoint(p); }
 
-void ShellBand::extend(const std::vector<float>& in, std::vector<float>& out, bool limit) const
-{
-    out.resize(size());
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, size()), [&](const tbb::blocked_range<size_t>& r) {
-        for (size_t i = r.begin(); i < r.end(); ++i) {
-            const int32_t* nodes = &mNodes[64 * i];
-            const float* w = mWeights[i].data();
-            double sz = 0;
-            for (int z = 0; z < 4; ++z) {
-                double sy = 0;
-                for (int y = 0; y < 4; ++y) {
-                    const int32_t* row = nodes + 16 * z + 4 * y;
-                    const double sx = double(w[0]) * in[size_t(row[0])] + double(w[1]) * in[size_t(row[1])] +
-                                      double(w[2]) * in[size_t(row[2])] + double(w[3]) * in[size_t(row[3])];
-                    sy += double(w[4 + y]) * sx;
-                }
-                sz += double(w[8 + z]) * sy;
-            }
-            if (limit) {
-                float lo = std::numeric_limits<float>::max(), hi = -lo;
-                for (int z = 1; z < 3; ++z)
-                    for (int y = 1; y < 3; ++y)
-                        for (int x = 1; x < 3; ++x) {
-                            const float v = in[size_t(nodes[16 * z + 4 * y + x])];
-                            lo = std::min(lo, v);
-                            hi = std::max(hi, v);
-                        }
-                sz = std::clamp(sz, double(lo), double(hi));
-            }
-            out[i] = float(sz);
-        }
-    });
-}
+// ---------------------------------------------------------------------------------------------
+// ShellBand: the closest-point extension
 
-void ShellBand::extendPhase(const std::vector<float>& p, std::vector<float>& out, std::vector<float>& phi) const
+void ShellBand::extend(const std::vector<float>& in, std::vector<float>& out, bool limit, float background,
+                       const std::vector<uint32_t>* leafSlots) const
 {
-    phi.resize(size());
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, size()), [&](const tbb::blocked_range<size_t>& r) {
-        for (size_t i = r.begin(); i < r.end(); ++i) {
-            const double q = std::clamp(double(p[i]), 1e-6, 1.0 - 1e-6);
-            phi[i] = float(std::atanh(2.0 * q - 1.0));
+    if (!leafSlots) out.resize(size());
+    const double bg = background;
+    forEachVoxel(leafSlots, [&](size_t i) {
+        const int32_t* nodes = &mNodes[64 * i];
+        const float* w = mWeights[i].data();
+        double sz = 0;
+        for (int z = 0; z < 4; ++z) {
+            double sy = 0;
+            for (int y = 0; y < 4; ++y) {
+                const int32_t* row = nodes + 16 * z + 4 * y;
+                const double sx = double(w[0]) * (in[size_t(row[0])] - bg) + double(w[1]) * (in[size_t(row[1])] - bg) +
+                                  double(w[2]) * (in[size_t(row[2])] - bg) + double(w[3]) * (in[size_t(row[3])] - bg);
+                sy += double(w[4 + y]) * sx;
+            }
+            sz += double(w[8 + z]) * sy;
         }
-    });
-    extend(phi, out, false);
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, size()), [&](const tbb::blocked_range<size_t>& r) {
-        for (size_t i = r.begin(); i < r.end(); ++i) {
-            const int32_t* nodes = &mNodes[64 * i];
+        sz += bg;
+        if (limit) {
             float lo = std::numeric_limits<float>::max(), hi = -lo;
             for (int z = 1; z < 3; ++z)
                 for (int y = 1; y < 3; ++y)
                     for (int x = 1; x < 3; ++x) {
-                        const float v = p[size_t(nodes[16 * z + 4 * y + x])];
+                        const float v = in[size_t(nodes[16 * z + 4 * y + x])];
                         lo = std::min(lo, v);
                         hi = std::max(hi, v);
                     }
-            out[i] = std::clamp(float(0.5 * (1.0 + std::tanh(double(out[i])))), lo, hi);
+            sz = std::clamp(sz, double(lo), double(hi));
         }
+        out[i] = float(sz);
+    });
+}
+
+void ShellBand::extendPhase(const std::vector<float>& p, std::vector<float>& out, std::vector<float>& phi,
+                            const std::vector<uint32_t>* leafSlots, const std::vector<uint32_t>* nodeSlots) const
+{
+    phi.resize(size());
+    // phi where the nodes are (the leaves around the extended ones)
+    forEachVoxel(nodeSlots, [&](size_t i) {
+        const double q = std::clamp(double(p[i]), 1e-6, 1.0 - 1e-6);
+        phi[i] = float(std::atanh(2.0 * q - 1.0));
+    });
+    extend(phi, out, false, 0.f, leafSlots);
+    forEachVoxel(leafSlots, [&](size_t i) {
+        const int32_t* nodes = &mNodes[64 * i];
+        float lo = std::numeric_limits<float>::max(), hi = -lo;
+        for (int z = 1; z < 3; ++z)
+            for (int y = 1; y < 3; ++y)
+                for (int x = 1; x < 3; ++x) {
+                    const float v = p[size_t(nodes[16 * z + 4 * y + x])];
+                    lo = std::min(lo, v);
+                    hi = std::max(hi, v);
+                }
+        out[i] = std::clamp(float(0.5 * (1.0 + std::tanh(double(out[i])))), lo, hi);
     });
 }
 
 size_t ShellBand::memoryBytes() const
 {
     const size_t n = size();
-    return n * (sizeof(Coord) + sizeof(Vec3d) + 3 * sizeof(float) + sizeof(VoxelFrame) +
-                sizeof(uint32_t) + 6 * sizeof(int32_t) + 64 * sizeof(int32_t) + sizeof(std::array<float, 12>)) +
-           mIndex->memUsage() + mMask->memUsage();
+    return n * (sizeof(Coord) + sizeof(Vec3d) + 3 * sizeof(float) + sizeof(VoxelFrame) + sizeof(uint32_t) +
+                6 * sizeof(int32_t) + 64 * sizeof(int32_t) + sizeof(std::array<float, 12>)) +
+           mLuminance.size() * sizeof(float) + mIndex->memUsage() + mMask->memUsage() +
+           mLeaves.size() * (sizeof(Leaf) + 32) + mBvh.memoryBytes() +
+           (mPts.size() * 2 + mTriNormal.size()) * sizeof(Vec3d) + mTris.size() * sizeof(openvdb::Vec3I);
 }
 
 } // namespace frostvdb::shell

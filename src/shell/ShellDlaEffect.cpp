@@ -54,6 +54,8 @@ public:
         mBand = bandOf(world.domain);
         mWalkers = std::make_unique<ShellWalkers>(mBand, mParams, world.seed);
         mHits.assign(mParams.hits > 1 ? mBand->size() : 0, 0);
+        // the colour melt map x melt_texture: fixed (the band is whole, see makeShellDla)
+        mStaticMelt = meltMap(*mBand, nullptr, texturesOf(world.domain));
         mTime = 0;
     }
 
@@ -81,7 +83,7 @@ private:
     std::unique_ptr<ShellWalkers> mWalkers;
     std::vector<int32_t> mHits; ///< walkers stuck per site since its last freeze (hits > 1)
     ice::DlaStats mStats;
-    std::vector<float> mP, mT, mGrowth, mFreeze, mMelt;
+    std::vector<float> mP, mT, mGrowth, mFreeze, mMelt, mStaticMelt;
     std::vector<openvdb::Vec3f> mDrift;
     std::vector<float> mPLeft; ///< p as this effect left it last step (empty: none yet)
 
@@ -112,8 +114,13 @@ void ShellDlaEffect::step(World& world, const StepInfo& info)
 
     ShellWalkers::Inputs in;
     // sticking probability: the melt field times the mesh's colour melt map (as the phase field)
-    auto melt = world.fields.get<openvdb::FloatGrid>(ice::kMelt);
-    mMelt = meltMap(band, melt.get(), texturesOf(world.domain));
+    if (auto melt = world.fields.get<openvdb::FloatGrid>(ice::kMelt)) {
+        fromGrid(band, *melt, mMelt);
+        if (!mStaticMelt.empty())
+            for (size_t i = 0; i < mMelt.size(); ++i) mMelt[i] *= mStaticMelt[i];
+    } else {
+        mMelt = mStaticMelt;
+    }
     if (!mMelt.empty()) in.melt = &mMelt;
     // drift: the tangential wind (cells per unit ice time) times dt and flow_drift, per step
     mDrift.clear();
@@ -227,6 +234,15 @@ std::unique_ptr<Effect> makeShellDla(const ice::DlaParams& params, ParamDict& d,
         d.fail("steam_humidity", "steam humidity is not available on shell domains (allowed: 0)");
     if (params.release == ice::DlaRelease::Perimeter) {
         if (bandOf(world.domain)->borderEdgeCount() == 0) d.fail("release", "perimeter on a shell releases on the open mesh's border; this mesh is closed (allowed: uniform)");
+    }
+    // Walkers are released over the whole surface and walk anywhere on it, so the lazily built
+    // band is built whole here, before any effect sizes its arrays to it (docs/shells.md: with
+    // [dla] memory follows the mesh's area; the phase field's active region still steps only
+    // the leaves near the ice).
+    try {
+        bandOf(world.domain)->materialiseAll();
+    } catch (const std::runtime_error& e) {
+        d.fail("release", std::string("walkers need the whole shell band: ") + e.what());
     }
     return std::make_unique<ShellDlaEffect>(params);
 }

@@ -29,8 +29,21 @@ openvdb::FloatGrid::Ptr toGrid(const ShellBand& band, const std::vector<float>& 
     return grid;
 }
 
-void fromGrid(const ShellBand& band, const openvdb::FloatGrid& grid, std::vector<float>& values)
+void fromGrid(const ShellBand& band, const openvdb::FloatGrid& grid, std::vector<float>& values, bool materialise)
 {
+    if (materialise && !band.whole()) {
+        std::vector<openvdb::Coord> origins;
+        const float bg = grid.background();
+        for (auto it = grid.cbeginValueOn(); it; ++it) {
+            if (*it == bg) continue;
+            if (it.isVoxelValue()) {
+                const openvdb::Coord o = leafOrigin(it.getCoord());
+                if (origins.empty() || origins.back() != o) origins.push_back(o);
+            }
+            else band.materialiseBox(it.getBoundingBox()); // a tile: every leaf in it
+        }
+        band.materialise(std::move(origins));
+    }
     values.resize(band.size());
     openvdb::tree::LeafManager<const openvdb::Int32Tree> leaves(band.indexGrid().tree());
     leaves.foreach([&](const openvdb::Int32Tree::LeafNodeType& il, size_t) {

@@ -9,6 +9,7 @@
 #include <chrono>
 #include <algorithm>
 #include <cmath>
+#include <stdexcept>
 
 namespace frostvdb::shell {
 
@@ -54,18 +55,87 @@ void heatStep(const ShellBand& band, std::vector<float>& u, double dt, double h,
 ShellPhaseField::ShellPhaseField(std::shared_ptr<const ShellBand> band, const KobayashiParams& params, double h)
     : mBand(std::move(band)), mParams(params), mAniso(params), mH(h)
 {
-    const size_t n = mBand->size();
-    mP.assign(n, 0.f);
-    mT.assign(n, float(params.farTemperature));
-    mGrowth.assign(n, 0.f);
-    mFreeze.assign(n, 0.f);
-    for (auto* v : {&mA, &mCx, &mCy, &mCz, &mGx, &mGy, &mGz}) v->assign(n, 0.f);
-    for (size_t i = 0; i < n; ++i) mUpdateCount += mBand->inUpdateSet(i) ? 1 : 0;
+    // a whole band is stepped whole (the reference); a lazy one around the ice, exactly (tol 0)
+    mActive = !mBand->whole();
+    grow();
+}
+
+void ShellPhaseField::setActiveRegion(bool active, double tolerance)
+{
+    mActive = active;
+    mTolerance = std::max(0.0, tolerance);
+    if (!active) mBand->materialiseAll();
+    mStepped.clear();
+    mOff.clear();
+    mInStepped.clear();
+    mSlotsSeen = 0;
+    mDirty = true;
+    grow();
+}
+
+size_t ShellPhaseField::steppedVoxels() const
+{
+    size_t n = 0;
+    for (uint32_t s : mStepped) n += mBand->leaves()[s].end - mBand->leaves()[s].begin;
+    return n;
+}
+
+void ShellPhaseField::setMeltSource(std::function<float(const ShellBand&, size_t)> melt, std::vector<float> now)
+{
+    mMeltSource = std::move(melt);
+    mMelt.clear();
+    if (!mMeltSource) return;
+    if (now.size() == mBand->size()) {
+        mMelt = std::move(now);
+        return;
+    }
+    mMelt.resize(mBand->size());
+    const ShellBand& b = *mBand;
+    mBand->forEachVoxel(nullptr, [&](size_t i) { mMelt[i] = mMeltSource(b, i); });
+}
+
+void ShellPhaseField::grow()
+{
+    const ShellBand& b = *mBand;
+    const size_t n = b.size(), old = mPOld.size();
+    if (old == n && mP.size() == n) return;
+    const float tInf = float(mParams.farTemperature);
+    mP.resize(n, 0.f);
+    mT.resize(n, tInf);
+    mGrowth.resize(n, 0.f);
+    mFreeze.resize(n, 0.f);
+    // Voxels never stepped sit at the background with a background neighbourhood: their pass-1
+    // coefficients are those of a zero gradient, their extension variable phi that of p = 0
+    // (exactly what pass 1 and extendPhase compute there on a whole band).
+    double eps0, epsPrime0;
+    mAniso(0.0, 0.0, eps0, epsPrime0);
+    mA.resize(n, float(eps0 * eps0));
+    mPhi.resize(n, float(std::atanh(2.0 * 1e-6 - 1.0)));
+    for (auto* v : {&mPn, &mTn, &mPOld, &mCx, &mCy, &mCz, &mGx, &mGy, &mGz}) v->resize(n, 0.f);
+    if (mMeltSource && mMelt.size() < n) { // the new leaves' melt values, computed as they are built
+        const size_t from = mMelt.size();
+        mMelt.resize(n);
+        for (size_t i = from; i < n; ++i) mMelt[i] = mMeltSource(b, i);
+    }
+    // a per-voxel wind without a world direction cannot be extended to new voxels
+    if (!mWind.empty() && mWind.size() < n && mWindWorld.lengthSqr() == 0.0)
+        throw std::logic_error("shell phase field: a per-voxel wind was set before the band grew; build the band "
+                               "whole first (ShellBand::materialiseAll)");
+    if (mWindWorld.lengthSqr() > 0.0 && mWind.size() < n) {
+        const size_t from = mWind.size();
+        mWind.resize(n);
+        for (size_t i = from; i < n; ++i) {
+            const openvdb::Vec3d& nr = b.frame(i).normal;
+            mWind[i] = openvdb::Vec3f(mWindWorld - nr * mWindWorld.dot(nr));
+        }
+    }
 }
 
 void ShellPhaseField::setWind(const openvdb::Vec3d& wind)
 {
     mWind.clear();
+    mWindWorld = wind;
+    grow();
     if (wind.lengthSqr() == 0.0) return;
     mWind.resize(mBand->size());
     for (size_t i = 0; i < mBand->size(); ++i) {
@@ -82,22 +152,156 @@ double ShellPhaseField::windStabilityLimit() const
     return 1.0 / (6.0 / (mH * mH) + vmax / mH);
 }
 
+void ShellPhaseField::updateRegion()
+{
+    const ShellBand& b = *mBand;
+    grow();
+    const auto& leaves = b.leaves();
+    auto recount = [&] {
+        mUpdateCount = 0;
+        for (uint32_t s : mStepped)
+            for (size_t i = leaves[s].begin; i < leaves[s].end; ++i) mUpdateCount += b.inUpdateSet(i) ? 1 : 0;
+    };
+    if (!mActive) { // the whole band, every leaf
+        if (mSlotsSeen == leaves.size()) return;
+        mStepped.clear();
+        for (uint32_t s = 0; s < leaves.size(); ++s)
+            if (leaves[s].end > leaves[s].begin) mStepped.push_back(s);
+        mSlotsSeen = leaves.size();
+        recount();
+        return;
+    }
+    // Per leaf, the box of its voxels off the background by more than the tolerance. Only
+    // stepped leaves can change, unless someone wrote the fields (mDirty) or built leaves since
+    // the last scan.
+    mOff.resize(leaves.size());
+    mInStepped.resize(leaves.size(), 0);
+    std::vector<uint32_t> scan;
+    if (mDirty || mSlotsSeen != leaves.size()) {
+        for (uint32_t s = 0; s < leaves.size(); ++s)
+            if (leaves[s].end > leaves[s].begin) scan.push_back(s);
+    } else {
+        scan = mStepped;
+    }
+    mDirty = false;
+    const float tol = float(mTolerance), tInf = float(mParams.farTemperature);
+    std::vector<openvdb::CoordBBox> off(scan.size());
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, scan.size(), 4), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t k = r.begin(); k < r.end(); ++k) {
+            const auto& l = leaves[scan[k]];
+            for (size_t i = l.begin; i < l.end; ++i)
+                if (std::fabs(mP[i]) > tol || std::fabs(mT[i] - tInf) > tol) off[k].expand(b.coord(i));
+        }
+    });
+    // One step reads at most kReach voxels away (see the file comment): every leaf within kReach
+    // of an off-background voxel is stepped; the ring of leaves around those stays at the
+    // background (built, for the stencils' indices).
+    constexpr int kReach = 9;
+    std::vector<openvdb::Coord> stepped;
+    for (size_t k = 0; k < scan.size(); ++k) {
+        if (off[k].empty()) continue;
+        openvdb::CoordBBox& have = mOff[scan[k]];
+        if (!have.empty() && have.isInside(off[k])) continue;
+        have.expand(off[k]);
+        openvdb::CoordBBox box = have;
+        box.expand(kReach);
+        const openvdb::Coord lo = leafOrigin(box.min()), hi = leafOrigin(box.max());
+        for (int x = lo.x(); x <= hi.x(); x += kLeafDim)
+            for (int y = lo.y(); y <= hi.y(); y += kLeafDim)
+                for (int z = lo.z(); z <= hi.z(); z += kLeafDim) {
+                    stepped.emplace_back(x, y, z);
+                }
+    }
+    if (!stepped.empty()) {
+        b.prepare(stepped); // builds the ring of leaves around them too
+        grow();
+        mOff.resize(leaves.size());
+        mInStepped.resize(leaves.size(), 0);
+        size_t before = mStepped.size();
+        for (const auto& o : stepped) {
+            const int32_t s = b.leafSlot(o);
+            if (s < 0 || mInStepped[size_t(s)] || leaves[size_t(s)].end == leaves[size_t(s)].begin) continue;
+            mInStepped[size_t(s)] = 1;
+            mStepped.push_back(uint32_t(s));
+        }
+        if (mStepped.size() != before) {
+            std::sort(mStepped.begin(), mStepped.end());
+            recount();
+        }
+    }
+    mSlotsSeen = leaves.size();
+}
+
+void ShellPhaseField::regionState(openvdb::Int32Grid& boxes, openvdb::MaskGrid& stepped) const
+{
+    const auto& leaves = mBand->leaves();
+    auto bacc = boxes.getAccessor();
+    auto sacc = stepped.getAccessor();
+    for (uint32_t s : mStepped) sacc.setValueOn(leaves[s].origin);
+    for (size_t s = 0; s < mOff.size(); ++s) {
+        if (mOff[s].empty()) continue;
+        const openvdb::Coord d = mOff[s].max() - leaves[s].origin;
+        bacc.setValue(mOff[s].min(), 1 + (d.x() << 6 | d.y() << 3 | d.z()));
+    }
+}
+
+void ShellPhaseField::restoreRegion(const openvdb::Int32Grid& boxes, const openvdb::MaskGrid& stepped)
+{
+    if (!mActive) return;
+    const ShellBand& b = *mBand;
+    std::vector<openvdb::Coord> origins;
+    for (auto it = stepped.cbeginValueOn(); it; ++it) origins.push_back(it.getCoord());
+    b.prepare(origins);
+    grow();
+    const auto& leaves = b.leaves();
+    mOff.assign(leaves.size(), openvdb::CoordBBox());
+    mInStepped.assign(leaves.size(), 0);
+    mStepped.clear();
+    for (const auto& o : origins) {
+        const int32_t s = b.leafSlot(o);
+        if (s < 0 || leaves[size_t(s)].end == leaves[size_t(s)].begin || mInStepped[size_t(s)]) continue;
+        mInStepped[size_t(s)] = 1;
+        mStepped.push_back(uint32_t(s));
+    }
+    std::sort(mStepped.begin(), mStepped.end());
+    for (auto it = boxes.cbeginValueOn(); it; ++it) {
+        const openvdb::Coord lo = it.getCoord(), o = leafOrigin(lo);
+        const int off = *it - 1;
+        b.materialise({o});
+        mOff.resize(leaves.size());
+        mInStepped.resize(leaves.size(), 0);
+        const int32_t s = b.leafSlot(o);
+        mOff[size_t(s)] = openvdb::CoordBBox(lo, o + openvdb::Coord(off >> 6 & 7, off >> 3 & 7, off & 7));
+    }
+    grow();
+    mUpdateCount = 0;
+    for (uint32_t s : mStepped)
+        for (size_t i = leaves[s].begin; i < leaves[s].end; ++i) mUpdateCount += b.inUpdateSet(i) ? 1 : 0;
+    mDirty = true; // rescan: the boxes only grow from here
+    mSlotsSeen = leaves.size();
+}
+
 void ShellPhaseField::extendAll()
 {
-    mBand->extendPhase(mP, mPn, mA);
-    mBand->extend(mT, mTn, false);
-    mP.swap(mPn);
-    mT.swap(mTn);
+    updateRegion();
+    const ShellBand& b = *mBand;
+    b.extendPhase(mP, mPn, mPhi, &mStepped, &mStepped);
+    b.extend(mT, mTn, false, float(mParams.farTemperature), &mStepped);
+    b.forEachVoxel(&mStepped, [&](size_t i) {
+        mP[i] = mPn[i];
+        mT[i] = mTn[i];
+    });
 }
 
 void ShellPhaseField::step(double time, int64_t stepIndex, uint64_t seed, ShellStepStats* stats)
 {
+    updateRegion();
     const ShellBand& b = *mBand;
     const KobayashiParams& k = mParams;
     const double invH = 1.0 / mH, invH2 = invH * invH;
     const auto t0 = Clock::now();
     // Pass 1: eps^2 and C = eps eps' (n x g) on the coefficient set, g the tangential gradient.
-    forEachVoxel(b.size(), [&](size_t i) {
+    b.forEachVoxel(&mStepped, [&](size_t i) {
         if (!b.inCoefficientSet(i)) return;
         const VoxelFrame& f = b.frame(i);
         openvdb::Vec3d g(centralDiff(b, mP, i, 0), centralDiff(b, mP, i, 1), centralDiff(b, mP, i, 2));
@@ -114,10 +318,11 @@ void ShellPhaseField::step(double time, int64_t stepIndex, uint64_t seed, ShellS
         mGy[i] = float(g.y());
         mGz[i] = float(g.z());
     });
-    // Pass 2: the Euler update on the update set.
-    mPn.assign(b.size(), 0.f);
-    mTn.assign(b.size(), 0.f);
-    forEachVoxel(b.size(), [&](size_t i) {
+    // Pass 2: the Euler update on the update set (elsewhere the new values are the old ones:
+    // only nodes, all in the update set, are read by the extension).
+    mPn = mP;
+    mTn = mT;
+    b.forEachVoxel(&mStepped, [&](size_t i) {
         if (!b.inUpdateSet(i)) return;
         const double p0 = mP[i], t0v = mT[i];
         const double lapP = laplacianSum(b, mP, i) * invH2, lapT = laplacianSum(b, mT, i) * invH2;
@@ -146,13 +351,12 @@ void ShellPhaseField::step(double time, int64_t stepIndex, uint64_t seed, ShellS
     });
     const auto t1 = Clock::now();
     // Re-extension: p through its sharp-profile variant (ShellBand::extendPhase), T plain.
-    std::vector<float>& pOld = mPOld;
-    pOld = mP;
-    b.extendPhase(mPn, mP, mA); // mA is scratch here: pass 1 rewrites it where it is read
-    b.extend(mTn, mT, false);
+    mPOld = mP;
+    b.extendPhase(mPn, mP, mPhi, &mStepped, &mStepped);
+    b.extend(mTn, mT, false, float(k.farTemperature), &mStepped);
     const float tNext = float(time);
-    forEachVoxel(b.size(), [&](size_t i) {
-        const float d = mP[i] - pOld[i];
+    b.forEachVoxel(&mStepped, [&](size_t i) {
+        const float d = mP[i] - mPOld[i];
         if (d > 0.f) mGrowth[i] += d;
         if (mFreeze[i] == 0.f && mP[i] > 0.5f) mFreeze[i] = tNext;
     });

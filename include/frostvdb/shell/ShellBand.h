@@ -3,14 +3,21 @@
 /// @brief The narrow band of voxels around a triangle mesh on which the shell domain runs its
 /// surface PDEs by the closest point method (Ruuth & Merriman 2008).
 ///
-/// Built from OpenVDB's mesh-to-volume (unsigned distance, so open meshes work, with the
-/// closest-primitive index grid); per band voxel the exact closest point on the surface is
-/// computed from that primitive and its one-ring. Per voxel the band keeps:
+/// The band is built per 8^3 leaf ("brick"), only where it is needed: a bounding-volume
+/// hierarchy over the mesh's triangles gives each voxel the exact closest point on the mesh
+/// (the lowest triangle index on ties) when it lies within the half-width. build() materialises every leaf the mesh reaches (the whole band, the
+/// reference); buildLazy() materialises none, and the shell's phase field asks for the leaves
+/// around the ice as it grows (ShellPhaseField's active region), so a huge mesh with small
+/// crystals costs what the crystals cost. A voxel's data does not depend on which leaves were
+/// built before it, so the lazy band holds the same values as the whole one where both exist.
+///
+/// Per voxel the band keeps:
 ///  - cp(x), the closest point (index space), its distance and the smooth frame there
 ///    (interpolated vertex normal; tangent = the crystal axis projected on the tangent plane);
-///  - the 6 face neighbours (band indices, -1 when outside the band);
-///  - the tricubic interpolation stencil at cp(x): the 64 node indices and the 3 x 4 Lagrange
-///    weights, so a closest-point extension u(x) = interp(u, cp(x)) is one gather per voxel.
+///  - once its leaf is "prepared" (all 26 neighbouring leaves built): the 6 face neighbours
+///    (band indices, -1 outside the band) and the tricubic interpolation stencil at cp(x) (64 node
+///    indices and 3 x 4 Lagrange weights), so an extension u(x) = interp(u, cp(x)) is one gather.
+/// A leaf's voxels have consecutive band indices (leaf() ranges); indices never change once given.
 ///
 /// Nested sets by distance d to the surface (in voxels):
 ///  - update set U (d <= kUpdateRadius = 3.5): every tricubic node of every cp lies within
@@ -18,15 +25,23 @@
 ///  - coefficient set (d <= 4.5): the neighbours of U, where the phase field's anisotropic
 ///    coefficients are needed;
 ///  - the band (d <= kHalfWidth = 5.5): the neighbours of those (their central differences).
-/// Memory is about 11 voxels times the surface area (in voxels), never the bounding box.
+/// Memory is about 11 voxels times the built surface area (in voxels), never the bounding box.
+///
+/// Building leaves (materialise*, prepare, nearBorder, nearSurfacePoint on a lazy band) changes
+/// the band: those calls are serialised by a mutex, and must not run while another thread reads
+/// the band's arrays (the solver and the seeding call them between their parallel loops).
 #include <frostvdb/core/Domain.h>
 #include <frostvdb/io/Mesh.h>
 
 #include <openvdb/openvdb.h>
 
+#include <tbb/parallel_for.h>
+
 #include <array>
 #include <cstdint>
 #include <memory>
+#include <mutex>
+#include <unordered_map>
 #include <vector>
 
 namespace frostvdb::shell {
@@ -37,6 +52,8 @@ constexpr double kHalfWidth = 5.5;
 constexpr double kUpdateRadius = 3.5;
 /// Radius of the set where the phase field's coefficients are evaluated (the neighbours of U).
 constexpr double kCoefficientRadius = 4.5;
+/// Edge of a band leaf (brick) in voxels: OpenVDB's leaf.
+constexpr int kLeafDim = 8;
 
 struct BandSettings {
     double voxelSize = 1e-4; ///< metres per voxel
@@ -52,11 +69,45 @@ struct BandSettings {
     enum class ColourUse { None, Seed, Melt } colourUse = ColourUse::None;
 };
 
+/// A bounding-volume hierarchy over a mesh's triangles (index space): the triangles whose
+/// bounding boxes overlap a box, and the closest point on the mesh.
+class TriangleBvh {
+public:
+    TriangleBvh() = default;
+    TriangleBvh(const std::vector<openvdb::Vec3d>& points, const std::vector<openvdb::Vec3I>& triangles);
+    /// Triangles whose bounding box overlaps @a box, sorted by index.
+    void query(const openvdb::BBoxd& box, std::vector<uint32_t>& out) const;
+    /// The closest point on the mesh to @a p; @a tri gets its triangle (lowest index on ties).
+    openvdb::Vec3d closestPoint(const openvdb::Vec3d& p, uint32_t* tri = nullptr) const;
+    /// The same among the points within sqrt(@a maxDistSqr) of @a p: false when there is none.
+    bool closestPointWithin(const openvdb::Vec3d& p, double maxDistSqr, openvdb::Vec3d& out, uint32_t& tri,
+                            double& distSqr) const;
+    size_t memoryBytes() const;
+    const openvdb::BBoxd& box(uint32_t t) const { return mBoxes[t]; }
+
+private:
+    struct Node {
+        openvdb::BBoxd box;
+        int32_t left = -1, right = -1; ///< children, -1 in a leaf
+        uint32_t first = 0, count = 0; ///< range of mOrder in a leaf
+    };
+    int32_t buildNode(std::vector<uint32_t>& order, uint32_t first, uint32_t count, std::vector<openvdb::BBoxd>& boxes,
+                      std::vector<openvdb::Vec3d>& centres);
+    const std::vector<openvdb::Vec3d>* mPoints = nullptr;
+    const std::vector<openvdb::Vec3I>* mTriangles = nullptr;
+    std::vector<Node> mNodes;
+    std::vector<uint32_t> mOrder;
+    std::vector<openvdb::BBoxd> mBoxes; ///< per triangle
+};
+
 class ShellBand {
 public:
-    /// Builds the band around @a mesh (world metres). Throws std::runtime_error naming the mesh's
-    /// source when the mesh has no triangles or its band is empty.
+    /// The whole band around @a mesh (world metres): every leaf the mesh reaches, prepared.
+    /// Throws std::runtime_error naming the mesh's source when the mesh has no triangles, its band
+    /// is empty or would not fit in the available memory.
     static std::shared_ptr<const ShellBand> build(const TriangleMesh& mesh, const BandSettings& settings);
+    /// A band with no leaves built yet: materialise() builds them where they are needed.
+    static std::shared_ptr<const ShellBand> buildLazy(const TriangleMesh& mesh, const BandSettings& settings);
 
     size_t size() const { return mCoords.size(); }
     const openvdb::Coord& coord(size_t i) const { return mCoords[i]; }
@@ -71,29 +122,38 @@ public:
     /// surface's interior, > 0 beyond an open mesh's border (x's closest point is on the border).
     float lateralOffset(size_t i) const { return mLateral[i]; }
     const VoxelFrame& frame(size_t i) const { return mFrames[i]; }
-    /// Band index of face neighbour k (0: -x, 1: +x, 2: -y, 3: +y, 4: -z, 5: +z), or -1.
+    /// Band index of face neighbour k (0: -x, 1: +x, 2: -y, 3: +y, 4: -z, 5: +z), or -1 (valid once
+    /// the voxel's leaf is prepared).
     int32_t neighbour(size_t i, int k) const { return mNeighbours[6 * i + size_t(k)]; }
     bool inUpdateSet(size_t i) const { return mDistance[i] <= kUpdateRadius; }
     bool inCoefficientSet(size_t i) const { return mDistance[i] <= kCoefficientRadius; }
-    /// Band index of voxel @a c, or -1.
+    /// Band index of voxel @a c, or -1 (also where its leaf is not built yet).
     int32_t indexOf(const openvdb::Coord& c) const;
+    /// Whether voxel @a c lies in the band (exact, also where its leaf is not built yet).
+    bool contains(const openvdb::Coord& c) const;
+    /// The frame at voxel @a c's closest point (computed from the mesh where its leaf is not built).
+    VoxelFrame frameAt(const openvdb::Coord& c) const;
     /// Band index per voxel (background -1): the same topology as mask().
     const openvdb::Int32Grid& indexGrid() const { return *mIndex; }
-    /// The band's voxels as a mask (for the domain's support).
+    /// The built band's voxels as a mask (for the domain's support).
     const openvdb::MaskGrid& mask() const { return *mMask; }
     double voxelSize() const { return mVoxelSize; }
     const openvdb::math::Transform::Ptr& transform() const { return mTransform; }
-    /// Mesh area in square voxels (the surface the band covers).
+    /// Mesh area in square voxels (the surface the whole band covers).
     double surfaceVoxels() const { return mSurfaceVoxels; }
+    /// The index-space box of the whole band (the mesh's bounds grown by the half-width).
+    openvdb::CoordBBox bounds() const { return mBounds; }
     /// The triangle cp(x) lies on.
     uint32_t triangle(size_t i) const { return mTriangle[i]; }
-    /// Voxels within @a width voxels of the mesh's boundary edges (an open mesh's border).
+    /// Voxels within @a width voxels of the mesh's boundary edges (an open mesh's border); builds
+    /// the leaves along the border first.
     std::vector<size_t> nearBorder(double width) const;
     /// Voxels whose closest point is within @a radius voxels of the index position @a centre
-    /// (a seed on the surface; distance measured in 3D between closest points).
+    /// (a seed on the surface; distance measured in 3D between closest points); builds the leaves
+    /// around it first.
     std::vector<size_t> nearSurfacePoint(const openvdb::Vec3d& centre, double radius) const;
 
-    /// The band's closest point nearest to index position @a p (first in band order on ties).
+    /// The closest point on the surface (the mesh) to index position @a p.
     openvdb::Vec3d nearestSurfacePoint(const openvdb::Vec3d& p) const;
     /// Vertex-colour luminance at cp (barycentric), or empty when the mesh has no colours.
     const std::vector<float>& colourLuminance() const { return mLuminance; }
@@ -101,44 +161,131 @@ public:
     /// Frost layer thickness of the outputs, in voxels (BandSettings::frostThickness).
     double frostThickness() const { return mFrostThickness; }
 
-    /// Closest-point extension: out[i] = tricubic interpolation of @a in at cp(i), for every band
-    /// voxel; with @a limit the value is clamped to the range of the 8 nodes around cp (no new
-    /// extrema at a sharp interface). Thread-count independent (each output is one fixed sum).
-    void extend(const std::vector<float>& in, std::vector<float>& out, bool limit) const;
+    // ---- leaves (bricks) ----
+    struct Leaf {
+        openvdb::Coord origin;
+        uint32_t begin = 0, end = 0; ///< band indices [begin, end); empty where the mesh does not reach
+        bool prepared = false;       ///< neighbours and tricubic stencils filled
+    };
+    /// Every leaf built (or found empty) so far, in the order they were built.
+    const std::vector<Leaf>& leaves() const { return mLeaves; }
+    /// Slot of the leaf with origin @a origin in leaves(), or -1 when it was not built.
+    int32_t leafSlot(const openvdb::Coord& origin) const;
+    /// Builds the leaves with these origins (multiples of 8) that are not built yet: in sorted
+    /// order, each in parallel, appended to the band. Returns how many voxels were added.
+    size_t materialise(std::vector<openvdb::Coord> origins) const;
+    /// Builds and prepares the leaves with these origins and their 26 neighbours' geometry.
+    void prepare(std::vector<openvdb::Coord> origins) const;
+    /// Builds and prepares every leaf the mesh reaches (the whole band). Throws when it would not
+    /// fit in the available memory.
+    void materialiseAll() const;
+    /// Builds the leaves within the half-width of these triangles.
+    void materialiseTriangles(const std::vector<uint32_t>& triangles) const;
+    /// Builds the leaves holding any voxel of @a box.
+    size_t materialiseBox(const openvdb::CoordBBox& box) const;
+    /// True when every leaf the mesh reaches is built and prepared.
+    bool whole() const { return mWhole; }
+
+    /// Closest-point extension: out[i] = background + tricubic interpolation of (in - background)
+    /// at cp(i), for every band voxel (with @a leafSlots, only for the voxels of those leaves; out
+    /// must then hold size() values); with @a limit the value is clamped to the range of the 8
+    /// nodes around cp (no new extrema at a sharp interface). Thread-count independent (each
+    /// output is one fixed sum); a constant field equal to @a background stays exactly that.
+    void extend(const std::vector<float>& in, std::vector<float>& out, bool limit, float background = 0.f,
+                const std::vector<uint32_t>* leafSlots = nullptr) const;
 
     /// Closest-point extension of a phase field p in [0, 1] with a sharp interface (a couple of
     /// voxels wide, where a cubic is a poor fit): interpolates phi = atanh(2p - 1) (p clamped to
     /// [1e-6, 1 - 1e-6]), which is close to linear across an equilibrium tanh profile, maps back
     /// p = (1 + tanh phi) / 2 and clamps to the range of the 8 nodes around cp (0 stays 0).
-    /// @a phi is scratch.
-    void extendPhase(const std::vector<float>& p, std::vector<float>& out, std::vector<float>& phi) const;
+    /// @a phi is scratch (size() values). @a leafSlots as in extend(); @a nodeSlots: leaves that
+    /// hold every tricubic node of those (null: all).
+    void extendPhase(const std::vector<float>& p, std::vector<float>& out, std::vector<float>& phi,
+                     const std::vector<uint32_t>* leafSlots = nullptr,
+                     const std::vector<uint32_t>* nodeSlots = nullptr) const;
 
-    /// Bytes held by the band (the per-voxel arrays and the index grid).
+    /// Bytes held by the band (the per-voxel arrays, the index grid, the mesh and its hierarchy).
     size_t memoryBytes() const;
 
     /// Number of the mesh's boundary edges (0: a closed mesh). (Appended for the walkers.)
     size_t borderEdgeCount() const { return mBorderA.size(); }
 
+    /// Calls fn(i) for every band voxel (@a leafSlots null) or every voxel of those leaves, in
+    /// parallel; fn must write only to index i.
+    template <typename Fn>
+    void forEachVoxel(const std::vector<uint32_t>* leafSlots, const Fn& fn) const
+    {
+        if (!leafSlots) {
+            tbb::parallel_for(tbb::blocked_range<size_t>(0, size(), 1024), [&](const tbb::blocked_range<size_t>& r) {
+                for (size_t i = r.begin(); i < r.end(); ++i) fn(i);
+            });
+            return;
+        }
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, leafSlots->size(), 2), [&](const tbb::blocked_range<size_t>& r) {
+            for (size_t s = r.begin(); s < r.end(); ++s) {
+                const Leaf& l = mLeaves[(*leafSlots)[s]];
+                for (size_t i = l.begin; i < l.end; ++i) fn(i);
+            }
+        });
+    }
+
 private:
     ShellBand() = default;
+    struct LeafData; // one leaf's voxels, computed in parallel, appended in order
+    void init(const TriangleMesh& mesh, const BandSettings& settings);
+    void computeLeaf(const openvdb::Coord& origin, LeafData& out) const;
+    size_t materialiseLocked(std::vector<openvdb::Coord> origins) const;
+    void prepareLocked(std::vector<openvdb::Coord> origins) const;
+    /// Closest point of voxel @a c (exact, lowest triangle index on ties): false beyond the half-width.
+    bool voxelGeometry(const openvdb::Coord& c, openvdb::Vec3d& cp, uint32_t& tri, double& dist) const;
+    VoxelFrame frameOn(uint32_t tri, const openvdb::Vec3d& cp, openvdb::Vec3d* bary = nullptr) const;
+    /// Leaves (origins) within the half-width of triangle @a t.
+    void leavesOfTriangle(uint32_t t, std::vector<openvdb::Coord>& out) const;
+
     double mVoxelSize = 1;
     double mFrostThickness = 2;
+    BandSettings mSettings;
     BandSettings::ColourUse mColourUse = BandSettings::ColourUse::None;
-    std::vector<float> mLuminance;
     double mSurfaceVoxels = 0;
+    openvdb::CoordBBox mBounds;
     openvdb::math::Transform::Ptr mTransform;
-    std::vector<openvdb::Coord> mCoords;
-    std::vector<openvdb::Vec3d> mCp;
-    std::vector<float> mDistance, mNormalOffset, mLateral;
-    std::vector<VoxelFrame> mFrames;
-    std::vector<uint32_t> mTriangle;
-    std::vector<int32_t> mNeighbours;             ///< 6 per voxel
-    std::vector<int32_t> mNodes;                  ///< 64 per voxel: x fastest, then y, then z
-    std::vector<std::array<float, 12>> mWeights;  ///< per axis x, y, z: 4 Lagrange weights
-    openvdb::Int32Grid::Ptr mIndex;               ///< band index per voxel, background -1
-    openvdb::MaskGrid::Ptr mMask;
+    // the mesh, index space
+    std::string mSource;
+    std::vector<openvdb::Vec3d> mPts, mVNormal;
+    std::vector<openvdb::Vec3I> mTris;
+    std::vector<openvdb::Vec3d> mTriNormal;
+    std::vector<openvdb::Vec3s> mVColour;
+    TriangleBvh mBvh;
     std::vector<openvdb::Vec3d> mBorderA, mBorderB; ///< boundary edges, index space
+    // per voxel (mutable: leaves are built on demand)
+    mutable std::vector<float> mLuminance;
+    mutable std::vector<openvdb::Coord> mCoords;
+    mutable std::vector<openvdb::Vec3d> mCp;
+    mutable std::vector<float> mDistance, mNormalOffset, mLateral;
+    mutable std::vector<VoxelFrame> mFrames;
+    mutable std::vector<uint32_t> mTriangle;
+    mutable std::vector<int32_t> mNeighbours;             ///< 6 per voxel
+    mutable std::vector<int32_t> mNodes;                  ///< 64 per voxel: x fastest, then y, then z
+    mutable std::vector<std::array<float, 12>> mWeights;  ///< per axis x, y, z: 4 Lagrange weights
+    mutable openvdb::Int32Grid::Ptr mIndex;               ///< band index per voxel, background -1
+    mutable openvdb::MaskGrid::Ptr mMask;
+    mutable std::vector<Leaf> mLeaves;
+    struct CoordHash {
+        size_t operator()(const openvdb::Coord& c) const
+        {
+            return size_t(c.x()) * 73856093u ^ size_t(c.y()) * 19349663u ^ size_t(c.z()) * 83492791u;
+        }
+    };
+    mutable std::unordered_map<openvdb::Coord, int32_t, CoordHash> mSlotOf;
+    mutable bool mWhole = false;
+    mutable std::mutex mMutex;
 };
+
+/// Origin of the leaf holding voxel @a c.
+inline openvdb::Coord leafOrigin(const openvdb::Coord& c)
+{
+    return openvdb::Coord(c.x() & ~(kLeafDim - 1), c.y() & ~(kLeafDim - 1), c.z() & ~(kLeafDim - 1));
+}
 
 /// Cubic Lagrange weights on nodes -1, 0, 1, 2 at fraction @a x in [0, 1).
 inline void cubicWeights(double x, double w[4])

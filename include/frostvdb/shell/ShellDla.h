@@ -5,7 +5,8 @@
 /// flow_drift) with walkers on the surface (shell/ShellWalkers.h). release = "uniform" picks
 /// surface points uniformly by area, "perimeter" the open mesh's border. Steam humidity is not
 /// available on shells. The drift is the tangential wind of `[phase_field]` (ShellWindState).
-/// Runs at the Walkers stage, before the phase field (the driver's order).
+/// Runs at the Walkers stage, before the phase field (the driver's order). Walkers roam the whole
+/// surface, so makeShellDla builds the (lazy) band whole when the scene is read.
 #include <frostvdb/core/Effect.h>
 #include <frostvdb/ice/Dla.h>
 

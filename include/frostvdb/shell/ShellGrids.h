@@ -16,8 +16,11 @@ namespace frostvdb::shell {
 /// A grid with the band's topology holding @a values (band order), background @a background.
 openvdb::FloatGrid::Ptr toGrid(const ShellBand& band, const std::vector<float>& values, float background,
                                const std::string& name);
-/// The values of @a grid at the band's voxels (its background where it has none).
-void fromGrid(const ShellBand& band, const openvdb::FloatGrid& grid, std::vector<float>& values);
+/// The values of @a grid at the band's voxels (its background where it has none). With
+/// @a materialise, the band's leaves are first built wherever @a grid differs from its background
+/// (seeds stamped into a lazily built band).
+void fromGrid(const ShellBand& band, const openvdb::FloatGrid& grid, std::vector<float>& values,
+              bool materialise = false);
 
 /// The frost layer as a fog volume: at band voxel x with normal offset s (voxels, along the
 /// outward normal at cp) and no lateral offset (x projects inside the surface, so nothing

@@ -22,11 +22,23 @@
 /// exactly as the plane's kobayashiAux/kobayashiEuler pair does with (cx, cy) replaced by C.
 /// The eps(theta) evaluation is the plane's own Anisotropy functor.
 ///
+/// Active region (setActiveRegion): a voxel with |p| > tol or |T - T_inf| > tol is "off the
+/// background". One step reads at most 9 voxels away (the extension's nodes lie within 7.5
+/// voxels of x, each updated from values 2 away), so every band leaf within 9 voxels of an
+/// off-background voxel (per leaf, the box of its off-background voxels grown by 9) is stepped
+/// (ShellBand::prepare, which builds the ring of leaves around them too). A voxel outside is
+/// more than 9 voxels from anything off the background, so its pass-1 coefficients are those of
+/// a zero gradient and its extension variable that of p = 0: set once, never recomputed. At tol = 0 every voxel left out would have kept its
+/// background value exactly (the extension interpolates differences from the background, so a
+/// constant stays bit-exact): the answer equals the whole band's bit for bit. The stepped set
+/// only grows. Time and memory then follow the ice and its heat halo, not the mesh's area.
+///
 /// Every array is indexed by band voxel; every output is one fixed sum: the result does not
 /// depend on the thread count.
 #include <frostvdb/ice/Kobayashi.h>
 #include <frostvdb/shell/ShellBand.h>
 
+#include <functional>
 #include <memory>
 #include <vector>
 
@@ -47,8 +59,35 @@ public:
     ShellPhaseField(std::shared_ptr<const ShellBand> band, const KobayashiParams& params, double h);
 
     const ShellBand& band() const { return *mBand; }
-    std::vector<float>& p() { return mP; }
-    std::vector<float>& T() { return mT; }
+    /// The fields (band order). Non-const access marks them changed: the next step rescans
+    /// every built leaf for the active region. Arrays grow with the band (see grow()).
+    std::vector<float>& p() { mDirty = true; return mP; }
+    std::vector<float>& T() { mDirty = true; return mT; }
+    const std::vector<float>& p() const { return mP; }
+    const std::vector<float>& T() const { return mT; }
+    /// Steps only the band around the ice (tolerance @a tolerance >= 0, see the file comment), or
+    /// with @a active false the whole band (built here if it is not yet: the reference).
+    void setActiveRegion(bool active, double tolerance);
+    bool activeRegion() const { return mActive; }
+    /// Leaves stepped (band leaf slots), and the band voxels in them.
+    const std::vector<uint32_t>& steppedLeaves() const { return mStepped; }
+    size_t steppedVoxels() const;
+    /// The active region's state for a checkpoint: @a stepped has the origin voxel of every
+    /// stepped leaf on; @a boxes holds, at the min corner of each leaf's box of off-background
+    /// voxels, 1 + the leaf offset of its max corner. restoreRegion() (after the fields were read
+    /// back) rebuilds the same region, so a resumed run steps the same voxels as an uninterrupted one.
+    void regionState(openvdb::Int32Grid& boxes, openvdb::MaskGrid& stepped) const;
+    void restoreRegion(const openvdb::Int32Grid& boxes, const openvdb::MaskGrid& stepped);
+    /// Sizes every array to the band (new voxels at the background: p 0, T T_inf, melt from the
+    /// melt source).
+    void grow();
+    /// The melt value of band voxel i (shell/ShellTexture.h meltSource: the melt field x the colour
+    /// melt map x melt_texture), for every voxel built so far and every voxel built later; null:
+    /// no melt map (1 everywhere). @a now: the same values for the voxels built so far when the
+    /// caller has them (shell::meltMap, leaf by leaf; empty: computed here).
+    void setMeltSource(std::function<float(const ShellBand&, size_t)> melt, std::vector<float> now = {});
+    /// The melt values per band voxel (empty: none).
+    const std::vector<float>& melt() const { return mMelt; }
     std::vector<float>& growthValues() { return mGrowth; }
     std::vector<float>& freezeValues() { return mFreeze; }
     /// A prescribed wind (PDE units: cells of spacing h per unit of ice time) that advects the
@@ -57,10 +96,15 @@ public:
     /// Largest dt at which the upwind advection with the diffusion stays a positive combination.
     double windStabilityLimit() const;
     /// A tangential wind per band voxel (same units; empty: none), e.g. shell/ShellWind.h's
-    /// potential flow. Replaces setWind's.
-    void setWindField(std::vector<openvdb::Vec3f> wind) { mWind = std::move(wind); }
-    /// Per-voxel melt temperature scale in [0, 1] (empty: 1 everywhere).
-    void setMelt(std::vector<float> melt) { mMelt = std::move(melt); }
+    /// potential flow. Replaces setWind's. It cannot follow a growing band: build the band whole
+    /// first (ShellBand::materialiseAll), or grow() throws.
+    void setWindField(std::vector<openvdb::Vec3f> wind)
+    {
+        mWindWorld = openvdb::Vec3d(0.0);
+        mWind = std::move(wind);
+    }
+    /// The tangential wind per band voxel built so far (empty: none).
+    const std::vector<openvdb::Vec3f>& windField() const { return mWind; }
 
     /// Re-extends p and T off the surface (after seeds were written anywhere in the band).
     void extendAll();
@@ -72,6 +116,8 @@ public:
     void step(double time, int64_t stepIndex, uint64_t seed, ShellStepStats* stats);
 
 private:
+    /// Finds new hot leaves and grows the stepped set (active mode), or lists every leaf.
+    void updateRegion();
     std::shared_ptr<const ShellBand> mBand;
     KobayashiParams mParams;
     Anisotropy mAniso;
@@ -80,6 +126,15 @@ private:
     uint64_t mUpdateCount = 0; ///< voxels in the update set
     std::vector<float> mA, mCx, mCy, mCz, mGx, mGy, mGz;
     std::vector<openvdb::Vec3f> mWind; ///< tangential wind per voxel (empty: none)
+    openvdb::Vec3d mWindWorld{0.0};
+    bool mActive = false, mDirty = true;
+    double mTolerance = 0;
+    std::function<float(const ShellBand&, size_t)> mMeltSource;
+    std::vector<openvdb::CoordBBox> mOff;        ///< per leaf slot: box of its off-background voxels
+    std::vector<char> mInStepped;                 ///< per leaf slot
+    std::vector<uint32_t> mStepped;               ///< leaf slots stepped (sorted)
+    std::vector<float> mPhi;                      ///< extendPhase's atanh(2p - 1)
+    size_t mSlotsSeen = 0;                        ///< leaf slots scanned for heat so far
 };
 
 } // namespace frostvdb::shell

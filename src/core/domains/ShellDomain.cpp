@@ -1,10 +1,10 @@
 /// @file ShellDomain.cpp
 /// @brief `[domain] kind = "shell"`: frost on objects. The support is a narrow band of voxels
 /// around a triangle mesh (shell/ShellBand.h); surface operators run there by the closest point
-/// method (shell/ShellPhaseField.h). Memory follows the mesh's area, never its bounding box.
+/// method (shell/ShellPhaseField.h). The band is built lazily, leaf by leaf, where the ice and its
+/// heat need it ([region] tolerance; dense = true builds it whole): memory follows the ice.
 #include <frostvdb/shell/ShellDomain.h>
 
-#include <frostvdb/core/Budget.h>
 #include <frostvdb/core/Error.h>
 #include <frostvdb/io/Mesh.h>
 #include <frostvdb/shell/ShellTexture.h>
@@ -30,7 +30,8 @@ public:
     const std::shared_ptr<const shell::ShellBand>& band() const { return mBand; }
 
     std::string kind() const override { return "shell"; }
-    bool contains(const openvdb::Coord& c) const override { return mBand->indexOf(c) >= 0; }
+    bool contains(const openvdb::Coord& c) const override { return mBand->contains(c); }
+    /// The voxels built so far: the whole band, or (sparse region) the band around the ice.
     uint64_t voxelCount() const override { return mBand->size(); }
     void clipToSupport(openvdb::MaskTree& mask) const override { mask.topologyIntersection(mBand->mask().tree()); }
     void fillSupport(openvdb::MaskTree& mask) const override { mask.topologyUnion(mBand->mask().tree()); }
@@ -42,12 +43,8 @@ public:
                 openvdb::Coord(0, 1, 0),  openvdb::Coord(0, 0, -1), openvdb::Coord(0, 0, 1)};
     }
     bool hasFrame() const override { return true; }
-    VoxelFrame frame(const openvdb::Coord& c) const override
-    {
-        const int32_t i = mBand->indexOf(c);
-        return i >= 0 ? mBand->frame(size_t(i)) : VoxelFrame{};
-    }
-    /// Fractions of the band's bounds (x, y, z), moved to the nearest closest point on the surface.
+    VoxelFrame frame(const openvdb::Coord& c) const override { return mBand->frameAt(c); }
+    /// Fractions of the band's bounds (x, y, z), moved to the closest point on the surface.
     int parameterDimension() const override { return 3; }
     Vec3d parameterToIndex(const std::vector<double>& u) const override
     {
@@ -142,32 +139,41 @@ Domain readShell(ParamDict& d, const DomainCommon& c)
         } else {
             mesh = loadMesh(path, m);
         }
-        // Refuse before allocating: the band holds about 11.5 voxels per surface voxel at about
-        // 600 bytes each (measured, docs/shells.md), plus the solver's arrays.
-        const double estimate = mesh.totalArea() / (c.voxelSize * c.voxelSize) * 11.5 * 660.0;
-        const double available = double(availableMemoryBytes());
-        if (available > 0 && estimate > available)
-            d.fail("voxel_size", "the shell band would need about " + formatBytes(estimate) + " (mesh area / voxel_size^2 x "
-                                 "11.5 band voxels x 660 bytes), more than the " + formatBytes(available) +
-                                 " available; raise voxel_size or scale the mesh down");
         if (colours != "none" && mesh.colours.empty())
             d.fail("vertex_colours", path + ": the mesh has no vertex colours (allowed: none)");
-        auto band = shell::ShellBand::build(mesh, bs);
-        openvdb::CoordBBox bb;
-        for (const auto& cc : band->coords()) bb.expand(cc);
-        auto dom = std::make_shared<ShellDomain>(band, c.spacing, bb);
+        // Leaves are built where the ice needs them ([region] dense = true builds them all).
+        auto band = shell::ShellBand::buildLazy(mesh, bs);
+        if (bs.colourUse == shell::BandSettings::ColourUse::Seed) { // the bright triangles' leaves
+            std::vector<uint32_t> bright;
+            auto lum = [&](uint32_t v) {
+                const auto& col = mesh.colours[v];
+                return 0.2126 * col.x() + 0.7152 * col.y() + 0.0722 * col.z();
+            };
+            for (uint32_t t = 0; t < mesh.triangles.size(); ++t)
+                for (int v = 0; v < 3; ++v)
+                    if (lum(mesh.triangles[t][v]) > 0.5) { bright.push_back(t); break; }
+            band->materialiseTriangles(bright);
+        }
+        auto dom = std::make_shared<ShellDomain>(band, c.spacing, band->bounds());
         if (!seedTexture.empty() || !meltTexture.empty()) {
-            auto maps = std::make_shared<shell::SurfaceTextures>();
+            // sampled per voxel on demand (shell/ShellTexture.h): the band grows after this
+            std::shared_ptr<shell::SurfaceTextures> maps;
+            try {
+                maps = std::make_shared<shell::SurfaceTextures>(mesh);
+            } catch (const std::exception& e) {
+                d.fail(seedTexture.empty() ? "melt_texture" : "seed_texture", e.what());
+            }
             for (const auto& [key, file, target] : {std::make_tuple("seed_texture", seedTexture, &maps->seed),
                                                     std::make_tuple("melt_texture", meltTexture, &maps->melt)}) {
                 if (file.empty()) continue;
                 try {
-                    const auto tex = shell::loadTexture(resolveMeshPath(file, d.origin(key)));
-                    *target = shell::sampleTexture(*band, mesh, tex);
+                    *target = std::make_shared<const shell::Texture>(shell::loadTexture(resolveMeshPath(file, d.origin(key))));
                 } catch (const std::exception& e) {
                     d.fail(key, e.what());
                 }
             }
+            // every leaf that can hold a texture seed is built now, so the seeds are all stamped
+            if (maps->seed) band->materialiseTriangles(maps->seedTriangles());
             dom->setTextures(maps);
         }
         return Domain(dom);
@@ -199,9 +205,7 @@ const SurfaceTextures* texturesOf(const Domain& domain)
 Domain makeShellDomain(const TriangleMesh& mesh, const BandSettings& settings, double spacing)
 {
     auto band = ShellBand::build(mesh, settings);
-    openvdb::CoordBBox bb;
-    for (const auto& cc : band->coords()) bb.expand(cc);
-    return Domain(std::make_shared<ShellDomain>(band, spacing, bb));
+    return Domain(std::make_shared<ShellDomain>(band, spacing, band->bounds()));
 }
 
 } // namespace shell
