@@ -172,3 +172,33 @@ TEST_CASE("Shell melt map on a lazy band: leaves built later get their texture's
     for (size_t i = 0; i < whole.size(); ++i) differ += whole[i] != pf.melt()[i] ? 1 : 0;
     CHECK(differ == 0);
 }
+
+TEST_CASE("Shell lazy band: [dla] and the potential flow build it whole, a uniform wind follows its growth",
+          "[fast][shell][wind]")
+{
+    const std::string head = "[scene]\nframes = 1\nsteps_per_frame = 5\n[domain]\nkind = \"shell\"\nvoxel_size = 0.0001\n"
+                             "sphere_radius = 0.002\n[[crystal.seed]]\nshape = \"point\"\nspace = \"world\"\n"
+                             "position = [0, 0, 0.002]\nradius = 3\n";
+    auto run = [&](const std::string& extra, const char* name) {
+        auto sim = test::makeSim(head + extra);
+        auto band = shell::bandOf(sim.world().domain);
+        const bool wholeAtRead = band->whole();
+        RunOptions ro;
+        ro.progress = false;
+        ro.outDir = test::tempDir(name);
+        sim.run(ro); // a per-voxel wind on a band that grew would throw here
+        return std::make_pair(wholeAtRead, band->whole());
+    };
+    // uniform wind: the band stays lazy (the wind is projected on each leaf as it is built)
+    const auto uniform = run("[phase_field]\nwind = [2, 0, 0]\n", "lazy_uniform");
+    CHECK_FALSE(uniform.first);
+    CHECK_FALSE(uniform.second);
+    // the potential flow is solved around the whole object: built whole at the phase field's start
+    const auto potential = run("[phase_field]\nwind = [2, 0, 0]\nwind_model = \"potential\"\n", "lazy_potential");
+    CHECK_FALSE(potential.first);
+    CHECK(potential.second);
+    // walkers roam the whole surface: built whole when the scene is read, before any effect starts
+    const auto dla = run("[phase_field]\n[dla]\nhumidity = 2\n", "lazy_dla");
+    CHECK(dla.first);
+    CHECK(dla.second);
+}
