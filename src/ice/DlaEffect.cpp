@@ -5,6 +5,8 @@
 #include <frostvdb/core/Error.h>
 #include <frostvdb/core/Random.h>
 #include <frostvdb/ice/IceState.h>
+#include <frostvdb/shell/ShellDla.h>
+#include <frostvdb/shell/ShellDomain.h>
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
@@ -45,7 +47,8 @@ std::unique_ptr<Effect> DlaEffect::create(ParamDict& d, const World& world)
     }
     const std::string rel = d.getString("release", "uniform", {"uniform", "perimeter"},
                                         "where walkers start: uniform over the domain's empty cells, or on its "
-                                        "perimeter (the cells of its edges/faces)");
+                                        "perimeter (the cells of its edges/faces); on a shell: uniform by area "
+                                        "over the surface, or on the open mesh's border");
     p.release = rel == "perimeter" ? DlaRelease::Perimeter : DlaRelease::Uniform;
     p.hits = int(d.getInt("hits", 1, 1, 1000000, "walkers",
                           "n, multiple-hit averaging: a cell freezes after n walkers stuck at it (1: plain DLA; "
@@ -72,7 +75,7 @@ std::unique_ptr<Effect> DlaEffect::create(ParamDict& d, const World& world)
                                    "smallest jump radius (below it walkers step cell by cell)"));
     p.jumpMaxRadius = int(d.getInt("jump_max_radius", 0, 0, 1000, "cells",
                                    "largest exact jump table radius (beyond it: sphere_jumps); 0: 128 on a plane, "
-                                   "32 in a box"));
+                                   "32 in a box; on a shell the largest geodesic jump, 0: 64"));
     p.batch = int(d.getInt("batch", 1024, 1, int64_t(1) << 30, "walkers",
                            "walkers per parallel batch: a batch walks against the ice at its start, sticks are "
                            "applied in walker order (smaller is closer to the paper's one-by-one release)"));
@@ -86,9 +89,8 @@ std::unique_ptr<Effect> DlaEffect::create(ParamDict& d, const World& world)
     d.onlyWhen(p.jumps, "jump_max_radius", "jumps = false");
     if (p.jumpMaxRadius > 0 && p.jumpMaxRadius < p.jumpMinRadius)
         d.fail("jump_max_radius", "must be 0 or >= jump_min_radius");
-    if (world.domain && !world.domain.flat() && world.domain.intrinsicDimension() == 2) // a surface in 3D
-        throw SceneError(world.sceneLabel, 0, "dla",
-                         "walkers on a curved surface (the shell domain) are not available yet; use [phase_field] alone");
+    if (world.domain && shell::bandOf(world.domain)) // walkers on the surface: shell/ShellDla.h
+        return shell::makeShellDla(p, d, world);
     if (world.domain && world.domain.bbox().min() != openvdb::Coord(0)) // the dense walker arrays index from 0
         throw SceneError(world.sceneLabel, 0, "domain.origin",
                          "[dla] needs a domain whose first cell is at the world origin (origin = [0, 0, 0])");

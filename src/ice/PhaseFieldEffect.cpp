@@ -5,6 +5,8 @@
 #include <frostvdb/shell/ShellDomain.h>
 #include <frostvdb/io/Mesh.h>
 #include <frostvdb/shell/ShellGrids.h>
+#include <frostvdb/shell/ShellTexture.h>
+#include <frostvdb/shell/ShellWind.h>
 
 #include <openvdb/tools/Prune.h>
 #include <openvdb/tools/ValueTransformer.h>
@@ -74,6 +76,11 @@ std::unique_ptr<Effect> PhaseFieldEffect::create(ParamDict& d, const World& worl
         "advecting the heat (first-order upwind; on a plane use [fluid])");
     fx->mWind = openvdb::Vec3d(wind[0], wind[1], wind[2]);
     d.onlyWhen(fx->mOnShell, "wind", "[domain] kind = \"" + world.domain.kind() + "\"");
+    fx->mPotentialWind = d.getString("wind_model", "uniform", {"uniform", "potential"},
+        "shell domains: uniform: `wind` projected on each tangent plane; potential: the potential flow around the "
+        "closed mesh with free stream `wind` (OpenVDB tools::PotentialFlow), its surface velocity on the tangent "
+        "planes (about 1.5x the free stream at a sphere's equator, 0 at its stagnation points)") == "potential";
+    d.onlyWhen(fx->mOnShell, "wind_model", "[domain] kind = \"" + world.domain.kind() + "\"");
     if (fx->mOnShell) // the closest-point solver: Euler only, yet
         if (!euler) d.fail("scheme", "lw_cn is not available on shell domains yet (allowed: euler)");
     const double limit = k.stabilityLimit(world.domain.stencil(), !world.domain.flat());
@@ -93,7 +100,8 @@ std::unique_ptr<Effect> PhaseFieldEffect::create(ParamDict& d, const World& worl
     if (fx->mOnShell) {
         // dt (6 / h^2 + |v|_1 / h) <= 1 (ShellPhaseField::windStabilityLimit, before projection)
         const double h = world.domain.lattice().spacing();
-        const double v1 = std::fabs(wind[0]) + std::fabs(wind[1]) + std::fabs(wind[2]);
+        // a potential flow is faster than its free stream over the object (1.5x on a sphere): allow 2x
+        const double v1 = (fx->mPotentialWind ? 2.0 : 1.0) * (std::fabs(wind[0]) + std::fabs(wind[1]) + std::fabs(wind[2]));
         const double windLimit = 1.0 / (6.0 / (h * h) + v1 / h);
         if (v1 > 0 && k.dt / fx->mSubsteps > windLimit)
             d.fail("wind", "with dt " + std::to_string(k.dt / fx->mSubsteps) + " the wind's upwind heat step needs dt <= " +
@@ -133,14 +141,35 @@ void PhaseFieldEffect::initialize(World& world)
     mTime = 0.0;
     if (auto band = shell::bandOf(world.domain)) {
         mShell = std::make_unique<shell::ShellPhaseField>(band, solverParams, world.domain.lattice().spacing());
+        if (mPotentialWind) {
+            // The potential flow is solved around the whole object (its solid is the whole band),
+            // so the band is built whole first; the active region still steps only near the ice.
+            band->materialiseAll();
+        }
         // [region]: the band around the ice (tolerance) or the whole band (dense, the reference)
         mShell->setActiveRegion(!world.region.dense, world.region.tolerance);
-        mShell->setWind(mWind);
+        if (mPotentialWind) {
+            mShell->setWindField(shell::potentialFlowWind(*band, mWind, 0));
+        } else {
+            mShell->setWind(mWind); // projected on each leaf's tangent planes as it is built
+        }
+        // the tangential wind shared with [dla]'s walker drift (shell/ShellWind.h): [dla] on a
+        // shell builds the band whole at creation, so this holds every voxel when it is used
+        if (band->whole()) {
+            world.state<shell::ShellWindState>().tangential = mShell->windField();
+        }
         gatherShell(world);
         const auto& lum = band->colourLuminance();
         if (band->colourUse() == shell::BandSettings::ColourUse::Seed) // ice where the colour is bright
             for (size_t i = 0; i < lum.size(); ++i)
                 if (lum[i] > 0.5f) mShell->p()[i] = 1.f;
+        // seed_texture: ice where bright (the domain built every leaf that can hold a seed)
+        if (const auto* tex = shell::texturesOf(world.domain); tex && tex->seed) {
+            auto& p = mShell->p();
+            band->forEachVoxel(nullptr, [&](size_t i) {
+                if (tex->seedAt(*band, i) > 0.5f) p[i] = 1.f;
+            });
+        }
         mShell->extendAll(); // seeds were stamped in 3D: make them closest-point data
         scatterShell(world);
         return;
@@ -163,18 +192,11 @@ void PhaseFieldEffect::gatherShell(World& world)
     mShell->growthValues() = v;
     shell::fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kFreezeTime), v);
     mShell->freezeValues() = v;
-    const bool colourMelt = band.colourUse() == shell::BandSettings::ColourUse::Melt;
-    if (auto melt = world.fields.get<openvdb::FloatGrid>(ice::kMelt)) {
-        shell::fromGrid(band, *melt, v);
-        if (colourMelt) // both: the product
-            for (size_t i = 0; i < v.size(); ++i) v[i] *= band.colourLuminance()[i];
-        mShell->setMelt(v);
-        auto acc = std::make_shared<openvdb::FloatGrid::ConstAccessor>(melt->getConstAccessor());
-        mShell->setMeltSource([melt, acc](const openvdb::Coord& c) { return acc->getValue(c); }, colourMelt);
-    } else if (colourMelt) {
-        mShell->setMelt(band.colourLuminance());
-        mShell->setMeltSource(nullptr, true); // leaves built later: their luminance
-    }
+    // the melt field x the colour melt map x melt_texture (shell/ShellTexture.h): now for the
+    // voxels built so far, and for each leaf the active region builds later
+    openvdb::FloatGrid::ConstPtr melt = world.fields.get<openvdb::FloatGrid>(ice::kMelt);
+    const auto* tex = shell::texturesOf(world.domain);
+    mShell->setMeltSource(shell::meltSource(melt, band, tex), shell::meltMap(band, melt.get(), tex));
 }
 
 void PhaseFieldEffect::scatterShell(World& world)

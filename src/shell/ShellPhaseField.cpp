@@ -80,10 +80,18 @@ size_t ShellPhaseField::steppedVoxels() const
     return n;
 }
 
-void ShellPhaseField::setMeltSource(std::function<float(const openvdb::Coord&)> melt, bool timesLuminance)
+void ShellPhaseField::setMeltSource(std::function<float(const ShellBand&, size_t)> melt, std::vector<float> now)
 {
     mMeltSource = std::move(melt);
-    mMeltTimesLum = timesLuminance;
+    mMelt.clear();
+    if (!mMeltSource) return;
+    if (now.size() == mBand->size()) {
+        mMelt = std::move(now);
+        return;
+    }
+    mMelt.resize(mBand->size());
+    const ShellBand& b = *mBand;
+    mBand->forEachVoxel(nullptr, [&](size_t i) { mMelt[i] = mMeltSource(b, i); });
 }
 
 void ShellPhaseField::grow()
@@ -104,14 +112,10 @@ void ShellPhaseField::grow()
     mA.resize(n, float(eps0 * eps0));
     mPhi.resize(n, float(std::atanh(2.0 * 1e-6 - 1.0)));
     for (auto* v : {&mPn, &mTn, &mPOld, &mCx, &mCy, &mCz, &mGx, &mGy, &mGz}) v->resize(n, 0.f);
-    if (mMeltSet && mMelt.size() < n) {
+    if (mMeltSource && mMelt.size() < n) { // the new leaves' melt values, computed as they are built
         const size_t from = mMelt.size();
-        mMelt.resize(n, 1.f);
-        for (size_t i = from; i < n; ++i) {
-            double v = mMeltSource ? mMeltSource(b.coord(i)) : 1.0;
-            if (mMeltTimesLum && !b.colourLuminance().empty()) v *= b.colourLuminance()[i];
-            mMelt[i] = float(v);
-        }
+        mMelt.resize(n);
+        for (size_t i = from; i < n; ++i) mMelt[i] = mMeltSource(b, i);
     }
     // a per-voxel wind without a world direction cannot be extended to new voxels
     if (!mWind.empty() && mWind.size() < n && mWindWorld.lengthSqr() == 0.0)

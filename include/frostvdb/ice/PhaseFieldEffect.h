@@ -54,6 +54,7 @@ private:
     bool mOnShell = false;
     std::string mFrostMesh = "none"; ///< shells: none, obj or ply
     openvdb::Vec3d mWind{0, 0, 0};   ///< shells: prescribed wind advecting the heat
+    bool mPotentialWind = false;     ///< shells: wind_model = "potential" (shell/ShellWind.h)
     /// The p and T grids scatterShell last wrote (held, so a new grid never reuses the address).
     openvdb::FloatGrid::Ptr mShellP, mShellT;
     shell::ShellStepStats mShellStats;

@@ -207,6 +207,9 @@ public:
     /// Bytes held by the band (the per-voxel arrays, the index grid, the mesh and its hierarchy).
     size_t memoryBytes() const;
 
+    /// Number of the mesh's boundary edges (0: a closed mesh). (Appended for the walkers.)
+    size_t borderEdgeCount() const { return mBorderA.size(); }
+
     /// Calls fn(i) for every band voxel (@a leafSlots null) or every voxel of those leaves, in
     /// parallel; fn must write only to index i.
     template <typename Fn>

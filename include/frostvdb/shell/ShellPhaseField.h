@@ -81,8 +81,13 @@ public:
     /// Sizes every array to the band (new voxels at the background: p 0, T T_inf, melt from the
     /// melt source).
     void grow();
-    /// Where a band voxel built later gets its melt value (null: 1 or the colour luminance).
-    void setMeltSource(std::function<float(const openvdb::Coord&)> melt, bool timesLuminance);
+    /// The melt value of band voxel i (shell/ShellTexture.h meltSource: the melt field x the colour
+    /// melt map x melt_texture), for every voxel built so far and every voxel built later; null:
+    /// no melt map (1 everywhere). @a now: the same values for the voxels built so far when the
+    /// caller has them (shell::meltMap, leaf by leaf; empty: computed here).
+    void setMeltSource(std::function<float(const ShellBand&, size_t)> melt, std::vector<float> now = {});
+    /// The melt values per band voxel (empty: none).
+    const std::vector<float>& melt() const { return mMelt; }
     std::vector<float>& growthValues() { return mGrowth; }
     std::vector<float>& freezeValues() { return mFreeze; }
     /// A prescribed wind (PDE units: cells of spacing h per unit of ice time) that advects the
@@ -90,8 +95,16 @@ public:
     void setWind(const openvdb::Vec3d& wind);
     /// Largest dt at which the upwind advection with the diffusion stays a positive combination.
     double windStabilityLimit() const;
-    /// Per-voxel melt temperature scale in [0, 1] (empty: 1 everywhere).
-    void setMelt(std::vector<float> melt) { mMelt = std::move(melt); mMeltSet = true; }
+    /// A tangential wind per band voxel (same units; empty: none), e.g. shell/ShellWind.h's
+    /// potential flow. Replaces setWind's. It cannot follow a growing band: build the band whole
+    /// first (ShellBand::materialiseAll), or grow() throws.
+    void setWindField(std::vector<openvdb::Vec3f> wind)
+    {
+        mWindWorld = openvdb::Vec3d(0.0);
+        mWind = std::move(wind);
+    }
+    /// The tangential wind per band voxel built so far (empty: none).
+    const std::vector<openvdb::Vec3f>& windField() const { return mWind; }
 
     /// Re-extends p and T off the surface (after seeds were written anywhere in the band).
     void extendAll();
@@ -114,9 +127,9 @@ private:
     std::vector<float> mA, mCx, mCy, mCz, mGx, mGy, mGz;
     std::vector<openvdb::Vec3f> mWind; ///< tangential wind per voxel (empty: none)
     openvdb::Vec3d mWindWorld{0.0};
-    bool mActive = false, mDirty = true, mMeltSet = false, mMeltTimesLum = false;
+    bool mActive = false, mDirty = true;
     double mTolerance = 0;
-    std::function<float(const openvdb::Coord&)> mMeltSource;
+    std::function<float(const ShellBand&, size_t)> mMeltSource;
     std::vector<openvdb::CoordBBox> mOff;        ///< per leaf slot: box of its off-background voxels
     std::vector<char> mInStepped;                 ///< per leaf slot
     std::vector<uint32_t> mStepped;               ///< leaf slots stepped (sorted)

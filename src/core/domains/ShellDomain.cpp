@@ -5,10 +5,13 @@
 /// heat need it ([region] tolerance; dense = true builds it whole): memory follows the ice.
 #include <frostvdb/shell/ShellDomain.h>
 
+#include <frostvdb/core/Error.h>
 #include <frostvdb/io/Mesh.h>
+#include <frostvdb/shell/ShellTexture.h>
 
 #include <filesystem>
 #include <stdexcept>
+#include <tuple>
 
 namespace frostvdb {
 namespace {
@@ -63,8 +66,13 @@ public:
     // No post-step hook: the shell's phase field re-extends its own fields each step (on its
     // band arrays, ShellPhaseField::step), so the driver has nothing left to do.
 
+    // UV texture maps (shell/ShellTexture.h)
+    const shell::SurfaceTextures* textures() const { return mTextures ? mTextures.get() : nullptr; }
+    void setTextures(std::shared_ptr<const shell::SurfaceTextures> t) { mTextures = std::move(t); }
+
 private:
     std::shared_ptr<const shell::ShellBand> mBand;
+    std::shared_ptr<const shell::SurfaceTextures> mTextures;
 };
 
 Vec3d vec3(const std::vector<double>& v) { return Vec3d(v[0], v[1], v[2]); }
@@ -112,6 +120,12 @@ Domain readShell(ParamDict& d, const DomainCommon& c)
     bs.colourUse = colours == "seed"   ? shell::BandSettings::ColourUse::Seed
                    : colours == "melt" ? shell::BandSettings::ColourUse::Melt
                                        : shell::BandSettings::ColourUse::None;
+    const std::string seedTexture = d.getString("seed_texture", "", {},
+        "PNG texture (luminance through the mesh's UVs at each closest point), relative to the scene file: ice "
+        "where it exceeds 1/2 (as vertex_colours = \"seed\"); empty: none");
+    const std::string meltTexture = d.getString("melt_texture", "", {},
+        "PNG texture through the mesh's UVs: the melt map (T_e scale = luminance, 0 keeps a patch clear; with "
+        "[dla] the sticking probability), multiplied with vertex_colours = \"melt\" and the melt field; empty: none");
     // secondary axis: perpendicular to the first, fixed by it alone
     Vec3d sec = std::fabs(bs.crystalAxis.z()) < 0.9 ? Vec3d(0, 0, 1) : Vec3d(0, 1, 0);
     bs.secondaryAxis = sec.cross(bs.crystalAxis).unit();
@@ -140,7 +154,31 @@ Domain readShell(ParamDict& d, const DomainCommon& c)
                     if (lum(mesh.triangles[t][v]) > 0.5) { bright.push_back(t); break; }
             band->materialiseTriangles(bright);
         }
-        return Domain(std::make_shared<ShellDomain>(band, c.spacing, band->bounds()));
+        auto dom = std::make_shared<ShellDomain>(band, c.spacing, band->bounds());
+        if (!seedTexture.empty() || !meltTexture.empty()) {
+            // sampled per voxel on demand (shell/ShellTexture.h): the band grows after this
+            std::shared_ptr<shell::SurfaceTextures> maps;
+            try {
+                maps = std::make_shared<shell::SurfaceTextures>(mesh);
+            } catch (const std::exception& e) {
+                d.fail(seedTexture.empty() ? "melt_texture" : "seed_texture", e.what());
+            }
+            for (const auto& [key, file, target] : {std::make_tuple("seed_texture", seedTexture, &maps->seed),
+                                                    std::make_tuple("melt_texture", meltTexture, &maps->melt)}) {
+                if (file.empty()) continue;
+                try {
+                    *target = std::make_shared<const shell::Texture>(shell::loadTexture(resolveMeshPath(file, d.origin(key))));
+                } catch (const std::exception& e) {
+                    d.fail(key, e.what());
+                }
+            }
+            // every leaf that can hold a texture seed is built now, so the seeds are all stamped
+            if (maps->seed) band->materialiseTriangles(maps->seedTriangles());
+            dom->setTextures(maps);
+        }
+        return Domain(dom);
+    } catch (const SceneError&) {
+        throw; // already names its key
     } catch (const std::runtime_error& e) {
         d.fail("mesh", e.what());
     }
@@ -155,6 +193,13 @@ std::shared_ptr<const ShellBand> bandOf(const Domain& domain)
     if (!domain) return nullptr;
     const auto* s = dynamic_cast<const ShellDomain*>(&domain.impl());
     return s ? s->band() : nullptr;
+}
+
+const SurfaceTextures* texturesOf(const Domain& domain)
+{
+    if (!domain) return nullptr;
+    const auto* s = dynamic_cast<const ShellDomain*>(&domain.impl());
+    return s ? s->textures() : nullptr;
 }
 
 Domain makeShellDomain(const TriangleMesh& mesh, const BandSettings& settings, double spacing)

@@ -1,0 +1,161 @@
+#pragma once
+/// @file ShellWalkers.h
+/// @brief DLA walkers on a shell's surface (issue 11 item 4): the plane's [dla] rules on a curved
+/// surface, with positions on the surface instead of lattice cells.
+///
+/// A walker is a point x on the surface (index space). Each lattice step moves it one voxel
+/// along one of the six directions cos(k pi/3) t + sin(k pi/3) b of the smooth tangent frame at x
+/// (t = the crystal axis projected on the tangent plane, so the local lattice is hexagonal and
+/// turns with the crystal frame), plus the tangential wind drift, and projects it back to the
+/// surface with the band's closest point (trilinear interpolation of cp(x) over the 8 band voxels
+/// around it, twice). Ice is the set of closest points of the band's surface-layer voxels
+/// (|normal offset| <= 1/2, inside the border) with p > 1/2 when the walkers start, plus the points
+/// where walkers stuck, plus the layer voxels another effect (the phase field) turned to ice since;
+/// a walker sticks when ice lies within one lattice spacing of it (with the sticking probability
+/// of the melt map at its voxel).
+///
+/// Empty-space jumps (walk on spheres): where the Euclidean distance d to the nearest ice (a lower
+/// bound of the geodesic one) is large, the walker jumps to a uniform point of the geodesic
+/// circle of radius r = d - 2 around it (also kept 1 voxel inside the open border), found by
+/// shooting a geodesic: sub-steps of up to 3 voxels along a direction re-projected on each tangent
+/// plane. Every point of that disc is more than one spacing from the ice, so the walk inside it
+/// is free and its exit point is uniform on the circle (exactly on a flat or spherical surface,
+/// to first order in curvature elsewhere); the jump counts r^2 lattice steps (the mean exit time).
+///
+/// An open mesh's border removes a walker (like leaving a plane's domain): a step whose
+/// unprojected point lies more than half a voxel beyond the border ends the walk (Killed).
+///
+/// Determinism: walker w of step s draws from ice::WalkerRng(seed, w, s, salt), walks of a batch
+/// see the ice as it was at the batch start; the caller applies sticks in walker order.
+#include <frostvdb/ice/Dla.h>
+#include <frostvdb/shell/ShellBand.h>
+
+#include <openvdb/openvdb.h>
+
+#include <array>
+#include <memory>
+#include <unordered_map>
+#include <unordered_set>
+#include <vector>
+
+namespace frostvdb::shell {
+
+/// Points in index space, bucketed for distance queries: exact up to one bucket (4 voxels),
+/// a lower bound beyond (an occupancy pyramid of buckets 8 .. 512 voxels).
+class SurfacePointIndex {
+public:
+    static constexpr double kBucket = 4.0;
+    static constexpr int kLevels = 8;
+
+    void clear();
+    void insert(const openvdb::Vec3d& q);
+    size_t size() const { return mCount; }
+    /// Lower bound of the Euclidean distance from @a x to the nearest point: exact when it is at
+    /// most kBucket; kFar when there is no point within the pyramid's top level.
+    double distance(const openvdb::Vec3d& x) const;
+    static constexpr double kFar = 1e9;
+
+    /// Repeated queries along a walk: the points of the 3x3x3 fine buckets around the last
+    /// query's bucket and the coarse levels' bound are kept until the walk leaves that bucket
+    /// (the index must not change meanwhile). Same results as distance().
+    class Cursor {
+    public:
+        explicit Cursor(const SurfacePointIndex& index) : mIndex(index) {}
+        double distance(const openvdb::Vec3d& x);
+
+    private:
+        const SurfacePointIndex& mIndex;
+        uint64_t mKey = ~uint64_t(0);
+        std::vector<openvdb::Vec3d> mPoints;
+        double mCoarse = -1; ///< bound from the coarse levels (-1: not computed yet)
+    };
+
+private:
+    /// The coarse levels' lower bound for any point of the fine bucket holding @a x.
+    double coarseBound(const openvdb::Vec3d& x) const;
+
+    std::unordered_map<uint64_t, std::vector<openvdb::Vec3d>> mFine;
+    std::array<std::unordered_set<uint64_t>, kLevels> mCoarse; ///< level k: buckets of 4 * 2^k
+    size_t mCount = 0;
+};
+
+/// One walker's end.
+struct ShellWalkEnd {
+    enum Kind : uint8_t { Stuck, Killed, Exhausted } kind = Killed;
+    openvdb::Vec3d point{0.0};  ///< where it stuck (index space, on the surface)
+    openvdb::Vec3d prev{0.0};   ///< the point of its last single step (valid when hasPrev)
+    bool hasPrev = false;
+    uint32_t moves = 0, jumps = 0;
+    double latticeSteps = 0;
+};
+
+class ShellWalkers {
+public:
+    /// A walker sticks when ice lies within this distance (one lattice spacing), voxels.
+    static constexpr double kStickRadius = 1.0;
+    /// A stick freezes the band voxels whose closest point lies within this distance (voxels):
+    /// a disc of about one voxel of area (pi 0.6^2 = 1.13), as a plane's stick freezes one cell.
+    /// (0.9 would survive the phase field's re-extension alone, as the 8 inner tricubic nodes of
+    /// the stick point lie within sqrt(3)/2 of it, but froze 2.5 voxels of surface per stick and
+    /// a hybrid run on a sphere iced over.)
+    static constexpr double kMarkRadius = 0.6;
+
+    /// @a params: the [dla] keys (humidity, hits, max_steps, jumps, jump_min_radius,
+    /// jump_max_radius (0: 64), release uniform | perimeter = the open mesh's border).
+    ShellWalkers(std::shared_ptr<const ShellBand> band, const ice::DlaParams& params, uint64_t seed);
+
+    const ShellBand& band() const { return *mBand; }
+    /// The ice: surface-layer voxels with p > 1/2 (p in band order).
+    void sync(const std::vector<float>& p);
+    /// Adds a stick point @a x to the ice. The walkers' ice is the stick points themselves (as
+    /// the plane's is the stuck cells), not the wider disc of voxels a stick freezes.
+    void addIce(const openvdb::Vec3d& x);
+    /// Adds the surface-layer voxels among @a voxels (ice that another effect grew).
+    void addIceVoxels(const std::vector<size_t>& voxels);
+    /// Lower bound of the distance (voxels) from @a x to the ice.
+    double iceDistance(const openvdb::Vec3d& x) const { return mIce.distance(x); }
+    size_t icePoints() const { return mIce.size(); }
+    /// Band voxels whose closest point lies within kMarkRadius of @a x (ascending band index).
+    std::vector<size_t> markDisc(const openvdb::Vec3d& x) const;
+    /// Band index of the voxel holding @a x (the walker's site: hits and melt are read there).
+    int32_t siteOf(const openvdb::Vec3d& x) const;
+    /// Surface-layer voxels (release sites) and those within a voxel of the border.
+    const std::vector<size_t>& layer() const { return mLayer; }
+    const std::vector<size_t>& borderLayer() const { return mBorderLayer; }
+
+    /// Optional inputs (empty vectors: none), indexed by band voxel.
+    struct Inputs {
+        const std::vector<float>* melt = nullptr;           ///< sticking probability
+        const std::vector<openvdb::Vec3f>* drift = nullptr; ///< voxels per lattice step (tangential)
+    };
+    /// Walkers [first, first + count) of @a step in parallel; results indexed by walker - first.
+    void walkBatch(int64_t step, uint64_t first, uint64_t count, const Inputs& in,
+                   std::vector<ShellWalkEnd>& out) const;
+    /// One walker, released (when @a start is null) or from @a start, with stream salt @a salt.
+    ShellWalkEnd walk(int64_t step, uint64_t walker, uint64_t salt, const openvdb::Vec3d* start,
+                      const Inputs& in) const;
+
+    /// Closest point of index position @a y by trilinear interpolation of the band's closest
+    /// points (applied twice); false when y is not inside the band. @a lateral: the interpolated
+    /// distance beyond an open border of the first pass.
+    bool project(const openvdb::Vec3d& y, openvdb::Vec3d& out, double* lateral = nullptr) const;
+    /// The smooth frame of the band voxel holding @a x.
+    const VoxelFrame* frameAt(const openvdb::Vec3d& x) const;
+    /// Lower bound of the distance from @a x to an open mesh's border (kFar when closed).
+    double borderDistance(const openvdb::Vec3d& x) const { return mBorder.distance(x); }
+    int maxJump() const { return mMaxJump; }
+
+private:
+    /// Moves @a x by @a length along tangent direction @a dir (geodesic shooting, sub-steps of up to 3 voxels).
+    bool shoot(openvdb::Vec3d& x, openvdb::Vec3d dir, double length) const;
+
+    std::shared_ptr<const ShellBand> mBand;
+    ice::DlaParams mParams;
+    uint64_t mSeed;
+    int mMaxJump;
+    bool mOpen; ///< the mesh has a border (walkers beyond it are removed)
+    std::vector<size_t> mLayer, mBorderLayer;
+    SurfacePointIndex mIce, mBorder;
+};
+
+} // namespace frostvdb::shell

@@ -1,0 +1,250 @@
+/// @file ShellDlaEffect.cpp
+/// @brief `[dla]` on a shell domain (see ShellDla.h): releases the walkers of each step in
+/// deterministic batches (shell/ShellWalkers.h) and applies their sticks in walker order to the
+/// band's p, T, growth and freeze_time, which the phase field then reads back.
+#include <frostvdb/shell/ShellDla.h>
+
+#include <frostvdb/core/Error.h>
+#include <frostvdb/core/Random.h>
+#include <frostvdb/ice/IceState.h>
+#include <frostvdb/shell/ShellDomain.h>
+#include <frostvdb/shell/ShellGrids.h>
+#include <frostvdb/shell/ShellTexture.h>
+#include <frostvdb/shell/ShellWalkers.h>
+#include <frostvdb/shell/ShellWind.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+
+namespace frostvdb::shell {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
+constexpr uint64_t kResumeSalt = 0x5E5D3E11ull; // the plane's salt for resumed walks
+
+class ShellDlaEffect : public Effect {
+public:
+    explicit ShellDlaEffect(const ice::DlaParams& p) : mParams(p) {}
+
+    std::string name() const override { return "dla"; }
+
+    FieldDeclaration declaration() const override
+    {
+        FieldDeclaration d;
+        d.stage = Stage::Walkers;
+        d.use(ice::kClock, kReadsAtInit | kReads)
+            .use(ice::kPhase, kReadsAtInit | kReads | kWrites)
+            .use(ice::kTemperature, kInitialises | kWrites)
+            .use(ice::kGrowth, kInitialises | kWrites)
+            .use(ice::kFreezeTime, kInitialises | kWrites)
+            .use(ice::kMelt, kReads);
+        d.output(out::kIce).output(out::kIceSdf).output(out::kIceTemperature).output(out::kGrowth).output(out::kFreezeTime);
+        return d;
+    }
+
+    void initialize(World& world) override
+    {
+        ice::IceShared& sh = ice::shared(world);
+        if (!sh.dtOwnedByPhaseField) sh.dt = mParams.dt;
+        ice::requireIceFields(world);
+        mHeat = mParams.heatRelease < 0 ? sh.latentHeat / 6.0 : mParams.heatRelease;
+        mBand = bandOf(world.domain);
+        mWalkers = std::make_unique<ShellWalkers>(mBand, mParams, world.seed);
+        mHits.assign(mParams.hits > 1 ? mBand->size() : 0, 0);
+        // the colour melt map x melt_texture: fixed (the band is whole, see makeShellDla)
+        mStaticMelt = meltMap(*mBand, nullptr, texturesOf(world.domain));
+        mTime = 0;
+    }
+
+    void step(World& world, const StepInfo& info) override;
+    void addToFrame(World& world, Frame& frame) override;
+    double time() const override { return mTime; }
+    bool supportsCheckpoint() const override { return false; }
+
+    std::vector<std::pair<std::string, double>> timings() const override
+    {
+        return {{"walkers", mStats.walkSeconds}, {"apply", mStats.applySeconds}, {"sync", mStats.syncSeconds}};
+    }
+    std::vector<std::pair<std::string, double>> counters() const override
+    {
+        return {{"released", double(mStats.released)}, {"stuck", double(mStats.stuck)},
+                {"frozen", double(mStats.frozen)},     {"killed", double(mStats.killed)},
+                {"jumps", double(mStats.jumps)},       {"moves", double(mStats.moves)},
+                {"conflicts", double(mStats.conflicts)}, {"lattice_steps", mStats.latticeSteps}};
+    }
+
+private:
+    ice::DlaParams mParams;
+    double mHeat = 0, mTime = 0;
+    std::shared_ptr<const ShellBand> mBand;
+    std::unique_ptr<ShellWalkers> mWalkers;
+    std::vector<int32_t> mHits; ///< walkers stuck per site since its last freeze (hits > 1)
+    ice::DlaStats mStats;
+    std::vector<float> mP, mT, mGrowth, mFreeze, mMelt, mStaticMelt;
+    std::vector<openvdb::Vec3f> mDrift;
+    std::vector<float> mPLeft; ///< p as this effect left it last step (empty: none yet)
+
+    /// The walkers' ice from p: in full at the first step or when ice melted, else only the
+    /// voxels another effect (the phase field) turned to ice since our last step.
+    void syncIce()
+    {
+        bool full = mPLeft.size() != mP.size();
+        std::vector<size_t> grown;
+        for (size_t i = 0; i < mP.size() && !full; ++i) {
+            const bool was = mPLeft[i] > 0.5f, is = mP[i] > 0.5f;
+            if (was && !is) full = true;
+            else if (is && !was) grown.push_back(i);
+        }
+        if (full) mWalkers->sync(mP);
+        else mWalkers->addIceVoxels(grown);
+    }
+};
+
+void ShellDlaEffect::step(World& world, const StepInfo& info)
+{
+    ice::IceShared& sh = ice::shared(world);
+    const ShellBand& band = *mBand;
+    auto t0 = Clock::now();
+    fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kPhase), mP);
+    syncIce();
+    mStats.syncSeconds += since(t0);
+
+    ShellWalkers::Inputs in;
+    // sticking probability: the melt field times the mesh's colour melt map (as the phase field)
+    if (auto melt = world.fields.get<openvdb::FloatGrid>(ice::kMelt)) {
+        fromGrid(band, *melt, mMelt);
+        if (!mStaticMelt.empty())
+            for (size_t i = 0; i < mMelt.size(); ++i) mMelt[i] *= mStaticMelt[i];
+    } else {
+        mMelt = mStaticMelt;
+    }
+    if (!mMelt.empty()) in.melt = &mMelt;
+    // drift: the tangential wind (cells per unit ice time) times dt and flow_drift, per step
+    mDrift.clear();
+    if (world.hasState<ShellWindState>() && mParams.flowDrift > 0) {
+        const auto& w = world.state<ShellWindState>().tangential;
+        if (w.size() == band.size()) {
+            mDrift.resize(w.size());
+            const float s = float(sh.dt * mParams.flowDrift);
+            for (size_t i = 0; i < w.size(); ++i) mDrift[i] = w[i] * s;
+            in.drift = &mDrift;
+        }
+    }
+
+    bool read = false, changed = false;
+    auto readRest = [&] { // T, growth and freeze_time only when something freezes
+        if (read) return;
+        fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kTemperature), mT);
+        fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kGrowth), mGrowth);
+        fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kFreezeTime), mFreeze);
+        read = true;
+    };
+    const bool heat = sh.temperatureEvolves && mHeat != 0;
+    const double time = sh.timeAtStep(info.step);
+    auto freezeAt = [&](const openvdb::Vec3d& x) {
+        readRest();
+        const std::vector<size_t> disc = mWalkers->markDisc(x);
+        for (size_t i : disc) {
+            const float before = mP[i];
+            mP[i] = 1.f;
+            if (before < 1.f) mGrowth[i] += 1.f - before;
+            if (before <= 0.5f && mFreeze[i] == 0.f) mFreeze[i] = float(time);
+            if (heat) mT[i] += float(mHeat * (1.0 - double(before)));
+            mStats.dpDla += 1.0 - double(before);
+        }
+        mWalkers->addIce(x);
+        ++mStats.frozen;
+        changed = true;
+    };
+    auto hit = [&](const openvdb::Vec3d& x) {
+        ++mStats.stuck;
+        if (mParams.hits > 1) {
+            const int32_t site = mWalkers->siteOf(x);
+            if (site >= 0 && ++mHits[size_t(site)] < mParams.hits) return;
+            if (site >= 0) mHits[size_t(site)] = 0;
+        }
+        freezeAt(x);
+    };
+    auto account = [&](const ShellWalkEnd& e) {
+        mStats.moves += e.moves;
+        mStats.jumps += e.jumps;
+        mStats.latticeSteps += e.latticeSteps;
+        if (e.kind == ShellWalkEnd::Killed) ++mStats.killed;
+        if (e.kind == ShellWalkEnd::Exhausted) ++mStats.exhausted;
+    };
+
+    const uint64_t total = uint64_t(mParams.humidityAt(info.step));
+    mStats.released += total;
+    std::vector<ShellWalkEnd> ends;
+    for (uint64_t first = 0; first < total; first += uint64_t(mParams.batch)) {
+        const uint64_t count = std::min<uint64_t>(uint64_t(mParams.batch), total - first);
+        t0 = Clock::now();
+        mWalkers->walkBatch(info.step, first, count, in, ends);
+        mStats.walkSeconds += since(t0);
+        t0 = Clock::now();
+        for (uint64_t w = 0; w < count; ++w) {
+            ShellWalkEnd e = ends[size_t(w)];
+            account(e);
+            if (e.kind != ShellWalkEnd::Stuck) continue;
+            if (mWalkers->iceDistance(e.point) < 0.5) {
+                // ice froze on top of it earlier in this batch: the walk goes on from its last
+                // step's point, serially, against the current ice (the plane's rule)
+                ++mStats.conflicts;
+                if (!e.hasPrev || mWalkers->iceDistance(e.prev) < 0.5) continue;
+                const openvdb::Vec3d start = e.prev;
+                e = mWalkers->walk(info.step, first + w, kResumeSalt, &start, in);
+                account(e);
+                if (e.kind != ShellWalkEnd::Stuck) continue;
+            }
+            hit(e.point);
+        }
+        mStats.applySeconds += since(t0);
+    }
+    mPLeft = mP; // what we leave: the next step adds only ice grown by others
+    if (changed) {
+        world.fields.replace(ice::kPhase, toGrid(band, mP, 0.f, ice::kPhase.name));
+        world.fields.replace(ice::kTemperature, toGrid(band, mT, float(sh.farTemperature), ice::kTemperature.name));
+        world.fields.replace(ice::kGrowth, toGrid(band, mGrowth, 0.f, ice::kGrowth.name));
+        world.fields.replace(ice::kFreezeTime, toGrid(band, mFreeze, 0.f, ice::kFreezeTime.name));
+    }
+    mTime = sh.timeAtStep(info.step + 1);
+}
+
+void ShellDlaEffect::addToFrame(World& world, Frame& frame)
+{
+    ice::addIceOutputs(world, frame);
+    if (ice::shared(world).dtOwnedByPhaseField) return; // [phase_field] writes the frost layer
+    // `ice` is the frost layer grown outward along the normal (as the shell's phase field writes it)
+    fromGrid(*mBand, *world.fields.get<openvdb::FloatGrid>(ice::kPhase), mP);
+    fromGrid(*mBand, *world.fields.get<openvdb::FloatGrid>(ice::kGrowth), mGrowth);
+    auto fog = frostFog(*mBand, mP, mGrowth);
+    for (auto& g : frame.grids)
+        if (g->getName() == out::kIce.name) g = fog;
+    frame.add(frostLevelSet(*fog));
+}
+
+} // namespace
+
+std::unique_ptr<Effect> makeShellDla(const ice::DlaParams& params, ParamDict& d, const World& world)
+{
+    if (params.steamHumidity > 0)
+        d.fail("steam_humidity", "steam humidity is not available on shell domains (allowed: 0)");
+    if (params.release == ice::DlaRelease::Perimeter) {
+        if (bandOf(world.domain)->borderEdgeCount() == 0) d.fail("release", "perimeter on a shell releases on the open mesh's border; this mesh is closed (allowed: uniform)");
+    }
+    // Walkers are released over the whole surface and walk anywhere on it, so the lazily built
+    // band is built whole here, before any effect sizes its arrays to it (docs/shells.md: with
+    // [dla] memory follows the mesh's area; the phase field's active region still steps only
+    // the leaves near the ice).
+    try {
+        bandOf(world.domain)->materialiseAll();
+    } catch (const std::runtime_error& e) {
+        d.fail("release", std::string("walkers need the whole shell band: ") + e.what());
+    }
+    return std::make_unique<ShellDlaEffect>(params);
+}
+
+} // namespace frostvdb::shell

@@ -1,0 +1,362 @@
+/// @file ShellWalkers.cpp
+/// @brief DLA walkers on a shell's surface (see ShellWalkers.h).
+#include <frostvdb/shell/ShellWalkers.h>
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <cmath>
+
+namespace frostvdb::shell {
+
+using openvdb::Coord;
+using openvdb::Vec3d;
+
+namespace {
+
+uint64_t packKey(const Vec3d& q, double size)
+{
+    constexpr int64_t kOff = int64_t(1) << 20, kMask = (int64_t(1) << 21) - 1;
+    const int64_t i = int64_t(std::floor(q.x() / size)) + kOff, j = int64_t(std::floor(q.y() / size)) + kOff,
+                  k = int64_t(std::floor(q.z() / size)) + kOff;
+    return uint64_t(i & kMask) | (uint64_t(j & kMask) << 21) | (uint64_t(k & kMask) << 42);
+}
+
+/// The 27 keys of the 3x3x3 buckets around the one holding @a x.
+template <typename Fn>
+bool anyNeighbourBucket(const Vec3d& x, double size, const Fn& fn)
+{
+    for (int dz = -1; dz <= 1; ++dz)
+        for (int dy = -1; dy <= 1; ++dy)
+            for (int dx = -1; dx <= 1; ++dx)
+                if (fn(packKey(x + Vec3d(dx, dy, dz) * size, size))) return true;
+    return false;
+}
+
+using IndexAccessor = openvdb::Int32Grid::ConstAccessor;
+
+/// One trilinear pass of the band's closest points at @a y.
+bool interpolateCp(const ShellBand& b, IndexAccessor& acc, const Vec3d& y, Vec3d& out, double* lateral)
+{
+    const Coord base = Coord::floor(y);
+    const Vec3d f = y - Vec3d(base.x(), base.y(), base.z());
+    Vec3d sum(0.0);
+    double lat = 0;
+    for (int k = 0; k < 2; ++k)
+        for (int j = 0; j < 2; ++j)
+            for (int i = 0; i < 2; ++i) {
+                const int32_t id = acc.getValue(base + Coord(i, j, k));
+                if (id < 0) return false;
+                const double w = (i ? f.x() : 1 - f.x()) * (j ? f.y() : 1 - f.y()) * (k ? f.z() : 1 - f.z());
+                sum += b.closestPoint(size_t(id)) * w;
+                lat += w * double(b.lateralOffset(size_t(id)));
+            }
+    out = sum;
+    if (lateral) *lateral = lat;
+    return true;
+}
+
+bool projectWith(const ShellBand& b, IndexAccessor& acc, const Vec3d& y, Vec3d& out, double* lateral)
+{
+    Vec3d q;
+    if (!interpolateCp(b, acc, y, q, lateral)) return false;
+    Vec3d q2; // a second pass: the first lands within O(kappa h^2) of the surface
+    out = interpolateCp(b, acc, q, q2, nullptr) ? q2 : q;
+    return true;
+}
+
+const VoxelFrame* frameWith(const ShellBand& b, IndexAccessor& acc, const Vec3d& x)
+{
+    const int32_t id = acc.getValue(Coord::round(x));
+    return id < 0 ? nullptr : &b.frame(size_t(id));
+}
+
+/// Moves @a x by @a length along the tangent direction @a dir: sub-steps of at most kShootStep
+/// voxels, each projected back to the surface, the direction carried to the new tangent plane (a
+/// discrete geodesic). A sub-step leaves the surface by s^2 / 2R (0.9 voxels at a curvature
+/// radius of 5 voxels), well inside the band.
+constexpr double kShootStep = 3.0;
+bool shootWith(const ShellBand& b, IndexAccessor& acc, Vec3d& x, Vec3d dir, double length, bool open)
+{
+    double left = length;
+    while (left > 1e-12) {
+        const double s = std::min(kShootStep, left);
+        Vec3d q;
+        double lat = 0;
+        if (!projectWith(b, acc, x + dir * s, q, &lat) || (open && lat > 0.5)) return false;
+        const VoxelFrame* f = frameWith(b, acc, q);
+        if (!f) return false;
+        Vec3d nd = q - x;
+        nd -= f->normal * nd.dot(f->normal);
+        if (nd.length() < 1e-9) nd = dir - f->normal * dir.dot(f->normal);
+        if (nd.length() < 1e-9) return false;
+        dir = nd.unit();
+        x = q;
+        left -= s;
+    }
+    return true;
+}
+
+} // namespace
+
+// ---------------------------------------------------------------------------------------------
+// SurfacePointIndex
+
+void SurfacePointIndex::clear()
+{
+    mFine.clear();
+    for (auto& c : mCoarse) c.clear();
+    mCount = 0;
+}
+
+void SurfacePointIndex::insert(const Vec3d& q)
+{
+    mFine[packKey(q, kBucket)].push_back(q);
+    for (int k = 1; k < kLevels; ++k)
+        if (!mCoarse[size_t(k)].insert(packKey(q, kBucket * double(1 << k))).second) break; // and above
+    ++mCount;
+}
+
+double SurfacePointIndex::distance(const Vec3d& x) const
+{
+    if (mCount == 0) return kFar;
+    // exact within the 3x3x3 fine buckets: any point outside them is more than kBucket away
+    double best2 = kFar * kFar;
+    anyNeighbourBucket(x, kBucket, [&](uint64_t key) {
+        auto it = mFine.find(key);
+        if (it != mFine.end())
+            for (const Vec3d& q : it->second) best2 = std::min(best2, (q - x).lengthSqr());
+        return false;
+    });
+    const double best = std::sqrt(best2);
+    if (best <= kBucket) return best;
+    return std::min(best, coarseBound(x));
+}
+
+double SurfacePointIndex::coarseBound(const Vec3d& x) const
+{
+    // free 3x3x3 neighbourhood at level k: no point within 4 * 2^k (of any point of x's fine
+    // bucket, which lies inside x's bucket at every level)
+    double lower = kBucket;
+    for (int k = 1; k < kLevels; ++k) {
+        const double size = kBucket * double(1 << k);
+        const auto& set = mCoarse[size_t(k)];
+        if (anyNeighbourBucket(x, size, [&](uint64_t key) { return set.count(key) > 0; })) return lower;
+        lower = size;
+    }
+    return kFar; // nothing within the top level's reach
+}
+
+double SurfacePointIndex::Cursor::distance(const Vec3d& x)
+{
+    if (mIndex.mCount == 0) return kFar;
+    const uint64_t key = packKey(x, kBucket);
+    if (key != mKey) {
+        mKey = key;
+        mPoints.clear();
+        anyNeighbourBucket(x, kBucket, [&](uint64_t k) {
+            auto it = mIndex.mFine.find(k);
+            if (it != mIndex.mFine.end()) mPoints.insert(mPoints.end(), it->second.begin(), it->second.end());
+            return false;
+        });
+        mCoarse = -1; // computed when first needed
+    }
+    double best2 = kFar * kFar;
+    for (const Vec3d& q : mPoints) best2 = std::min(best2, (q - x).lengthSqr());
+    const double best = std::sqrt(best2);
+    if (best <= kBucket) return best;
+    if (mCoarse < 0) mCoarse = mIndex.coarseBound(x);
+    return std::min(best, mCoarse);
+}
+
+// ---------------------------------------------------------------------------------------------
+// ShellWalkers
+
+ShellWalkers::ShellWalkers(std::shared_ptr<const ShellBand> band, const ice::DlaParams& params, uint64_t seed)
+    : mBand(std::move(band)), mParams(params), mSeed(seed),
+      mMaxJump(params.jumpMaxRadius > 0 ? params.jumpMaxRadius : 64), mOpen(mBand->borderEdgeCount() > 0)
+{
+    const ShellBand& b = *mBand;
+    const bool open = b.borderEdgeCount() > 0;
+    for (size_t i = 0; i < b.size(); ++i) {
+        // beyond an open border (near the surface's plane): the closest point is on the border
+        if (open && b.lateralOffset(i) > 0.5f && std::fabs(b.normalOffset(i)) <= 1.0f) mBorder.insert(b.closestPoint(i));
+        else if (std::fabs(b.normalOffset(i)) <= 0.5f && b.lateralOffset(i) <= 0.25f) mLayer.push_back(i);
+    }
+    if (mBorder.size() > 0)
+        for (size_t i : mLayer)
+            if (mBorder.distance(b.closestPoint(i)) <= 1.5) mBorderLayer.push_back(i);
+}
+
+void ShellWalkers::sync(const std::vector<float>& p)
+{
+    mIce.clear();
+    for (size_t i : mLayer)
+        if (p[i] > 0.5f) mIce.insert(mBand->closestPoint(i));
+}
+
+void ShellWalkers::addIce(const Vec3d& x) { mIce.insert(x); }
+
+void ShellWalkers::addIceVoxels(const std::vector<size_t>& voxels)
+{
+    for (size_t i : voxels)
+        if (std::fabs(mBand->normalOffset(i)) <= 0.5f && mBand->lateralOffset(i) <= 0.25f)
+            mIce.insert(mBand->closestPoint(i));
+}
+
+int32_t ShellWalkers::siteOf(const Vec3d& x) const { return mBand->indexOf(Coord::round(x)); }
+
+const VoxelFrame* ShellWalkers::frameAt(const Vec3d& x) const
+{
+    auto acc = mBand->indexGrid().getConstAccessor();
+    return frameWith(*mBand, acc, x);
+}
+
+bool ShellWalkers::project(const Vec3d& y, Vec3d& out, double* lateral) const
+{
+    auto acc = mBand->indexGrid().getConstAccessor();
+    return projectWith(*mBand, acc, y, out, lateral);
+}
+
+bool ShellWalkers::shoot(Vec3d& x, Vec3d dir, double length) const
+{
+    auto acc = mBand->indexGrid().getConstAccessor();
+    return shootWith(*mBand, acc, x, dir, length, mOpen);
+}
+
+std::vector<size_t> ShellWalkers::markDisc(const Vec3d& x) const
+{
+    std::vector<size_t> out;
+    auto acc = mBand->indexGrid().getConstAccessor();
+    const VoxelFrame* f = frameWith(*mBand, acc, x);
+    const Vec3d n = f ? f->normal : Vec3d(0, 0, 1);
+    // the disc's voxels lie along the normal through x, within the band's half-width
+    const double reach = kHalfWidth + 1.0;
+    openvdb::CoordBBox box(Coord::floor(x - n * reach), Coord::floor(x - n * reach));
+    box.expand(Coord::floor(x + n * reach));
+    box.expand(1);
+    const double r2 = kMarkRadius * kMarkRadius;
+    for (auto it = box.begin(); it; ++it) {
+        const int32_t id = acc.getValue(*it);
+        if (id >= 0 && (mBand->closestPoint(size_t(id)) - x).lengthSqr() <= r2) out.push_back(size_t(id));
+    }
+    std::sort(out.begin(), out.end());
+    return out;
+}
+
+void ShellWalkers::walkBatch(int64_t step, uint64_t first, uint64_t count, const Inputs& in,
+                             std::vector<ShellWalkEnd>& out) const
+{
+    out.assign(size_t(count), ShellWalkEnd{});
+    tbb::parallel_for(tbb::blocked_range<uint64_t>(0, count, 16), [&](const tbb::blocked_range<uint64_t>& r) {
+        for (uint64_t w = r.begin(); w < r.end(); ++w) out[size_t(w)] = walk(step, first + w, 0, nullptr, in);
+    });
+}
+
+ShellWalkEnd ShellWalkers::walk(int64_t step, uint64_t walker, uint64_t salt, const Vec3d* start,
+                                const Inputs& in) const
+{
+    const ShellBand& b = *mBand;
+    ice::WalkerRng rng(mSeed, walker, uint64_t(step), salt);
+    auto acc = b.indexGrid().getConstAccessor();
+    ShellWalkEnd end;
+    // a closed surface without ice: nothing to stick to and no border to leave by
+    if (mIce.size() == 0 && !mOpen) return end;
+    Vec3d x;
+    if (start) {
+        x = *start;
+    } else { // release on a surface point away from the ice (uniform by area, or on the border)
+        const auto& sites = mParams.release == ice::DlaRelease::Perimeter ? mBorderLayer : mLayer;
+        if (sites.empty()) return end;
+        bool found = false;
+        for (int t = 0; t < 64 && !found; ++t) {
+            const uint64_t pick = uint64_t((static_cast<unsigned __int128>(rng.next()) * sites.size()) >> 64);
+            x = b.closestPoint(sites[size_t(pick)]);
+            found = mIce.distance(x) > kStickRadius;
+        }
+        if (!found) return end;
+    }
+    auto driftAt = [&](const Vec3d& p) {
+        if (!in.drift) return Vec3d(0.0);
+        const int32_t id = acc.getValue(Coord::round(p));
+        return id < 0 ? Vec3d(0.0) : Vec3d((*in.drift)[size_t(id)]);
+    };
+    SurfacePointIndex::Cursor ice(mIce), border(mBorder);
+    double steps = 0;
+    for (;;) {
+        const double d = ice.distance(x);
+        if (d <= kStickRadius) { // next to ice: the sticking roll
+            double s = 1.0;
+            if (in.melt) {
+                const int32_t id = acc.getValue(Coord::round(x));
+                if (id >= 0) s = double((*in.melt)[size_t(id)]);
+            }
+            if (s >= 1.0 || (s > 0.0 && rng.uniform() < s)) {
+                end.kind = ShellWalkEnd::Stuck;
+                end.point = x;
+                end.latticeSteps = steps;
+                return end;
+            }
+        }
+        if (mParams.maxSteps > 0 && steps >= double(mParams.maxSteps)) {
+            end.kind = ShellWalkEnd::Exhausted;
+            end.latticeSteps = steps;
+            return end;
+        }
+        ++end.moves;
+        const VoxelFrame* f = frameWith(b, acc, x);
+        if (!f) break;
+        const Vec3d v = driftAt(x);
+        if (mParams.jumps) { // walk on spheres: a uniform point of the free geodesic circle
+            double r = std::min({d - 2.0, border.distance(x) - 1.0, double(mMaxJump)});
+            const double vm = v.length();
+            if (vm > 0) r = std::min(r, std::sqrt(0.5 / vm)); // the drift over the jump stays < 1/2
+            if (r >= double(mParams.jumpMinRadius)) {
+                const double a = 2.0 * M_PI * rng.uniform();
+                if (!shootWith(b, acc, x, f->tangent * std::cos(a) + f->bitangent * std::sin(a), r, mOpen)) break;
+                steps += r * r; // mean exit time of the unit-step walk from a disc of radius r
+                ++end.jumps;
+                end.hasPrev = false;
+                if (vm > 0) {
+                    Vec3d q;
+                    double lat = 0;
+                    if (!projectWith(b, acc, x + v * (r * r), q, &lat) || (mOpen && lat > 0.5)) break;
+                    x = q;
+                }
+                continue;
+            }
+        }
+        // one lattice step along one of the six tangent directions, plus the drift
+        const unsigned k = unsigned((static_cast<unsigned __int128>(rng.next()) * 6u) >> 64);
+        const double a = double(k) * (M_PI / 3.0);
+        const Vec3d y = x + f->tangent * std::cos(a) + f->bitangent * std::sin(a) + v;
+        Vec3d q;
+        double lat = 0;
+        if (!projectWith(b, acc, y, q, &lat) || (mOpen && lat > 0.5)) break; // left the mesh's border
+        steps += 1;
+        const double dq = ice.distance(q);
+        // ice cannot be entered: a walker next to ice whose step lands on it stays
+        if (d <= kStickRadius && dq < 0.5) continue;
+        if (d > kStickRadius && dq <= kStickRadius) {
+            // contact: the walker stops where its step first comes within one spacing of the ice
+            // (bisection on the step), so stuck points sit one spacing from the ice, as the
+            // plane's stuck cells sit next to theirs
+            double lo = 0, hi = 1;
+            for (int it = 0; it < 12; ++it) {
+                const double mid = 0.5 * (lo + hi);
+                (ice.distance(x + (q - x) * mid) <= kStickRadius ? hi : lo) = mid;
+            }
+            Vec3d c;
+            if (projectWith(b, acc, x + (q - x) * hi, c, nullptr) && ice.distance(c) <= kStickRadius) q = c;
+        }
+        end.prev = x;
+        end.hasPrev = true;
+        x = q;
+    }
+    end.kind = ShellWalkEnd::Killed;
+    end.latticeSteps = steps;
+    return end;
+}
+
+} // namespace frostvdb::shell
