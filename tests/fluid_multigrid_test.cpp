@@ -144,7 +144,7 @@ TEST_CASE("multigrid PCG is bit-identical at 1 and 2 threads", "[fluid]")
     CHECK(std::memcmp(a.data(), c.data(), a.size() * sizeof(double)) == 0);
 }
 
-TEST_CASE("multigrid PCG converges with enclosed pockets (fluid walled in by ice)", "[fluid]")
+TEST_CASE("multigrid PCG converges with enclosed pockets (fluid walled in by ice)", "[fluid][stability]")
 {
     // A ring of ice around fluid: that pocket has no outflow, so its system is singular; the
     // solver pins one cell per pocket. A consistent right-hand side (b = A x) is solved exactly.

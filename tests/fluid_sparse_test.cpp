@@ -135,7 +135,7 @@ TEST_CASE("sparse fluid: the band converges to the full-box solve as it widens",
     CHECK(prev < 0.05);
 }
 
-TEST_CASE("sparse fluid: MacCormack advection stays within the data at CFL 5", "[fluid]")
+TEST_CASE("sparse fluid: MacCormack advection stays within the data at CFL 5", "[fluid][stability]")
 {
     const openvdb::Coord n(48, 40, 1);
     SparseFluidParams p = tight();

@@ -105,7 +105,7 @@ std::string refusalOf(const std::string& text)
 } // namespace
 
 TEST_CASE("Probe: Figure 6 with an empty fire, far flows or a breeze above the cup writes finite grids",
-          "[fast][robust][probe]")
+          "[fast][robust][probe][stability]")
 {
     openvdb::initialize();
     struct Case {
@@ -168,7 +168,7 @@ TEST_CASE("Probe: gas settings whose densities or motion leave a float are refus
     CHECK(errorOf(box + "[steam]\n").empty());
 }
 
-TEST_CASE("Probe: a swirl period of 1e-310 frames keeps the path finite", "[fast][robust][probe]")
+TEST_CASE("Probe: a swirl period of 1e-310 frames keeps the path finite", "[fast][robust][probe][stability]")
 {
     // theta = 2 pi frame / period overflowed to inf and cos(inf) made the displacement NaN: every
     // voxel's density was NaN, failed the threshold test and vanished (an empty fog, no error).

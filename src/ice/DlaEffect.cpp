@@ -1,6 +1,7 @@
 /// @file DlaEffect.cpp
 /// @brief Section [dla]: reads its keys, runs the walkers of each step in deterministic batches
 /// and applies their sticks (hits, freezing, heat, growth) in walker order.
+#include <frostvdb/core/Progress.h>
 #include <frostvdb/ice/Dla.h>
 #include <frostvdb/core/Error.h>
 #include <frostvdb/core/Random.h>
@@ -300,6 +301,12 @@ void DlaEffect::step(World& world, const StepInfo& info)
     const uint64_t total = uint64_t(H + extra);
     mStats.released += total;
     std::vector<WalkEnd> ends;
+    // A step of millions of walkers is one long step (minutes with a high humidity on a small
+    // domain, where every walker must find the ice): say how far it is instead of going silent.
+    constexpr uint64_t kProgressWalkers = uint64_t(1) << 20;
+    std::unique_ptr<Progress> progress;
+    if (world.progress && total >= kProgressWalkers)
+        progress = std::make_unique<Progress>("dla step " + std::to_string(info.step), int64_t(total), "walkers");
     for (uint64_t first = 0; first < total; first += uint64_t(mParams.batch)) {
         const uint64_t count = std::min<uint64_t>(uint64_t(mParams.batch), total - first);
         t0 = Clock::now();
@@ -334,7 +341,9 @@ void DlaEffect::step(World& world, const StepInfo& info)
         }
         mEngine->flushDistances();
         mStats.applySeconds += since(t0);
+        if (progress) progress->update(int64_t(first + count));
     }
+    if (progress) progress->finish();
     if (counting) {
         t0 = Clock::now();
         std::sort(touched.begin(), touched.end());
