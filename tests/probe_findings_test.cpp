@@ -88,20 +88,6 @@ size_t nonFiniteIn(const std::string& path, std::map<std::string, size_t>* activ
     return bad;
 }
 
-std::string refusalOf(const std::string& text)
-{
-    try {
-        auto sim = makeSim(text);
-        RunOptions ro;
-        ro.progress = false;
-        ro.writeFiles = false;
-        sim.run(ro);
-    } catch (const SceneError& e) {
-        return e.what();
-    }
-    return "";
-}
-
 } // namespace
 
 TEST_CASE("Probe: Figure 6 with an empty fire, far flows or a breeze above the cup writes finite grids",

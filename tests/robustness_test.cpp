@@ -256,44 +256,32 @@ TEST_CASE("Bit-flipped VDB files read or are refused and never crash or run away
 
 TEST_CASE("Scenes that ask for more memory than the budget are refused before allocating", "[fast][robust]")
 {
-    auto refusal = [](const std::string& text) {
-        try {
-            auto sim = makeSim(text);
-            RunOptions ro;
-            ro.progress = false;
-            ro.writeFiles = false;
-            sim.run(ro);
-        } catch (const SceneError& e) {
-            return std::string(e.what());
-        }
-        return std::string();
-    };
     // [fog] with its defaults (a 4 m box) at 0.1 mm voxels: ~1e13 voxels.
-    std::string m = refusal("[domain]\nkind = \"box\"\nsize = [32, 32, 32]\nvoxel_size = 0.0001\n[fog]\n");
+    std::string m = refusalOf("[domain]\nkind = \"box\"\nsize = [32, 32, 32]\nvoxel_size = 0.0001\n[fog]\n");
     CHECK(m.find("fog.box_max") != std::string::npos);
     CHECK(m.find("run.memory_limit") != std::string::npos);
     // [fire] defaults on a small plane: the same, from the fire's size.
-    m = refusal("[domain]\nsize = [32, 32]\nvoxel_size = 0.0001\n[fire]\n");
+    m = refusalOf("[domain]\nsize = [32, 32]\nvoxel_size = 0.0001\n[fire]\n");
     CHECK(m.find("fire.height") != std::string::npos);
     // An explicit small limit: a moderate steam scene is refused, naming the limit.
-    m = refusal("[run]\nmemory_limit = 0.001\n[domain]\nsize = [32, 32]\nvoxel_size = 0.0005\n[steam]\n");
+    m = refusalOf("[run]\nmemory_limit = 0.001\n[domain]\nsize = [32, 32]\nvoxel_size = 0.0005\n[steam]\n");
     CHECK(m.find("steam.height") != std::string::npos);
     // A repulsor's envelope shift widens the steam: it is named as the cause.
-    m = refusal("[domain]\nsize = [32, 32]\nvoxel_size = 0.001\n[steam]\n[repulsor]\nenvelope_shift = -1000\n");
+    m = refusalOf("[domain]\nsize = [32, 32]\nvoxel_size = 0.001\n[steam]\n[repulsor]\nenvelope_shift = -1000\n");
     CHECK(m.find("repulsor.envelope_shift") != std::string::npos);
     // A gas box beyond the 32-bit index space is an error, not an empty grid.
-    m = refusal("[run]\nmemory_limit = -1\n[domain]\nsize = [32, 32]\nvoxel_size = 0.0001\n"
+    m = refusalOf("[run]\nmemory_limit = -1\n[domain]\nsize = [32, 32]\nvoxel_size = 0.0001\n"
                 "[gas]\nbox_min = [-1e6, -1e6, -1e6]\nbox_max = [1e6, 1e6, 1e6]\n");
     CHECK(m.find("index range") != std::string::npos);
     // The largest documented domain.
-    m = refusal("[domain]\nsize = [1048576, 1048576]\n[phase_field]\n");
+    m = refusalOf("[domain]\nsize = [1048576, 1048576]\n[phase_field]\n");
     CHECK(m.find("domain.size") != std::string::npos);
     // Many automaton flakes.
-    m = refusal("[run]\nmemory_limit = 0.05\n[domain]\nsize = [64, 64]\n[packard]\nbatch = 512\n");
+    m = refusalOf("[run]\nmemory_limit = 0.05\n[domain]\nsize = [64, 64]\n[packard]\nbatch = 512\n");
     CHECK(m.find("packard.batch") != std::string::npos);
     // A value in the documented range that OpenVDB cannot represent is named at its key (it
     // leaked as "ArithmeticError: Non-zero scale values required").
-    m = refusal("[domain]\nsize = [64, 64]\n[coxe_reiter]\nvoxels_per_cell = 8\n");
+    m = refusalOf("[domain]\nsize = [64, 64]\n[coxe_reiter]\nvoxels_per_cell = 8\n");
     CHECK(m.find("coxe_reiter.voxels_per_cell") != std::string::npos);
     CHECK(m.find("use at most 6") != std::string::npos);
 }

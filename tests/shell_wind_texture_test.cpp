@@ -59,6 +59,21 @@ TEST_CASE("Shell potential flow: tangent to a sphere, 1.5x the free stream at it
     CHECK(worstRel < 0.1);
 }
 
+/// A 3 x 3 cm plate in z = 0 (3 x 3 vertices, 8 triangles) with UVs u = x, v = y over [0, 1].
+static void writeUvPlate(const std::string& obj)
+{
+    std::ofstream f(obj);
+    for (int j = 0; j < 3; ++j)
+        for (int i = 0; i < 3; ++i)
+            f << "v " << 0.015 * (i - 1) << " " << 0.015 * (j - 1) << " 0\nvt " << 0.5 * i << " " << 0.5 * j << "\n";
+    for (int j = 0; j < 2; ++j)
+        for (int i = 0; i < 2; ++i) {
+            const int a = j * 3 + i + 1, b = a + 1, c = a + 3, d = c + 1;
+            f << "f " << a << "/" << a << " " << b << "/" << b << " " << d << "/" << d << "\n";
+            f << "f " << a << "/" << a << " " << d << "/" << d << " " << c << "/" << c << "\n";
+        }
+}
+
 TEST_CASE("Shell UV textures: seed_texture seeds, melt_texture maps, through the mesh's UVs", "[fast][shell]")
 {
     // a 3 x 3 cm plate (OBJ with UVs u = x, v = y over [0, 1]); an 8 x 8 texture bright where
@@ -66,17 +81,7 @@ TEST_CASE("Shell UV textures: seed_texture seeds, melt_texture maps, through the
     namespace fs = std::filesystem;
     const fs::path dir = test::tempDir("shell_uv");
     const std::string obj = (dir / "plate.obj").string();
-    {
-        std::ofstream f(obj);
-        for (int j = 0; j < 3; ++j)
-            for (int i = 0; i < 3; ++i) f << "v " << 0.015 * (i - 1) << " " << 0.015 * (j - 1) << " 0\nvt " << 0.5 * i << " " << 0.5 * j << "\n";
-        for (int j = 0; j < 2; ++j)
-            for (int i = 0; i < 2; ++i) {
-                const int a = j * 3 + i + 1, b = a + 1, c = a + 3, d = c + 1;
-                f << "f " << a << "/" << a << " " << b << "/" << b << " " << d << "/" << d << "\n";
-                f << "f " << a << "/" << a << " " << d << "/" << d << " " << c << "/" << c << "\n";
-            }
-    }
+    writeUvPlate(obj);
     std::vector<float> seed(64), melt(64);
     for (int y = 0; y < 8; ++y)     // row 0 at the top: v = 1 - (y + 1/2) / 8
         for (int x = 0; x < 8; ++x) {
@@ -130,17 +135,7 @@ TEST_CASE("Shell melt map on a lazy band: leaves built later get their texture's
     namespace fs = std::filesystem;
     const fs::path dir = test::tempDir("shell_uv_lazy");
     const std::string obj = (dir / "plate.obj").string();
-    {
-        std::ofstream f(obj);
-        for (int j = 0; j < 3; ++j)
-            for (int i = 0; i < 3; ++i) f << "v " << 0.015 * (i - 1) << " " << 0.015 * (j - 1) << " 0\nvt " << 0.5 * i << " " << 0.5 * j << "\n";
-        for (int j = 0; j < 2; ++j)
-            for (int i = 0; i < 2; ++i) {
-                const int a = j * 3 + i + 1, b = a + 1, c = a + 3, d = c + 1;
-                f << "f " << a << "/" << a << " " << b << "/" << b << " " << d << "/" << d << "\n";
-                f << "f " << a << "/" << a << " " << d << "/" << d << " " << c << "/" << c << "\n";
-            }
-    }
+    writeUvPlate(obj);
     std::vector<float> melt(64);
     for (int y = 0; y < 8; ++y)
         for (int x = 0; x < 8; ++x) melt[size_t(8 * y + x)] = y >= 6 ? 0.f : 1.f;

@@ -174,6 +174,23 @@ void checkCase(const Case& c, double symTol = 1e-6)
     if (c.symEarlyStep > 0) CHECK(o.symEarly <= 1e-6);
 }
 
+/// After step @a step: fails on a non-finite p or T, widens [pMin, pMax] by p's active values and
+/// returns the count of ice voxels (p > 1/2).
+int64_t scanShellStep(Simulation& sim, int step, double& pMin, double& pMax)
+{
+    int64_t ice = 0;
+    for (auto it = sim.world().fields.get<openvdb::FloatGrid>("p")->cbeginValueOn(); it; ++it) {
+        const double v = *it;
+        if (!std::isfinite(v)) FAIL("step " << step << ": non-finite p at " << it.getCoord());
+        pMin = std::min(pMin, v);
+        pMax = std::max(pMax, v);
+        ice += v > 0.5;
+    }
+    for (auto it = sim.world().fields.get<openvdb::FloatGrid>("T")->cbeginValueOn(); it; ++it)
+        if (!std::isfinite(*it)) FAIL("step " << step << ": non-finite T at " << it.getCoord());
+    return ice;
+}
+
 /// Melting off: T_inf = T_e - K (undercooling equal to the latent heat).
 std::string meltingOff(double K = 1.5) { return "far_temperature = " + std::to_string(1.0 - K) + "\n"; }
 
@@ -622,20 +639,10 @@ TEST_CASE("Shell: seeds touching an open mesh's border stay bounded (p in [-0.01
     int64_t iceStart = -1, iceEnd = 0;
     for (int s = 0; s < 300; ++s) {
         sim.step();
-        auto p = sim.world().fields.get<openvdb::FloatGrid>("p");
-        int64_t ice = 0;
-        for (auto it = p->cbeginValueOn(); it; ++it) {
-            const double v = *it;
-            if (!std::isfinite(v)) FAIL("step " << s + 1 << ": non-finite p at " << it.getCoord());
-            pMin = std::min(pMin, v);
-            pMax = std::max(pMax, v);
-            ice += v > 0.5;
-        }
+        const int64_t ice = scanShellStep(sim, s + 1, pMin, pMax);
         if (iceStart < 0) iceStart = ice;
         iceEnd = ice;
         if (!(pMin >= -0.01 && pMax <= 1.01)) FAIL("step " << s + 1 << ": p in [" << pMin << ", " << pMax << "]");
-        for (auto it = sim.world().fields.get<openvdb::FloatGrid>("T")->cbeginValueOn(); it; ++it)
-            if (!std::isfinite(*it)) FAIL("step " << s + 1 << ": non-finite T at " << it.getCoord());
     }
     INFO("p in [" << pMin << ", " << pMax << "], ice voxels " << iceStart << " -> " << iceEnd);
     CHECK(pMin >= -0.01);
@@ -691,18 +698,7 @@ TEST_CASE("Shell walkers at 3000 per step with a potential wind stay bounded (p 
     int64_t ice = 0;
     for (int s = 0; s < 10; ++s) {
         sim.step();
-        auto p = sim.world().fields.get<openvdb::FloatGrid>("p");
-        auto T = sim.world().fields.get<openvdb::FloatGrid>("T");
-        ice = 0;
-        for (auto it = p->cbeginValueOn(); it; ++it) {
-            const double v = *it;
-            if (!std::isfinite(v)) FAIL("step " << s + 1 << ": non-finite p at " << it.getCoord());
-            pMin = std::min(pMin, v);
-            pMax = std::max(pMax, v);
-            ice += v > 0.5;
-        }
-        for (auto it = T->cbeginValueOn(); it; ++it)
-            if (!std::isfinite(*it)) FAIL("step " << s + 1 << ": non-finite T at " << it.getCoord());
+        ice = scanShellStep(sim, s + 1, pMin, pMax);
     }
     INFO("p in [" << pMin << ", " << pMax << "], ice voxels " << ice);
     CHECK(pMin >= -0.01);

@@ -36,6 +36,22 @@ inline std::string errorOf(const std::string& text, const std::vector<std::strin
     return "";
 }
 
+/// The SceneError message of running @a text without writing files ("" if it ran): for refusals
+/// that come at initialisation or during the run (budgets, probes), not only when parsing.
+inline std::string refusalOf(const std::string& text)
+{
+    try {
+        auto sim = makeSim(text);
+        RunOptions ro;
+        ro.progress = false;
+        ro.writeFiles = false;
+        sim.run(ro);
+    } catch (const SceneError& e) {
+        return e.what();
+    }
+    return "";
+}
+
 /// A fresh empty folder under the system temp dir, private to this process (test runs of
 /// several checkouts at once, or ctest -j, never share one).
 /// They are removed when the test process exits (set FROSTVDB_KEEP_TEST_DIRS to keep them).
