@@ -13,8 +13,15 @@
 #include <openvdb/tools/GridOperators.h>
 #include <openvdb/tools/Interpolation.h>
 #include <openvdb/tools/LevelSetRebuild.h>
-#include <openvdb/tools/PotentialFlow.h>
 #include <openvdb/tools/SignedFloodFill.h>
+
+// libopenvdb (built with gcc) exports createPotentialFlowNeumannVelocities<Vec3f> under gcc's
+// mangling of its dependent ConstPtr parameter; clang (the fuzz build) mangles that parameter
+// differently and cannot link against the extern template. This file instantiates the
+// potential-flow templates itself instead (the cost is compile time here only).
+#undef OPENVDB_USE_EXPLICIT_INSTANTIATION
+#include <openvdb/tools/PotentialFlow.h>
+#define OPENVDB_USE_EXPLICIT_INSTANTIATION
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
