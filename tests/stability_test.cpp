@@ -24,6 +24,7 @@
 
 #include <catch2/catch.hpp>
 
+#include <openvdb/tools/Count.h>
 #include <openvdb/tools/Prune.h>
 
 #include <algorithm>
@@ -609,10 +610,9 @@ TEST_CASE("lw_cn next to walker-frozen cells stays in [0, 1] without clipping (F
         if (k == "phase_field.clipped_voxels") clipped = v;
     CHECK(clipped == 0);
     auto p = sim.world().fields.get<openvdb::FloatGrid>("p");
-    float lo = 0, hi = 0;
-    p->evalMinMax(lo, hi);
-    CHECK(lo >= 0.f);
-    CHECK(hi <= 1.f);
+    const auto range = openvdb::tools::minMax(p->tree());
+    CHECK(range.min() >= 0.f);
+    CHECK(range.max() <= 1.f);
 }
 
 TEST_CASE("Shell: seeds touching an open mesh's border stay bounded (p in [-0.01, 1.01], finite)", "[stability][shell]")

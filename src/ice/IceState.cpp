@@ -1,5 +1,6 @@
 #include <frostvdb/ice/IceState.h>
 
+#include <openvdb/tools/Count.h>
 #include <openvdb/tools/Prune.h>
 #include <openvdb/tree/LeafManager.h>
 #include <openvdb/tools/ValueTransformer.h>
@@ -84,8 +85,7 @@ void addIceOutputs(World& world, Frame& frame)
     }
     if (auto acc = world.fields.get<openvdb::FloatGrid>(kGrowth)) {
         auto growth = acc->deepCopy();
-        float mn = 0, mx = 0;
-        if (growth->activeVoxelCount() > 0) growth->evalMinMax(mn, mx);
+        const float mx = growth->activeVoxelCount() > 0 ? openvdb::tools::minMax(growth->tree()).max() : 0.f;
         const float scale = mx > 0 ? 1.f / mx : 0.f;
         openvdb::tools::foreach(growth->beginValueOn(), [scale](const openvdb::FloatGrid::ValueOnIter& it) {
             it.setValue(std::min(1.f, *it * scale));

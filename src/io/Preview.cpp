@@ -1,6 +1,7 @@
 #include <frostvdb/io/Preview.h>
 #include <frostvdb/io/Png.h>
 
+#include <openvdb/tools/Count.h>
 #include <openvdb/tools/Interpolation.h>
 #include <openvdb/tools/RayTracer.h>
 
@@ -40,9 +41,7 @@ void flatPreview(const openvdb::FloatGrid& grid, const std::string& path, const 
     std::vector<float> val(size_t(W) * H);
     float vmax = opt.valueMax;
     if (vmax <= 0.f) {
-        float mn, mx;
-        grid.evalMinMax(mn, mx);
-        vmax = std::max(mx, 1e-6f);
+        vmax = std::max(openvdb::tools::minMax(grid.tree()).max(), 1e-6f);
     }
     tbb::parallel_for(0, H, [&](int y) {
         auto acc = grid.getConstAccessor();
@@ -89,9 +88,8 @@ void volumePreview(const openvdb::FloatGrid& grid, const std::string& path, cons
     using Intersector = tools::VolumeRayIntersector<FloatGrid>;
     Intersector inter(grid);
     tools::VolumeRender<Intersector> renderer(inter, cam);
-    float mn, mx;
-    grid.evalMinMax(mn, mx);
-    const double norm = opt.valueMax > 0 ? opt.valueMax : std::max(1e-6f, mx);
+    const double norm =
+        opt.valueMax > 0 ? opt.valueMax : std::max(1e-6f, openvdb::tools::minMax(grid.tree()).max());
     // Extinction scaled so the volume's densest part is opaque over ~8 voxels.
     const double k = 1.0 / (norm * 8.0 * xf.voxelSize()[0]);
     renderer.setLightDir(0.3, -0.4, 1.0);
