@@ -207,22 +207,10 @@ void ShellWalkers::addIceVoxels(const std::vector<size_t>& voxels)
 
 int32_t ShellWalkers::siteOf(const Vec3d& x) const { return mBand->indexOf(Coord::round(x)); }
 
-const VoxelFrame* ShellWalkers::frameAt(const Vec3d& x) const
-{
-    auto acc = mBand->indexGrid().getConstAccessor();
-    return frameWith(*mBand, acc, x);
-}
-
 bool ShellWalkers::project(const Vec3d& y, Vec3d& out, double* lateral) const
 {
     auto acc = mBand->indexGrid().getConstAccessor();
     return projectWith(*mBand, acc, y, out, lateral);
-}
-
-bool ShellWalkers::shoot(Vec3d& x, Vec3d dir, double length) const
-{
-    auto acc = mBand->indexGrid().getConstAccessor();
-    return shootWith(*mBand, acc, x, dir, length, mOpen);
 }
 
 std::vector<size_t> ShellWalkers::markDisc(const Vec3d& x) const

@@ -139,16 +139,11 @@ public:
     /// points (applied twice); false when y is not inside the band. @a lateral: the interpolated
     /// distance beyond an open border of the first pass.
     bool project(const openvdb::Vec3d& y, openvdb::Vec3d& out, double* lateral = nullptr) const;
-    /// The smooth frame of the band voxel holding @a x.
-    const VoxelFrame* frameAt(const openvdb::Vec3d& x) const;
     /// Lower bound of the distance from @a x to an open mesh's border (kFar when closed).
     double borderDistance(const openvdb::Vec3d& x) const { return mBorder.distance(x); }
     int maxJump() const { return mMaxJump; }
 
 private:
-    /// Moves @a x by @a length along tangent direction @a dir (geodesic shooting, sub-steps of up to 3 voxels).
-    bool shoot(openvdb::Vec3d& x, openvdb::Vec3d dir, double length) const;
-
     std::shared_ptr<const ShellBand> mBand;
     ice::DlaParams mParams;
     uint64_t mSeed;
