@@ -765,12 +765,12 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
                 }
                 for (size_t q = 0; q < count; ++q) {
                   const size_t li = groups.leaves[first + q];
-                  forActiveVoxels(b, origin, z0, *present[q], [&](openvdb::Index, size_t i, const openvdb::Coord& c) {
+                  forActiveVoxels(b, origin, z0, *present[q], [&](openvdb::Index n, size_t i, const openvdb::Coord& c) {
                     const double chi = noiseDraw(k, seed, stepIndex, c);
                     const SecondOrderRow row = kobayashiSecondOrderRow(
                         b.p.data(), b.T.data(), b.pe.data(), b.te.data(), b.gz.data(), b.a.data(), i, st, k,
                         meltTemperatureAt(k, b, i, mMelt != nullptr), chi, theta);
-                    const size_t s = size_t(layout.row(li, c));
+                    const size_t s = size_t(layout.rowAt(li, n));
                     ps.diag[s] = row.diag;
                     std::copy(row.coef, row.coef + taps, &ps.coef[s * size_t(taps)]);
                     ps.rhs[s] = row.rhs;
@@ -857,19 +857,23 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
             float* dtv = dtLeaves.leaf(li).buffer().data();
             FloatLeaf* gl = acc.growth ? acc.growth->probeLeaf(pl.origin()) : nullptr;
             FloatLeaf* fl = acc.freeze ? acc.freeze->probeLeaf(pl.origin()) : nullptr;
-            for (auto it = pl.cbeginValueOn(); it; ++it) {
-                const openvdb::Index n = it.pos();
-                const openvdb::Coord c = it.getCoord();
-                const size_t s = size_t(layout.row(li, c));
+            // word by word over the value mask (the value iterator and its coordinates cost
+            // more than the writes); coordinates only where they are needed
+            const auto& mask = pl.getValueMask();
+            for (openvdb::Index w = 0; w < FloatLeaf::NodeMaskType::WORD_COUNT; ++w) {
+              for (uint64_t bits = mask.template getWord<uint64_t>(w); bits; bits &= bits - 1) {
+                const openvdb::Index n = w * 64 + openvdb::Index(__builtin_ctzll(bits));
+                const size_t s = size_t(layout.rowAt(li, n));
                 const float pn = float(ps.x[s]), tn = float(ts.x[s]);
-                if (!std::isfinite(pn) || pn < -0.05f || pn > 1.05f) failure.report(c, "p (ice)", pn);
-                if (!std::isfinite(tn)) failure.report(c, "T (temperature)", tn);
+                if (!std::isfinite(pn) || pn < -0.05f || pn > 1.05f) failure.report(pl.offsetToGlobalCoord(n), "p (ice)", pn);
+                if (!std::isfinite(tn)) failure.report(pl.offsetToGlobalCoord(n), "T (temperature)", tn);
                 pv[n] = pn;
                 tv[n] = tn;
                 const double dp = ps.x[s] - p0[s];
                 dpv[n] = float(p0[s]);
                 dtv[n] = float(T0[s]);
-                acc.record(gl, fl, n, c, dp, pn, tn1, pending);
+                acc.record(gl, fl, n, pl.offsetToGlobalCoord(n), dp, pn, tn1, pending);
+              }
             }
         }
     });
