@@ -16,9 +16,6 @@
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
-#include <optional>
-#include <type_traits>
-#include <utility>
 #include <unordered_map>
 #include <cmath>
 #include <cstdlib>
@@ -627,100 +624,56 @@ WalkEnd DlaEngine::walk(int64_t step, uint64_t walker, uint64_t salt, int64_t st
     return walkFrom(rng, idx, in, pr);
 }
 
-/// One walk in progress, advanced one move at a time: a thread keeps several walks in flight and
-/// starts loading each one's next brick (hash slot, then the brick) while it moves the others,
-/// instead of waiting for every brick a walker steps or jumps into. Each walk draws from its own
-/// stream and reads the ice only, so the order of the moves of different walks changes nothing.
-struct DlaEngine::Walk {
-    /// What the walks of a task share: the engine's constants, read once per task.
-    struct Context {
-        const DlaEngine& E;
-        const Inputs& in;
-        Probes& pr;
-        const DlaParams& P;
-        int dim, cap, digits, deg, nx, ny, nz, maxR, sphereMin;
-        openvdb::Coord o0;
-        bool drift, spheres, hex, anyIce;
-        std::decay_t<decltype(std::declval<const Domain&>().transform())> xform;
-        Context(const DlaEngine& e, const Inputs& i, Probes& p)
-            : E(e), in(i), pr(p), P(e.mParams), dim(e.mDim), cap(e.mCap), digits(e.mDigits),
-              deg(int(e.mNbr.size())), nx(int(e.mNx)), ny(int(e.mNy)), nz(int(e.mNz)),
-              maxR(e.mTableForRadius.empty() ? 0 : int(e.mTableForRadius.size()) - 1),
-              sphereMin(std::max(maxR, e.mParams.jumpMinRadius)), o0(e.mOrigin), drift(p.vel != nullptr),
-              // walk on spheres beyond the tables: not for a hexagonal box (its walk is not isotropic)
-              spheres(e.mParams.jumps && e.mParams.sphereJumps &&
-                      !(dim == 3 && e.mDomain.lattice().kind() == LatticeKind::Hexagonal)),
-              hex(e.mDomain.lattice().kind() == LatticeKind::Hexagonal), anyIce(e.mIceCount > 0),
-              xform(e.mDomain.transform())
-        {
+void DlaEngine::walkBatch(int64_t step, uint64_t first, uint64_t count, const Inputs& in,
+                          std::vector<WalkEnd>& out) const
+{
+    if (distancesPending()) throw std::logic_error("DlaEngine::walkBatch: flushDistances() first");
+    out.assign(size_t(count), WalkEnd{});
+    tbb::parallel_for(tbb::blocked_range<uint64_t>(0, count, 16), [&](const tbb::blocked_range<uint64_t>& r) {
+        Probes pr(in);
+        for (uint64_t w = r.begin(); w != r.end(); ++w) {
+            WalkerRng rng(mSeed, first + w, uint64_t(step));
+            const int64_t idx = release(step, first + w, rng, in);
+            if (idx < 0) continue;
+            out[size_t(w)] = walkFrom(rng, idx, in, pr);
         }
-    };
+    });
+}
 
-    const Context& C;
-    WalkerRng rng;
-    Walker W;
+WalkEnd DlaEngine::walkFrom(WalkerRng& rng, int64_t idx, const Inputs& in, Probes& pr) const
+{
+    const DlaParams& P = mParams;
+    const int dim = mDim, cap = mCap, digits = mDigits;
+    auto& meltAcc = pr.melt;
+    auto& velAcc = pr.vel;
+    WalkEnd end;
+    const auto& nbr = mNbr;
+    const int deg = int(nbr.size());
+    const int nx = int(mNx), ny = int(mNy), nz = int(mNz);
+    const openvdb::Coord o0 = mOrigin;
+    Walker W(*mSparse);
+    {
+        const openvdb::Coord c = coord(idx) - o0;
+        W.x = c.x();
+        W.y = c.y();
+        W.z = c.z();
+    }
+    int &x = W.x, &y = W.y, &z = W.z;
     int64_t prev = -1;
     uint64_t bits = 0;
     int left = 0;
     double steps = 0;
-    openvdb::Vec3d acc{0.0};
+    const bool drift = velAcc != nullptr;
+    openvdb::Vec3d acc(0.0);
+    const int maxR = mTableForRadius.empty() ? 0 : int(mTableForRadius.size()) - 1;
+    // walk on spheres beyond the tables: not for a hexagonal box (its walk is not isotropic)
+    const bool spheres = P.jumps && P.sphereJumps && !(dim == 3 && mDomain.lattice().kind() == LatticeKind::Hexagonal);
+    const int sphereMin = std::max(maxR, P.jumpMinRadius);
+    const bool hex = mDomain.lattice().kind() == LatticeKind::Hexagonal;
+    const auto xform = mDomain.transform();
+    const bool anyIce = mIceCount > 0;
     int levelHint = -1; // the pyramid level of the last bound
-    WalkEnd end;
 
-    Walk(const Context& c, const WalkerRng& r, int64_t idx) : C(c), rng(r), W(*c.E.mSparse)
-    {
-        const openvdb::Coord p = c.E.coord(idx) - c.o0;
-        W.x = p.x();
-        W.y = p.y();
-        W.z = p.z();
-    }
-    /// One move (a loop iteration of the walk); true when the walk has ended (see end).
-    bool advance();
-    bool kill()
-    {
-        end.kind = WalkEnd::Killed;
-        end.latticeSteps = steps;
-        return true;
-    }
-    /// Starts loading the hash slot of the current cell's brick (unless it is the cached one).
-    void prefetchSlot() const
-    {
-        const int ci = W.x >> kBrickLog2, cj = W.y >> kBrickLog2, ck = W.z >> kBrickLog2;
-        if (ci == W.bx && cj == W.by && ck == W.bz) return;
-        C.E.mSparse->brickOf.prefetch(packKey(ci, cj, ck));
-    }
-    /// Once the slot is in: looks the brick up (the walk then reads it from its cache) and starts
-    /// loading the cell; without a brick, the pyramid slot the next bound reads first.
-    void prefetchBrick()
-    {
-        const int ci = W.x >> kBrickLog2, cj = W.y >> kBrickLog2, ck = W.z >> kBrickLog2;
-        if (ci != W.bx || cj != W.by || ck != W.bz) {
-            W.bx = ci;
-            W.by = cj;
-            W.bz = ck;
-            W.brick = W.S.brick(ci, cj, ck);
-        }
-        if (W.brick) __builtin_prefetch(W.brick + cellInBrick(W.x, W.y, W.z));
-        else if (levelHint >= 0 && size_t(levelHint) < W.S.near.size()) {
-            const int sh = kBrickLog2 + levelHint;
-            W.S.near[size_t(levelHint)].prefetch(packKey(W.x >> sh, W.y >> sh, W.z >> sh));
-        }
-    }
-};
-
-bool DlaEngine::Walk::advance()
-{
-    const DlaParams& P = C.P;
-    const int dim = C.dim, cap = C.cap, digits = C.digits, deg = C.deg, nx = C.nx, ny = C.ny, nz = C.nz;
-    const int maxR = C.maxR, sphereMin = C.sphereMin;
-    const bool drift = C.drift, spheres = C.spheres, hex = C.hex, anyIce = C.anyIce;
-    const auto& nbr = C.E.mNbr;
-    const auto& meltAcc = C.pr.melt;
-    const auto& velAcc = C.pr.vel;
-    const Inputs& in = C.in;
-    const openvdb::Coord o0 = C.o0;
-    const auto& xform = C.xform;
-    int &x = W.x, &y = W.y, &z = W.z;
     auto abs = [&](int i, int j, int k) { return openvdb::Coord(i + o0.x(), j + o0.y(), k + o0.z()); };
     auto velocityAt = [&](int i, int j, int k) {
         openvdb::Vec3d v;
@@ -739,204 +692,151 @@ bool DlaEngine::Walk::advance()
     auto outside = [&](int i, int j, int k) { return i < 0 || j < 0 || k < 0 || i >= nx || j >= ny || k >= nz; };
     auto key = [&](int i, int j, int k) { return int64_t(packKey(i, j, k)); };
 
-    const int f = W.fine(x, y, z);
-    if (f == 1) { // next to ice: the sticking roll
-        double s = 1.0;
-        if (meltAcc) s = double(meltAcc->getValue(abs(x, y, z)));
-        if (s >= 1.0 || (s > 0.0 && rng.uniform() < s)) {
-            end.kind = WalkEnd::Stuck;
-            end.cell = key(x, y, z);
-            end.prev = prev;
+    for (;;) {
+        const int f = W.fine(x, y, z);
+        if (f == 1) { // next to ice: the sticking roll
+            double s = 1.0;
+            if (meltAcc) s = double(meltAcc->getValue(abs(x, y, z)));
+            if (s >= 1.0 || (s > 0.0 && rng.uniform() < s)) {
+                end.kind = WalkEnd::Stuck;
+                end.cell = key(x, y, z);
+                end.prev = prev;
+                end.latticeSteps = steps;
+                return end;
+            }
+        }
+        if (P.maxSteps > 0 && steps >= double(P.maxSteps)) {
+            end.kind = WalkEnd::Exhausted;
             end.latticeSteps = steps;
-            return true;
+            return end;
         }
-    }
-    if (P.maxSteps > 0 && steps >= double(P.maxSteps)) {
-        end.kind = WalkEnd::Exhausted;
-        end.latticeSteps = steps;
-        return true;
-    }
-    ++end.moves;
-    // empty-space jump
-    bool jumped = false;
-    if ((maxR > 0 || spheres) && f >= P.jumpMinRadius + 2) {
-        // exact lattice (graph) distance below the cap, else the pyramid's Chebyshev bound
-        const bool exact = f < cap;
-        const int dIce = exact ? f : std::max(cap, C.E.mSparse->bound(x, y, z, anyIce, levelHint));
-        int dOut = 1 + std::min(std::min(x, nx - 1 - x), std::min(y, ny - 1 - y));
-        if (dim == 3) dOut = std::min(dOut, 1 + std::min(z, nz - 1 - z));
-        // interior of the ball inside the domain (r <= dOut), no cell of it next to ice and the
-        // landing cell at least 2 from the ice (r <= dIce - 2): the walk inside is a free walk
-        int r = std::min(dIce - 2, dOut);
-        openvdb::Vec3d v(0.0);
-        double rhoMax = 1e300;
-        if (drift) {
-            v = velocityAt(x, y, z);
-            const double vm = v.length();
-            // the drift over the jump's mean time (~r^2 steps) must stay under half a cell
-            if (vm > 0) {
-                rhoMax = std::sqrt(0.5 / vm);
-                r = std::min(r, int(rhoMax));
+        ++end.moves;
+        // empty-space jump
+        bool jumped = false;
+        if ((maxR > 0 || spheres) && f >= P.jumpMinRadius + 2) {
+            // exact lattice (graph) distance below the cap, else the pyramid's Chebyshev bound
+            const bool exact = f < cap;
+            const int dIce = exact ? f : std::max(cap, mSparse->bound(x, y, z, anyIce, levelHint));
+            int dOut = 1 + std::min(std::min(x, nx - 1 - x), std::min(y, ny - 1 - y));
+            if (dim == 3) dOut = std::min(dOut, 1 + std::min(z, nz - 1 - z));
+            // interior of the ball inside the domain (r <= dOut), no cell of it next to ice and the
+            // landing cell at least 2 from the ice (r <= dIce - 2): the walk inside is a free walk
+            int r = std::min(dIce - 2, dOut);
+            openvdb::Vec3d v(0.0);
+            double rhoMax = 1e300;
+            if (drift) {
+                v = velocityAt(x, y, z);
+                const double vm = v.length();
+                // the drift over the jump's mean time (~r^2 steps) must stay under half a cell
+                if (vm > 0) {
+                    rhoMax = std::sqrt(0.5 / vm);
+                    r = std::min(r, int(rhoMax));
+                }
             }
-        }
-        // beyond the largest table: a circle (sphere) of plane radius rho whose cells, with a
-        // cell of rounding, stay 2 away from the ice and inside the domain. A graph distance
-        // covers a disc of radius d / C.E.mGraphScale, a Chebyshev bound one of d / C.E.mSphereScale.
-        const double rhoIce = double(dIce - 3) / (exact ? C.E.mGraphScale : C.E.mSphereScale);
-        const double rho = std::min(std::min(rhoMax, rhoIce), double(dOut - 1) / C.E.mSphereScale);
-        double jumpSteps = 0;
-        if (spheres && rho > double(sphereMin)) {
-            const double u = rng.uniform(), w = rng.uniform();
-            double px, py, pz = 0.0;
-            if (dim == 2) {
-                const double a = 2.0 * M_PI * u;
-                px = rho * std::cos(a);
-                py = rho * std::sin(a);
+            // beyond the largest table: a circle (sphere) of plane radius rho whose cells, with a
+            // cell of rounding, stay 2 away from the ice and inside the domain. A graph distance
+            // covers a disc of radius d / mGraphScale, a Chebyshev bound one of d / mSphereScale.
+            const double rhoIce = double(dIce - 3) / (exact ? mGraphScale : mSphereScale);
+            const double rho = std::min(std::min(rhoMax, rhoIce), double(dOut - 1) / mSphereScale);
+            double jumpSteps = 0;
+            if (spheres && rho > double(sphereMin)) {
+                const double u = rng.uniform(), w = rng.uniform();
+                double px, py, pz = 0.0;
+                if (dim == 2) {
+                    const double a = 2.0 * M_PI * u;
+                    px = rho * std::cos(a);
+                    py = rho * std::sin(a);
+                } else {
+                    const double c = 2.0 * u - 1.0, sn = std::sqrt(std::max(0.0, 1.0 - c * c)), a = 2.0 * M_PI * w;
+                    px = rho * sn * std::cos(a);
+                    py = rho * sn * std::sin(a);
+                    pz = rho * c;
+                }
+                double di = px, dj = py;
+                if (hex) { // plane (X, Y) -> axial (i, j): Y = j sqrt(3)/2, X = i + j/2
+                    dj = py * (2.0 / std::sqrt(3.0));
+                    di = px - 0.5 * dj;
+                }
+                x += int(std::lround(di));
+                y += int(std::lround(dj));
+                z += int(std::lround(pz));
+                jumpSteps = rho * rho; // E[exit time] = rho^2 / E|step|^2, unit steps
             } else {
-                const double c = 2.0 * u - 1.0, sn = std::sqrt(std::max(0.0, 1.0 - c * c)), a = 2.0 * M_PI * w;
-                px = rho * sn * std::cos(a);
-                py = rho * sn * std::sin(a);
-                pz = rho * c;
-            }
-            double di = px, dj = py;
-            if (hex) { // plane (X, Y) -> axial (i, j): Y = j sqrt(3)/2, X = i + j/2
-                dj = py * (2.0 / std::sqrt(3.0));
-                di = px - 0.5 * dj;
-            }
-            x += int(std::lround(di));
-            y += int(std::lround(dj));
-            z += int(std::lround(pz));
-            jumpSteps = rho * rho; // E[exit time] = rho^2 / E|step|^2, unit steps
-        } else {
-            r = std::min(r, maxR);
-            const int ti = r >= P.jumpMinRadius ? C.E.mTableForRadius[size_t(r)] : -1;
-            if (ti >= 0) {
-                const ShellTable& t = *C.E.mTables[size_t(ti)];
-                uint32_t k = t.sample(rng.next());
-                if (P.testJumpBias > 0 && rng.uniform() < P.testJumpBias) {
-                    const uint32_t k2 = t.sample(rng.next());
-                    if (t.exits[k2].x() > t.exits[k].x()) k = k2;
+                r = std::min(r, maxR);
+                const int ti = r >= P.jumpMinRadius ? mTableForRadius[size_t(r)] : -1;
+                if (ti >= 0) {
+                    const ShellTable& t = *mTables[size_t(ti)];
+                    uint32_t k = t.sample(rng.next());
+                    if (P.testJumpBias > 0 && rng.uniform() < P.testJumpBias) {
+                        const uint32_t k2 = t.sample(rng.next());
+                        if (t.exits[k2].x() > t.exits[k].x()) k = k2;
+                    }
+                    const openvdb::Coord& o = t.exits[k];
+                    x += o.x();
+                    y += o.y();
+                    z += o.z();
+                    jumpSteps = t.meanSteps;
                 }
-                const openvdb::Coord& o = t.exits[k];
-                x += o.x();
-                y += o.y();
-                z += o.z();
-                jumpSteps = t.meanSteps;
+            }
+            if (jumpSteps > 0) {
+                steps += jumpSteps;
+                ++end.jumps;
+                prev = -1;
+                if (outside(x, y, z)) break;
+                if (!drift) continue;
+                acc += v * jumpSteps;
+                jumped = true;
             }
         }
-        if (jumpSteps > 0) {
-            steps += jumpSteps;
-            ++end.jumps;
-            prev = -1;
-            if (outside(x, y, z)) return kill();
-            if (!drift) return false;
-            acc += v * jumpSteps;
-            jumped = true;
-        }
-    }
-    if (!jumped) {
-        // one random lattice step
-        if (left == 0) {
-            bits = rng.next();
-            left = digits;
-        }
-        const unsigned dir = unsigned((static_cast<unsigned __int128>(bits) * unsigned(deg)) >> 64);
-        bits *= uint64_t(deg);
-        --left;
-        const int i = x + nbr[dir].x(), j = y + nbr[dir].y(), k = z + nbr[dir].z();
-        if (outside(i, j, k)) return kill();
-        // ice cannot be entered: the walker stays (only a cell next to ice has an ice neighbour)
-        if (f != 1 || W.fine(i, j, k) != 0) {
-            prev = key(x, y, z);
-            x = i;
-            y = j;
-            z = k;
-        }
-        steps += 1;
-        if (drift) acc += velocityAt(x, y, z);
-    }
-    if (drift) {
-        bool killed = false;
-        for (int a = 0; a < dim && !killed; ++a) {
-            while (std::fabs(acc[a]) >= 1.0) {
-                const int s = acc[a] > 0 ? 1 : -1;
-                int i = x, j = y, k = z;
-                (a == 0 ? i : a == 1 ? j : k) += s;
-                if (outside(i, j, k)) {
-                    killed = true;
-                    break;
-                }
-                if (W.fine(i, j, k) == 0) { // pushed against the ice: the drift is spent
-                    acc[a] = 0;
-                    break;
-                }
+        if (!jumped) {
+            // one random lattice step
+            if (left == 0) {
+                bits = rng.next();
+                left = digits;
+            }
+            const unsigned dir = unsigned((static_cast<unsigned __int128>(bits) * unsigned(deg)) >> 64);
+            bits *= uint64_t(deg);
+            --left;
+            const int i = x + nbr[dir].x(), j = y + nbr[dir].y(), k = z + nbr[dir].z();
+            if (outside(i, j, k)) break;
+            // ice cannot be entered: the walker stays (only a cell next to ice has an ice neighbour)
+            if (f != 1 || W.fine(i, j, k) != 0) {
                 prev = key(x, y, z);
                 x = i;
                 y = j;
                 z = k;
-                acc[a] -= s;
             }
+            steps += 1;
+            if (drift) acc += velocityAt(x, y, z);
         }
-        if (killed) return kill();
-    }
-    return false;
-}
-
-void DlaEngine::walkBatch(int64_t step, uint64_t first, uint64_t count, const Inputs& in,
-                          std::vector<WalkEnd>& out) const
-{
-    if (distancesPending()) throw std::logic_error("DlaEngine::walkBatch: flushDistances() first");
-    out.assign(size_t(count), WalkEnd{});
-    tbb::parallel_for(tbb::blocked_range<uint64_t>(0, count, 32), [&](const tbb::blocked_range<uint64_t>& r) {
-        Probes pr(in);
-        const Walk::Context ctx(*this, in, pr);
-        // kInFlight walks round robin: a walk's brick slot is requested after its move, looked up
-        // and its cell requested half a round later, and read at its next move.
-        constexpr int kInFlight = 8;
-        std::optional<Walk> walks[kInFlight];
-        uint64_t walker[kInFlight] = {};
-        uint64_t next = r.begin();
-        int live = 0;
-        auto start = [&](int k) {
-            while (next != r.end()) {
-                const uint64_t w = next++;
-                WalkerRng rng(mSeed, first + w, uint64_t(step));
-                const int64_t idx = release(step, first + w, rng, in);
-                if (idx < 0) continue;
-                walks[k].emplace(ctx, rng, idx);
-                walker[k] = w;
-                walks[k]->prefetchSlot();
-                ++live;
-                return;
-            }
-        };
-        for (int k = 0; k < kInFlight; ++k) start(k);
-        while (live > 0) {
-            for (int k = 0; k < kInFlight; ++k) {
-                if (auto& ahead = walks[(k + kInFlight / 2) % kInFlight]) ahead->prefetchBrick();
-                if (!walks[k]) continue;
-                Walk& a = *walks[k];
-                if (a.advance()) {
-                    out[size_t(walker[k])] = a.end;
-                    walks[k].reset();
-                    --live;
-                    start(k);
-                } else {
-                    a.prefetchSlot();
+        if (drift) {
+            bool killed = false;
+            for (int a = 0; a < dim && !killed; ++a) {
+                while (std::fabs(acc[a]) >= 1.0) {
+                    const int s = acc[a] > 0 ? 1 : -1;
+                    int i = x, j = y, k = z;
+                    (a == 0 ? i : a == 1 ? j : k) += s;
+                    if (outside(i, j, k)) {
+                        killed = true;
+                        break;
+                    }
+                    if (W.fine(i, j, k) == 0) { // pushed against the ice: the drift is spent
+                        acc[a] = 0;
+                        break;
+                    }
+                    prev = key(x, y, z);
+                    x = i;
+                    y = j;
+                    z = k;
+                    acc[a] -= s;
                 }
             }
+            if (killed) break;
         }
-    });
-}
-
-WalkEnd DlaEngine::walkFrom(WalkerRng& rng, int64_t idx, const Inputs& in, Probes& pr) const
-{
-    const Walk::Context ctx(*this, in, pr);
-    Walk a(ctx, rng, idx);
-    while (!a.advance()) {
     }
-    rng = a.rng;
-    return a.end;
+    end.kind = WalkEnd::Killed;
+    end.latticeSteps = steps;
+    return end;
 }
 
 } // namespace ice

@@ -795,27 +795,24 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
     // beyond that the guard stops the run.
     constexpr double kRounding = 1e-12;
     std::atomic<int64_t> outside{0};
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, ps.rows(), 4096), [&](const tbb::blocked_range<size_t>& r) {
-        int64_t local = 0;
-        for (size_t s = r.begin(); s != r.end(); ++s) {
-            double& v = ps.x[s];
-            if (v < 0.0 && v >= -0.25) local += v < -kRounding, v = 0.0;
-            else if (v > 1.0 && v <= 1.25) local += v > 1.0 + kRounding, v = 1.0;
-        }
-        outside += local;
-    });
     const auto tHeat = Clock::now();
     // Latent heat, energy-consistent at any solver tolerance: K (p' - p^n) of the p actually
     // taken enters T once, and the T solve starts from T^n + K dp. Its iterates are then convex
     // combinations of that start, the explicit half's old values (positive weights below the
     // stability limit) and the far field, so T never exceeds T^n + K max dp, even after one
     // sweep at reduced precision (a forward-Euler start, dt |w0| > 1, did: frozen cells thawed).
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, ts.rows(), 4096), [&](const tbb::blocked_range<size_t>& r) {
+    // One pass with the clip above (a row's heat reads only its own clipped p').
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, ps.rows(), 4096), [&](const tbb::blocked_range<size_t>& r) {
+        int64_t local = 0;
         for (size_t s = r.begin(); s != r.end(); ++s) {
-            const double heat = k.latentHeat * (ps.x[s] - p0[s]);
+            double& v = ps.x[s];
+            if (v < 0.0 && v >= -0.25) local += v < -kRounding, v = 0.0;
+            else if (v > 1.0 && v <= 1.25) local += v > 1.0 + kRounding, v = 1.0;
+            const double heat = k.latentHeat * (v - p0[s]);
             ts.rhs[s] += heat;
             ts.x[s] = T0[s] + heat;
         }
+        outside += local;
     });
     const SolveReport rt = ts.solve(kind, k.solverTolerance, k.solverMaxIterations);
     if (stats) {

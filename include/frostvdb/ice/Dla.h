@@ -210,7 +210,6 @@ public:
 
     struct Sparse; ///< the bricks and the pyramid (DlaEngine.cpp)
     struct Walker; ///< one walk in progress (DlaEngine.cpp)
-    struct Walk;   ///< a walk advanced move by move, several in flight per thread (DlaEngine.cpp)
     struct Probes; ///< per-task accessors of the optional grids (DlaEngine.cpp)
     struct SyncCache; ///< p > 1/2 per leaf at the last sync (DlaEngine.cpp)
 
