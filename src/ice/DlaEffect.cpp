@@ -267,7 +267,9 @@ void DlaEffect::step(World& world, const StepInfo& info)
     std::vector<int64_t> touched;
     const double time = sh.timeAtStep(info.step);
 
+    std::vector<int64_t> frozenInBatch; // cells frozen since the batch's walks began
     auto freezeCell = [&](int64_t cell) {
+        frozenInBatch.push_back(cell);
         const openvdb::Coord c = mEngine->coord(cell);
         const float before = pAcc.getValue(c);
         pAcc.setValue(c, 1.f);
@@ -313,11 +315,21 @@ void DlaEffect::step(World& world, const StepInfo& info)
         mEngine->walkBatch(info.step, first, count, in, ends);
         mStats.walkSeconds += since(t0);
         t0 = Clock::now();
+        frozenInBatch.clear();
+        // The walks stuck next to the ice of the batch's start, never on it, so a stick cell is
+        // ice now only if it froze in this batch: a short list, not a random probe per walker.
+        auto frozeInBatch = [&](int64_t cell) {
+            if (frozenInBatch.size() > 64) return mEngine->isIce(cell); // the same answer, cheaper now
+            return std::find(frozenInBatch.begin(), frozenInBatch.end(), cell) != frozenInBatch.end();
+        };
+        constexpr uint64_t kAhead = 8; // hit counts: start loading the slot a few walkers ahead
         for (uint64_t w = 0; w < count; ++w) {
+            if (counting && w + kAhead < count && ends[size_t(w + kAhead)].kind == WalkEnd::Stuck)
+                mHitCount.prefetch(uint64_t(ends[size_t(w + kAhead)].cell));
             WalkEnd e = ends[size_t(w)];
             account(e);
             if (e.kind != WalkEnd::Stuck) continue;
-            if (mEngine->isIce(e.cell)) {
+            if (frozeInBatch(e.cell)) {
                 // its cell froze earlier in this batch: the walker goes on from where it came
                 // from (or a free neighbour), serially, against the current ice
                 ++mStats.conflicts;

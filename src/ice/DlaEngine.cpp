@@ -18,6 +18,8 @@
 #include <algorithm>
 #include <unordered_map>
 #include <cmath>
+#include <cstdlib>
+#include <new>
 #include <stdexcept>
 
 namespace frostvdb {
@@ -51,7 +53,15 @@ struct DlaEngine::Sparse {
     int brickVolume = 64;
     uint8_t cap = 16;
     KeyMap<uint8_t*> brickOf;                     ///< brick key -> its cells (stable storage)
-    std::vector<std::unique_ptr<uint8_t[]>> pool; ///< the bricks
+    /// The bricks, in chunks of kChunk allocated as they fill (stable addresses), each brick
+    /// aligned to a cache line: a walker's read of a brick touches one line, and bricks made
+    /// together (near the same ice) sit together.
+    static constexpr size_t kChunk = 64;
+    struct Aligned {
+        void operator()(uint8_t* p) const { std::free(p); }
+    };
+    std::vector<std::unique_ptr<uint8_t, Aligned>> pool;
+    size_t bricks = 0; ///< bricks handed out
     /// Level k: blocks of 8 * 2^k cells. occupied[k]: per block, its ice cells (k = 0) or its
     /// occupied child blocks (k > 0); near[k]: per block, the occupied blocks in its 3^d
     /// neighbourhood (the blocks with none are where a Chebyshev bound holds). Counts, so that a
@@ -63,6 +73,7 @@ struct DlaEngine::Sparse {
     {
         brickOf.clear();
         pool.clear();
+        bricks = 0;
         for (auto& m : occupied) m.clear();
         for (auto& m : near) m.clear();
     }
@@ -75,9 +86,15 @@ struct DlaEngine::Sparse {
     {
         auto ins = brickOf.insert(packKey(bx, by, bz), nullptr);
         if (ins.second) {
-            pool.emplace_back(new uint8_t[size_t(brickVolume)]);
-            std::fill(pool.back().get(), pool.back().get() + brickVolume, cap);
-            *ins.first = pool.back().get();
+            if (bricks == pool.size() * kChunk) {
+                void* chunk = std::aligned_alloc(64, kChunk * size_t(brickVolume));
+                if (!chunk) throw std::bad_alloc();
+                pool.emplace_back(static_cast<uint8_t*>(chunk));
+            }
+            uint8_t* b = pool.back().get() + (bricks % kChunk) * size_t(brickVolume);
+            ++bricks;
+            std::fill(b, b + brickVolume, cap);
+            *ins.first = b;
         }
         return *ins.first;
     }
@@ -185,7 +202,7 @@ DlaEngine::~DlaEngine() = default;
 
 size_t DlaEngine::memoryBytes() const
 {
-    size_t b = mSparse->brickOf.bytes() + mSparse->pool.size() * (size_t(mSparse->brickVolume) + sizeof(void*));
+    size_t b = mSparse->brickOf.bytes() + mSparse->pool.size() * DlaEngine::Sparse::kChunk * size_t(mSparse->brickVolume);
     for (auto& m : mSparse->occupied) b += m.bytes();
     for (auto& m : mSparse->near) b += m.bytes();
     return b;

@@ -30,10 +30,21 @@ SlotLayout::SlotLayout(openvdb::tree::LeafManager<openvdb::FloatTree>& topology,
     auto colourOf = [this](const openvdb::Coord& c) {
         return colours == 2 ? uint8_t((c.x() + c.y() + c.z()) & 1) : uint8_t(((c.x() + 2 * c.y() + c.z()) % 3 + 3) % 3);
     };
+    // The active voxels of leaf li, word by word over its value mask (the value iterator and
+    // its coordinates cost more than the work done per voxel here): f(offset, coordinate).
+    auto forActive = [&](size_t li, auto&& f) {
+        const auto& leaf = topology.leaf(li);
+        const auto& mask = leaf.getValueMask();
+        for (openvdb::Index w = 0; w < openvdb::FloatTree::LeafNodeType::NodeMaskType::WORD_COUNT; ++w)
+            for (uint64_t bits = mask.template getWord<uint64_t>(w); bits; bits &= bits - 1) {
+                const openvdb::Index off = w * 64 + openvdb::Index(__builtin_ctzll(bits));
+                f(off, leaf.offsetToGlobalCoord(off));
+            }
+    };
     std::vector<size_t> firstRow(nLeaves * size_t(colours), 0); // per leaf and colour
     tbb::parallel_for(tbb::blocked_range<size_t>(0, nLeaves, 16), [&](const tbb::blocked_range<size_t>& r) {
         for (size_t li = r.begin(); li != r.end(); ++li)
-            for (auto it = topology.leaf(li).cbeginValueOn(); it; ++it) ++firstRow[li * colours + colourOf(it.getCoord())];
+            forActive(li, [&](openvdb::Index, const openvdb::Coord& c) { ++firstRow[li * colours + colourOf(c)]; });
     });
     colourStart.assign(size_t(colours) + 1, 0);
     {
@@ -52,7 +63,7 @@ SlotLayout::SlotLayout(openvdb::tree::LeafManager<openvdb::FloatTree>& topology,
     rowCoord.resize(n);
     colour.resize(n);
     slotRow.assign(nLeaves * size_t(slots), -1);
-    neighbours.assign(n * size_t(taps), int32_t(n));
+    neighbours.resize(n * size_t(taps));
 
     // Leaf origin -> index through a dense table over the leaves' bounding box (in leaf units):
     // a few bytes per leaf of the domain, much faster than hashing 27 look-ups per leaf.
@@ -73,24 +84,26 @@ SlotLayout::SlotLayout(openvdb::tree::LeafManager<openvdb::FloatTree>& topology,
     };
     for (size_t i = 0; i < nLeaves; ++i) table[cell(topology.leaf(i).origin() >> 3)] = int32_t(i);
 
-    auto slotOf = [&](size_t leaf, const openvdb::Coord& c) {
-        const openvdb::Index off = openvdb::FloatTree::LeafNodeType::coordToOffset(c);
-        return leaf * size_t(slots) + (plane ? (off >> 3) : off);
-    };
+    // slot of leaf offset off: the offset itself in a box, its (x, y) part on a plane (one z)
+    const int slotShift = plane ? 3 : 0;
     tbb::parallel_for(tbb::blocked_range<size_t>(0, nLeaves, 16), [&](const tbb::blocked_range<size_t>& r) {
         for (size_t li = r.begin(); li != r.end(); ++li) {
             size_t next[3];
             for (int c = 0; c < colours; ++c) next[c] = firstRow[li * colours + c];
-            for (auto it = topology.leaf(li).cbeginValueOn(); it; ++it) {
-                const openvdb::Coord c = it.getCoord();
+            int32_t* slot = &slotRow[li * size_t(slots)];
+            forActive(li, [&](openvdb::Index off, const openvdb::Coord& c) {
                 const uint8_t k = colourOf(c);
                 const size_t row = next[k]++;
-                slotRow[slotOf(li, c)] = int32_t(row);
+                slot[off >> slotShift] = int32_t(row);
                 rowCoord[row] = c;
                 colour[row] = k;
-            }
+            });
         }
     });
+    // Neighbour rows. A tap that stays inside the leaf is a fixed slot offset; only taps that
+    // cross the leaf's faces go through the 27-leaf table.
+    std::vector<openvdb::Coord> tapOffset(static_cast<size_t>(taps));
+    for (int q = 0; q < taps; ++q) tapOffset[size_t(q)] = stencil.taps[size_t(q)].offset;
     tbb::parallel_for(tbb::blocked_range<size_t>(0, nLeaves, 16), [&](const tbb::blocked_range<size_t>& r) {
         int32_t nbLeaf[27];
         for (size_t li = r.begin(); li != r.end(); ++li) {
@@ -98,21 +111,27 @@ SlotLayout::SlotLayout(openvdb::tree::LeafManager<openvdb::FloatTree>& topology,
             for (int dz = -1; dz <= 1; ++dz)
                 for (int dy = -1; dy <= 1; ++dy)
                     for (int dx = -1; dx <= 1; ++dx) nbLeaf[nbIndex(dx, dy, dz)] = leafAt(o + openvdb::Coord(dx, dy, dz));
-            const openvdb::Coord origin = topology.leaf(li).origin();
-            for (auto it = topology.leaf(li).cbeginValueOn(); it; ++it) {
-                const openvdb::Coord c = it.getCoord();
-                const size_t row = size_t(slotRow[slotOf(li, c)]);
+            const int32_t* own = &slotRow[li * size_t(slots)];
+            forActive(li, [&](openvdb::Index off, const openvdb::Coord&) {
+                const int x = int(off >> 6), y = int((off >> 3) & 7), z = int(off & 7);
+                const size_t row = size_t(own[off >> slotShift]);
+                int32_t* out = &neighbours[row * size_t(taps)];
                 for (int q = 0; q < taps; ++q) {
-                    const openvdb::Coord nc = c + stencil.taps[q].offset;
-                    const openvdb::Coord l = nc - origin;
-                    const int ox = l.x() < 0 ? -1 : (l.x() > 7 ? 1 : 0), oy = l.y() < 0 ? -1 : (l.y() > 7 ? 1 : 0),
-                              oz = l.z() < 0 ? -1 : (l.z() > 7 ? 1 : 0);
-                    const int32_t nl = nbLeaf[nbIndex(ox, oy, oz)];
-                    if (nl < 0) continue;
-                    const int32_t nr = slotRow[slotOf(size_t(nl), nc)];
-                    if (nr >= 0) neighbours[row * taps + q] = nr;
+                    const openvdb::Coord& t = tapOffset[size_t(q)];
+                    const int i = x + t.x(), j = y + t.y(), k = z + t.z();
+                    const openvdb::Index noff = openvdb::Index(((i & 7) << 6) | ((j & 7) << 3) | (k & 7));
+                    int32_t nr;
+                    if (((i | j | k) & ~7) == 0) {
+                        nr = own[noff >> slotShift];
+                    } else {
+                        const int ox = i < 0 ? -1 : (i > 7 ? 1 : 0), oy = j < 0 ? -1 : (j > 7 ? 1 : 0),
+                                  oz = k < 0 ? -1 : (k > 7 ? 1 : 0);
+                        const int32_t nl = nbLeaf[nbIndex(ox, oy, oz)];
+                        nr = nl < 0 ? -1 : slotRow[size_t(nl) * size_t(slots) + (noff >> slotShift)];
+                    }
+                    out[q] = nr >= 0 ? nr : int32_t(n);
                 }
-            }
+            });
         }
     });
 }

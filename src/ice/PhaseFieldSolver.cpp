@@ -765,12 +765,12 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
                 }
                 for (size_t q = 0; q < count; ++q) {
                   const size_t li = groups.leaves[first + q];
-                  forActiveVoxels(b, origin, z0, *present[q], [&](openvdb::Index, size_t i, const openvdb::Coord& c) {
+                  forActiveVoxels(b, origin, z0, *present[q], [&](openvdb::Index n, size_t i, const openvdb::Coord& c) {
                     const double chi = noiseDraw(k, seed, stepIndex, c);
                     const SecondOrderRow row = kobayashiSecondOrderRow(
                         b.p.data(), b.T.data(), b.pe.data(), b.te.data(), b.gz.data(), b.a.data(), i, st, k,
                         meltTemperatureAt(k, b, i, mMelt != nullptr), chi, theta);
-                    const size_t s = size_t(layout.row(li, c));
+                    const size_t s = size_t(layout.rowAt(li, n));
                     ps.diag[s] = row.diag;
                     std::copy(row.coef, row.coef + taps, &ps.coef[s * size_t(taps)]);
                     ps.rhs[s] = row.rhs;
@@ -795,27 +795,24 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
     // beyond that the guard stops the run.
     constexpr double kRounding = 1e-12;
     std::atomic<int64_t> outside{0};
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, ps.rows(), 4096), [&](const tbb::blocked_range<size_t>& r) {
-        int64_t local = 0;
-        for (size_t s = r.begin(); s != r.end(); ++s) {
-            double& v = ps.x[s];
-            if (v < 0.0 && v >= -0.25) local += v < -kRounding, v = 0.0;
-            else if (v > 1.0 && v <= 1.25) local += v > 1.0 + kRounding, v = 1.0;
-        }
-        outside += local;
-    });
     const auto tHeat = Clock::now();
     // Latent heat, energy-consistent at any solver tolerance: K (p' - p^n) of the p actually
     // taken enters T once, and the T solve starts from T^n + K dp. Its iterates are then convex
     // combinations of that start, the explicit half's old values (positive weights below the
     // stability limit) and the far field, so T never exceeds T^n + K max dp, even after one
     // sweep at reduced precision (a forward-Euler start, dt |w0| > 1, did: frozen cells thawed).
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, ts.rows(), 4096), [&](const tbb::blocked_range<size_t>& r) {
+    // One pass with the clip above (a row's heat reads only its own clipped p').
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, ps.rows(), 4096), [&](const tbb::blocked_range<size_t>& r) {
+        int64_t local = 0;
         for (size_t s = r.begin(); s != r.end(); ++s) {
-            const double heat = k.latentHeat * (ps.x[s] - p0[s]);
+            double& v = ps.x[s];
+            if (v < 0.0 && v >= -0.25) local += v < -kRounding, v = 0.0;
+            else if (v > 1.0 && v <= 1.25) local += v > 1.0 + kRounding, v = 1.0;
+            const double heat = k.latentHeat * (v - p0[s]);
             ts.rhs[s] += heat;
             ts.x[s] = T0[s] + heat;
         }
+        outside += local;
     });
     const SolveReport rt = ts.solve(kind, k.solverTolerance, k.solverMaxIterations);
     if (stats) {
@@ -857,19 +854,23 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
             float* dtv = dtLeaves.leaf(li).buffer().data();
             FloatLeaf* gl = acc.growth ? acc.growth->probeLeaf(pl.origin()) : nullptr;
             FloatLeaf* fl = acc.freeze ? acc.freeze->probeLeaf(pl.origin()) : nullptr;
-            for (auto it = pl.cbeginValueOn(); it; ++it) {
-                const openvdb::Index n = it.pos();
-                const openvdb::Coord c = it.getCoord();
-                const size_t s = size_t(layout.row(li, c));
+            // word by word over the value mask (the value iterator and its coordinates cost
+            // more than the writes); coordinates only where they are needed
+            const auto& mask = pl.getValueMask();
+            for (openvdb::Index w = 0; w < FloatLeaf::NodeMaskType::WORD_COUNT; ++w) {
+              for (uint64_t bits = mask.template getWord<uint64_t>(w); bits; bits &= bits - 1) {
+                const openvdb::Index n = w * 64 + openvdb::Index(__builtin_ctzll(bits));
+                const size_t s = size_t(layout.rowAt(li, n));
                 const float pn = float(ps.x[s]), tn = float(ts.x[s]);
-                if (!std::isfinite(pn) || pn < -0.05f || pn > 1.05f) failure.report(c, "p (ice)", pn);
-                if (!std::isfinite(tn)) failure.report(c, "T (temperature)", tn);
+                if (!std::isfinite(pn) || pn < -0.05f || pn > 1.05f) failure.report(pl.offsetToGlobalCoord(n), "p (ice)", pn);
+                if (!std::isfinite(tn)) failure.report(pl.offsetToGlobalCoord(n), "T (temperature)", tn);
                 pv[n] = pn;
                 tv[n] = tn;
                 const double dp = ps.x[s] - p0[s];
                 dpv[n] = float(p0[s]);
                 dtv[n] = float(T0[s]);
-                acc.record(gl, fl, n, c, dp, pn, tn1, pending);
+                acc.record(gl, fl, n, pl.offsetToGlobalCoord(n), dp, pn, tn1, pending);
+              }
             }
         }
     });

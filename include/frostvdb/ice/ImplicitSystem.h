@@ -65,6 +65,11 @@ public:
         const openvdb::Index off = openvdb::FloatTree::LeafNodeType::coordToOffset(c);
         return slotRow[leaf * size_t(slots) + (plane ? (off >> 3) : off)];
     }
+    /// Row of the active voxel at offset @a off of leaf @a leaf (no coordinate needed).
+    int32_t rowAt(size_t leaf, openvdb::Index off) const
+    {
+        return slotRow[leaf * size_t(slots) + (plane ? (off >> 3) : off)];
+    }
 
     bool plane;
     int slots; ///< 64 per leaf on a plane, 512 in a box

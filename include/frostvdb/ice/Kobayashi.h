@@ -479,6 +479,11 @@ inline double kobayashiEpsSquared(const float* u, std::size_t i, const FlatStenc
     return eps * eps;
 }
 
+/// fmax / fmin with glibc's results (NaN dropped; a tie of +0 and -0 gives the second argument)
+/// but inline: the libm calls cost a tenth of a second-order row.
+inline double libmMax(double a, double b) { return (a > b || b != b) ? a : b; }
+inline double libmMin(double a, double b) { return (a < b || b != b) ? a : b; }
+
 /// The phase equation's linear operator at cell i in eq. 8's advection-diffusion form,
 ///   L p = a lap p + c . grad p = sum_q C_q (p_q - p_i),   C_q = a w_q + wGrad_q (c . e_q),
 /// a = eps^2 at the cell, c = grad a (central differences of @a a). c . e_q is summed from the
@@ -507,7 +512,7 @@ inline double advectionDiffusionCoefficients(const float* a, std::size_t i, cons
         else for (int l = 0; l < m; ++l) rest += other[l]; // not reached on the supported lattices
         ce[2 * k] = A[k] + rest;
         ce[2 * k + 1] = -ce[2 * k];
-        aEff = std::fmax(aEff, std::fabs(ce[2 * k]) * st.wGrad[2 * k] / st.wLap[2 * k]);
+        aEff = libmMax(aEff, std::fabs(ce[2 * k]) * st.wGrad[2 * k] / st.wLap[2 * k]);
     }
     double pair[FlatStencil::kMaxTaps / 2];
     for (int k = 0; k < np; ++k) {
@@ -578,7 +583,7 @@ inline ReactionPart kobayashiReactionPart(double p0, double pm, double pf, doubl
         else if (zero < 0.0) s = (1.0 - pm) * g;
     }
     double thetaR = theta;
-    if (s < 0 && -(1.0 - theta) * r * s > explicitBudget) thetaR = 1.0 + std::fmax(0.0, explicitBudget) / (r * s);
+    if (s < 0 && -(1.0 - theta) * r * s > explicitBudget) thetaR = 1.0 + libmMax(0.0, explicitBudget) / (r * s);
     const double dmdT = -k.alpha / M_PI * k.gamma / (1.0 + x * x);
     const double w = pm * (1.0 - pm) * dmdT * theta * k.latentHeat; // <= 0
     // n = n0 + s (thetaR p' + (1 - thetaR) p0 - pm); below the stability limit the diagonal stays > 0.
@@ -605,7 +610,7 @@ inline SecondOrderRow kobayashiSecondOrderRow(const float* p, const float* T, co
     // Forward Euler guess, kept in [0, 1] so that even a loosely converged solve starts inside
     // the bounds (the solver's iterates are then convex combinations of in-bound values).
     const ReactionPart ex = kobayashiReactionPart(p0, pe[i], pf[i], x, k.noise * chi, k, 0.0);
-    row.predictor = std::fmin(1.0, std::fmax(0.0, p0 + r * Lp + ex.rhs - ex.diag * p0));
+    row.predictor = libmMin(1.0, libmMax(0.0, p0 + r * Lp + ex.rhs - ex.diag * p0));
     return row;
 }
 
