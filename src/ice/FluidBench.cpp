@@ -26,6 +26,17 @@ namespace {
 
 using bench::Clock;
 
+/// Where the solver's memory goes: allocated 8^3 face blocks of the box's, the face velocities
+/// in them, and what is still sized by the box (cell flags, the multigrid's index).
+std::string storage(const fluid::SparseFluid& f)
+{
+    char buf[200];
+    std::snprintf(buf, sizeof buf, "face blocks %zu of %zu (%.1f%%), faces %.0f MiB, box-sized %.0f MiB", f.faceBlocks(),
+                  f.boxBlocks(), 100.0 * double(f.faceBlocks()) / double(f.boxBlocks()), f.faceBytes() / 1048576.0,
+                  f.boxBytes() / 1048576.0);
+    return buf;
+}
+
 /// Starts @a f from the free stream, projected, then times @a steps whole steps: advection and
 /// projection seconds per step (both solvers keep these two counters) and the process's CPU
 /// seconds per step (all threads; on a shared machine the honest measure of work).
@@ -59,9 +70,9 @@ void benchPlate(int n, int steps)
     double adv = 0, proj = 0, cpu = 0;
     timeSteps(f, steps, adv, proj, cpu);
     std::printf("%5d^3 plate | active cells %zu (%.1f%% of the box) | MG it %d | adv %.3f s proj %.3f s step %.3f s "
-                "[CPU %.2f s] | peak %.0f MiB\n",
+                "[CPU %.2f s] | peak %.0f MiB | %s\n",
                 n, f.activeCells(), 100.0 * double(f.activeCells()) / (double(n) * n * n), f.pressureStats().iterations,
-                adv, proj, adv + proj, cpu, bench::peakRssMiB());
+                adv, proj, adv + proj, cpu, bench::peakRssMiB(), storage(f).c_str());
     std::fflush(stdout);
 }
 
@@ -171,6 +182,7 @@ int benchFluid(const BenchArgs& args)
         // Whole steps: the 2D reference layout with the multigrid projection, or the sparse 3D solver.
         double adv = 0, proj = 0, cpuStep = 0;
         int stepIterations = 0;
+        std::string fullStorage;
         const int steps = args.quick ? 2 : 3;
         if (pb.dim == 2) {
             ice::FluidParams fp;
@@ -190,12 +202,14 @@ int benchFluid(const BenchArgs& args)
             f.setSolid([&](int i, int j, int k) { return pb.solid(i, j, k); });
             timeSteps(f, steps, adv, proj, cpuStep);
             stepIterations = f.pressureStats().iterations;
+            fullStorage = storage(f);
         }
         std::printf("%8s %10zu | %5d %8.3f %8.3f | %s | %s | %9.3f %9.3f %9.3f | %8.0f\n", sz.c_str(), n, st.iterations,
                     tSetup, tMg, jc, vdb, adv, proj, adv + proj, bench::peakRssMiB());
         std::printf("%8s %10s | %5s [%6.2f] [%6.2f]   (MG relative residual %.2e, %d levels; step [CPU %.2f s], "
                     "%d MG iterations in the last step)\n", "", "", "", cSetup, cMg, st.relativeResidual, st.levels, cpuStep,
                     stepIterations);
+        if (!fullStorage.empty()) std::printf("%8s full box: %s\n", "", fullStorage.c_str());
         std::fflush(stdout);
         if (pb.dim == 3) benchPlate(pb.n, steps);
     }
