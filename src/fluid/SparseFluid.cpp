@@ -51,18 +51,27 @@ inline void clampAxis(double y, int d, int& i0, double& t)
     t = y - i0;
 }
 
-/// What a staggered field is read through: the box, the block table, and the field's entries.
+/// What a staggered field is read through: the box, and either the block table (entries
+/// slot << logVol | local) or, for a dense store, the row and plane strides of the (n + 1) box.
 struct Layout {
     openvdb::Coord n;
     int dim;
     openvdb::Coord blocks;
     const int32_t* slot;
     int logVol;
+    int64_t sy, sz; ///< dense strides (0: blocked)
     int64_t slotOf(int i, int j, int k) const
     {
         return slot[(size_t(k >> 3) * blocks.y() + size_t(j >> 3)) * blocks.x() + size_t(i >> 3)];
     }
     static size_t local(int i, int j, int k) { return size_t((i & 7) | (j & 7) << 3 | (k & 7) << 6); }
+    /// Entry of (i, j, k), or -1 if in no allocated block.
+    int64_t entry(int i, int j, int k) const
+    {
+        if (sy) return i + j * sy + k * sz;
+        const int64_t s = slotOf(i, j, k);
+        return s < 0 ? -1 : int64_t((size_t(s) << logVol) | local(i, j, k));
+    }
 };
 
 /// The value of face (c, i, j, k) in no allocated block: the free stream, 0 on a wall side.
@@ -109,8 +118,13 @@ __attribute__((always_inline)) inline double sampleArray(const Layout& L, const 
     const bool z2 = L.dim == 3;
     if (z2) clampAxis(x[2] + (c == 2 ? 0.5 : 0.0), L.n.z() + (c == 2), k, tz);
     double v[8] = {0, 0, 0, 0, 0, 0, 0, 0};
-    const int64_t s = L.slotOf(i, j, k);
-    if (s >= 0 && (i & 7) != 7 && (j & 7) != 7 && (!z2 || (k & 7) != 7)) {
+    if (L.sy) {
+        // Dense store: the box's strides.
+        const double* p = f.data() + (i + j * L.sy + k * L.sz);
+        const int64_t y = L.sy, z = L.sz;
+        v[0] = p[0], v[1] = p[1], v[2] = p[y], v[3] = p[y + 1];
+        if (z2) v[4] = p[z], v[5] = p[z + 1], v[6] = p[z + y], v[7] = p[z + y + 1];
+    } else if (const int64_t s = L.slotOf(i, j, k); s >= 0 && (i & 7) != 7 && (j & 7) != 7 && (!z2 || (k & 7) != 7)) {
         // The whole stencil in one block: strides 1, 8, 64.
         const double* p = f.data() + (size_t(s) << L.logVol) + Layout::local(i, j, k);
         v[0] = p[0], v[1] = p[1], v[2] = p[8], v[3] = p[9];
@@ -151,31 +165,40 @@ inline openvdb::Vec3d velocityAt(const Layout& L, const std::array<std::vector<d
 /// Face (c; i, j, k) of the blocked field @a f (the background if in no block).
 inline double faceAt(const Layout& L, const std::vector<double>& f, int c, int i, int j, int k, const FaceBackground& bg)
 {
-    const int64_t s = L.slotOf(i, j, k);
-    return s >= 0 ? f[(size_t(s) << L.logVol) + Layout::local(i, j, k)] : bg(c, i, j, k);
+    const int64_t e = L.entry(i, j, k);
+    return e >= 0 ? f[size_t(e)] : bg(c, i, j, k);
 }
 
-/// The velocity at face (c; q), as the clamped trilinear sample gives it but with only the taps
-/// that carry weight: component c is the face itself; another component c2 is the mean of its
-/// four faces around (cells q - 1 and q along c, clamped to the box; faces q and q + 1 along c2).
+/// The velocity at face (C; q), as the clamped trilinear sample gives it but with only the taps
+/// that carry weight: component C is the face itself; another component c2 is the mean of its
+/// four faces around (cells q - 1 and q along C, clamped to the box; faces q and q + 1 along c2).
+/// C is a template argument so that every index is fixed at compile time.
+template <int C>
+inline openvdb::Vec3d velocityAtFaceT(const Layout& L, const std::array<std::vector<double>, 3>& u,
+                                      const FaceBackground& bg, const int q[3])
+{
+    openvdb::Vec3d v(0.0);
+    v[C] = faceAt(L, u[C], C, q[0], q[1], q[2], bg);
+    const int lo = std::max(q[C] - 1, 0), hi = std::min(q[C], L.n[C] - 1);
+    for (int c2 = 0; c2 < L.dim; ++c2) {
+        if (c2 == C) continue;
+        int a[3] = {q[0], q[1], q[2]}, b[3] = {q[0], q[1], q[2]};
+        a[C] = lo;
+        b[C] = hi;
+        const auto& f = u[size_t(c2)];
+        const double s0 = faceAt(L, f, c2, a[0], a[1], a[2], bg) + faceAt(L, f, c2, b[0], b[1], b[2], bg);
+        const int e0 = c2 == 0, e1 = c2 == 1, e2 = c2 == 2;
+        const double s1 = faceAt(L, f, c2, a[0] + e0, a[1] + e1, a[2] + e2, bg) + faceAt(L, f, c2, b[0] + e0, b[1] + e1, b[2] + e2, bg);
+        v[c2] = 0.25 * (s0 + s1);
+    }
+    return v;
+}
+
 inline openvdb::Vec3d velocityAtFace(const Layout& L, const std::array<std::vector<double>, 3>& u, const FaceBackground& bg,
                                      int c, const openvdb::Coord& q)
 {
-    openvdb::Vec3d v(0.0);
-    v[c] = faceAt(L, u[size_t(c)], c, q.x(), q.y(), q.z(), bg);
-    for (int c2 = 0; c2 < L.dim; ++c2) {
-        if (c2 == c) continue;
-        openvdb::Coord a = q, b = q;
-        a[c] = std::max(q[c] - 1, 0);
-        b[c] = std::min(q[c], L.n[c] - 1);
-        openvdb::Coord a1 = a, b1 = b;
-        a1[c2] += 1;
-        b1[c2] += 1;
-        const auto& f = u[size_t(c2)];
-        v[c2] = 0.25 * ((faceAt(L, f, c2, a.x(), a.y(), a.z(), bg) + faceAt(L, f, c2, b.x(), b.y(), b.z(), bg)) +
-                        (faceAt(L, f, c2, a1.x(), a1.y(), a1.z(), bg) + faceAt(L, f, c2, b1.x(), b1.y(), b1.z(), bg)));
-    }
-    return v;
+    const int qi[3] = {q.x(), q.y(), q.z()};
+    return c == 0 ? velocityAtFaceT<0>(L, u, bg, qi) : c == 1 ? velocityAtFaceT<1>(L, u, bg, qi) : velocityAtFaceT<2>(L, u, bg, qi);
 }
 
 /// The velocity at the centre of cell q: per component the mean of its two faces.
@@ -282,8 +305,8 @@ double SparseFluid::background(int c, int i, int j, int k) const
 
 double SparseFluid::face(int c, int i, int j, int k) const
 {
-    const int64_t s = slotOf(i, j, k);
-    return s >= 0 ? mU[size_t(c)][(size_t(s) << mLogVol) + local(i, j, k)] : background(c, i, j, k);
+    const int64_t e = entryOf(i, j, k);
+    return e >= 0 ? mU[size_t(c)][size_t(e)] : background(c, i, j, k);
 }
 
 bool SparseFluid::faceFixed(int c, int i, int j, int k, double& value) const
@@ -307,12 +330,11 @@ bool SparseFluid::faceFixed(int c, int i, int j, int k, double& value) const
     return false;
 }
 
-/// f(slot, c, i, j, k, entry) for every face of component c inside the face box in allocated
-/// block @a slot (x fastest).
+/// f(i, j, k, entry) for every face (or cell) inside the box @a d in the block at @a o (x fastest).
 template <typename F>
-static inline void forBlockFaces(const openvdb::Coord& o, const openvdb::Coord& d, int dim, int logVol, size_t slot, const F& f)
+static inline void forBlockFaces(const openvdb::Coord& o, const openvdb::Coord& d, const Layout& L, const F& f)
 {
-    const int kEnd = dim == 3 ? 8 : 1;
+    const int kEnd = L.dim == 3 ? 8 : 1;
     for (int dk = 0; dk < kEnd; ++dk) {
         const int k = o.z() + dk;
         if (k >= d.z()) break;
@@ -322,7 +344,7 @@ static inline void forBlockFaces(const openvdb::Coord& o, const openvdb::Coord& 
             for (int di = 0; di < 8; ++di) {
                 const int i = o.x() + di;
                 if (i >= d.x()) break;
-                f(i, j, k, uint32_t((slot << logVol) | size_t(di | dj << 3 | dk << 6)));
+                f(i, j, k, uint32_t(L.entry(i, j, k)));
             }
         }
     }
@@ -330,11 +352,12 @@ static inline void forBlockFaces(const openvdb::Coord& o, const openvdb::Coord& 
 
 void SparseFluid::applyBoundaries()
 {
+    const Layout L{mN, mDim, mBlocks, mSlot.data(), mLogVol, mDenseY, mDenseZ};
     for (int c = 0; c < mDim; ++c) {
         auto& u = mU[size_t(c)];
         const openvdb::Coord d = faceDims(c);
         forList(mBlockOrigin.size(), [&](size_t b) {
-            forBlockFaces(mBlockOrigin[b], d, mDim, mLogVol, b, [&](int i, int j, int k, uint32_t e) {
+            forBlockFaces(mBlockOrigin[b], d, L, [&](int i, int j, int k, uint32_t e) {
                 double v;
                 if (faceFixed(c, i, j, k, v)) u[e] = v;
             });
@@ -359,31 +382,36 @@ void SparseFluid::allocateBlocks()
                 for (int i = i0; i <= i1; ++i)
                     if (mCell[cellIndex(i, j, k)] != kInactiveCell) { need[b] = 1; return; }
     });
-    // Keep the values of blocks that stay; new blocks start at the background (what the fixed
-    // faces there held); applyBoundaries then writes the fixed faces of the new band.
+    // Where the band covers most of the box, one array over the (n + 1) box is smaller than the
+    // blocks (and its samples need no table): store the faces densely then.
+    size_t needed = 0;
+    for (uint8_t x : need) needed += x;
+    const int64_t sy = mN.x() + 1, sz = mDim == 3 ? sy * (mN.y() + 1) : 0;
+    const size_t denseSize = size_t(mDim == 3 ? sz * (mN.z() + 1) : sy * (mN.y() + 1));
+    const bool dense = double(needed << mLogVol) >= 0.7 * double(denseSize);
     std::vector<int32_t> slot(nb, -1);
     std::vector<openvdb::Coord> origin;
     for (size_t b = 0; b < nb; ++b)
-        if (need[b]) {
+        if (need[b] || dense) {
             slot[b] = int32_t(origin.size());
             origin.emplace_back(int(b % size_t(mBlocks.x())) * 8, int((b / size_t(mBlocks.x())) % size_t(mBlocks.y())) * 8,
                                 int(b / (size_t(mBlocks.x()) * mBlocks.y())) * 8);
         }
-    const size_t vol = size_t(1) << mLogVol;
+    // Faces that were stored keep their values; the others start at the background (what the
+    // fixed faces there held); applyBoundaries then writes the fixed faces of the new band.
+    const Layout before{mN, mDim, mBlocks, mSlot.data(), mLogVol, mDenseY, mDenseZ};
+    const Layout after{mN, mDim, mBlocks, slot.data(), mLogVol, dense ? sy : 0, dense ? sz : 0};
+    const size_t size = dense ? denseSize : origin.size() << mLogVol;
+    const openvdb::Coord faceBox = mN + openvdb::Coord(1, 1, mDim == 3 ? 1 : 0);
     const FaceBackground bg = backgroundOf(mP, mN, mDim, mSide);
     for (int c = 0; c < mDim; ++c) {
-        std::vector<double> u(origin.size() * vol, 0.0);
+        std::vector<double> u(size, 0.0);
         const auto& old = mU[size_t(c)];
-        forList(nb, [&](size_t b) {
-            if (slot[b] < 0) return;
-            double* dst = u.data() + (size_t(slot[b]) << mLogVol);
-            if (mSlot[b] >= 0) {
-                std::copy_n(old.data() + (size_t(mSlot[b]) << mLogVol), vol, dst);
-                return;
-            }
-            const openvdb::Coord& o = origin[size_t(slot[b])];
-            for (size_t l = 0; l < vol; ++l)
-                dst[l] = bg(c, o.x() + int(l & 7), o.y() + int((l >> 3) & 7), o.z() + int((l >> 6) & 7));
+        forList(origin.size(), [&](size_t b) {
+            forBlockFaces(origin[b], faceBox, after, [&](int i, int j, int k, uint32_t e) {
+                const int64_t o = old.empty() ? -1 : before.entry(i, j, k);
+                u[e] = o >= 0 ? old[size_t(o)] : bg(c, i, j, k);
+            });
         });
         mU[size_t(c)].swap(u);
         mFwd[size_t(c)].clear();
@@ -391,11 +419,13 @@ void SparseFluid::allocateBlocks()
     }
     mSlot.swap(slot);
     mBlockOrigin.swap(origin);
+    mDenseY = dense ? sy : 0;
+    mDenseZ = dense ? sz : 0;
 }
 
 size_t SparseFluid::faceBytes() const
 {
-    return size_t(mDim) * 2 * (mBlockOrigin.size() << mLogVol) * sizeof(double);
+    return size_t(mDim) * 2 * mU[0].size() * sizeof(double);
 }
 
 size_t SparseFluid::boxBytes() const
@@ -455,12 +485,13 @@ void SparseFluid::updateBand()
 
 void SparseFluid::listActive()
 {
-    // Per block, in parallel, then concatenated in slot order (so the lists do not depend on the
+    // Per block, in parallel, then concatenated in block order (so the lists do not depend on the
     // thread count).
+    const Layout L{mN, mDim, mBlocks, mSlot.data(), mLogVol, mDenseY, mDenseZ};
     auto build = [&](const openvdb::Coord& d, const auto& keep, std::vector<uint32_t>& out) {
         std::vector<std::vector<uint32_t>> perBlock(mBlockOrigin.size());
         forList(mBlockOrigin.size(), [&](size_t b) {
-            forBlockFaces(mBlockOrigin[b], d, mDim, mLogVol, b, [&](int i, int j, int k, uint32_t e) {
+            forBlockFaces(mBlockOrigin[b], d, L, [&](int i, int j, int k, uint32_t e) {
                 if (keep(i, j, k)) perBlock[b].push_back(e);
             });
         });
@@ -504,12 +535,12 @@ void SparseFluid::setSolid(const std::function<bool(int, int, int)>& solid)
 
 void SparseFluid::setFreeStream()
 {
+    const Layout L{mN, mDim, mBlocks, mSlot.data(), mLogVol, mDenseY, mDenseZ};
     for (int c = 0; c < mDim; ++c) {
         auto& u = mU[size_t(c)];
         const openvdb::Coord d = faceDims(c);
         forList(mBlockOrigin.size(), [&](size_t b) {
-            forBlockFaces(mBlockOrigin[b], d, mDim, mLogVol, b,
-                          [&](int i, int j, int k, uint32_t e) { u[e] = freeStream(c, i, j, k); });
+            forBlockFaces(mBlockOrigin[b], d, L, [&](int i, int j, int k, uint32_t e) { u[e] = freeStream(c, i, j, k); });
         });
     }
     applyBoundaries();
@@ -517,7 +548,7 @@ void SparseFluid::setFreeStream()
 
 openvdb::Vec3d SparseFluid::sample(const openvdb::Vec3d& x) const
 {
-    const Layout L{mN, mDim, mBlocks, mSlot.data(), mLogVol};
+    const Layout L{mN, mDim, mBlocks, mSlot.data(), mLogVol, mDenseY, mDenseZ};
     return velocityAt(L, mU, backgroundOf(mP, mN, mDim, mSide), x);
 }
 
@@ -572,7 +603,7 @@ void SparseFluid::step(double dt)
     auto t0 = Clock::now();
     // Only the listed (non-fixed) faces move; the fixed ones already hold their values.
     const bool mc = mP.advection == Advection::MacCormack;
-    const Layout L{mN, mDim, mBlocks, mSlot.data(), mLogVol};
+    const Layout L{mN, mDim, mBlocks, mSlot.data(), mLogVol, mDenseY, mDenseZ};
     const FaceBackground bg = backgroundOf(mP, mN, mDim, mSide);
     for (int c = 0; c < mDim; ++c) {
         const auto& faces = mFaces[size_t(c)];
@@ -617,7 +648,7 @@ std::vector<SparseFluid::ScalarChange> SparseFluid::advectScalar(const openvdb::
                                                                  const openvdb::Coord& origin, double dt) const
 {
     const bool mc = mP.advection == Advection::MacCormack;
-    const Layout L{mN, mDim, mBlocks, mSlot.data(), mLogVol};
+    const Layout L{mN, mDim, mBlocks, mSlot.data(), mLogVol, mDenseY, mDenseZ};
     const FaceBackground bg = backgroundOf(mP, mN, mDim, mSide);
     const double gridBg = grid.background();
     const size_t n = mCells.size();
@@ -628,12 +659,11 @@ std::vector<SparseFluid::ScalarChange> SparseFluid::advectScalar(const openvdb::
         return acc.probeValue(origin + openvdb::Coord(i, j, k), v) ? double(v) : gridBg;
     };
     auto& f = mScalar;
-    f.assign(mBlockOrigin.size() << mLogVol, gridBg);
+    f.assign(mU[0].size(), gridBg);
     tbb::parallel_for(tbb::blocked_range<size_t>(0, mBlockOrigin.size(), 16), [&](const tbb::blocked_range<size_t>& r) {
         auto acc = grid.getConstAccessor();
         for (size_t b = r.begin(); b != r.end(); ++b)
-            forBlockFaces(mBlockOrigin[b], mN, mDim, mLogVol, b,
-                          [&](int i, int j, int k, uint32_t e) { f[e] = read(acc, i, j, k); });
+            forBlockFaces(mBlockOrigin[b], mN, L, [&](int i, int j, int k, uint32_t e) { f[e] = read(acc, i, j, k); });
     });
     mScalarFwd = f;
     auto& fwd = mScalarFwd;

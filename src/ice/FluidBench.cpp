@@ -1,7 +1,8 @@
 // `frostvdb bench fluid [SIZE...]`: the pressure solve of a flow past a ball (a disc in 2D) by
 // the multigrid-preconditioned CG, next to the Jacobi-preconditioned CG on the same system and
 // OpenVDB's tools::poisson, then what a whole fluid step costs. SIZE is n^2 or n^3 (default
-// 256^2 1024^2 128^3 256^3; --quick: 64^2 32^3).
+// 256^2 1024^2 128^3 256^3; --quick: 64^2 32^3). "noref" skips the slow reference solvers; "plate"
+// runs only the disc-in-wind band rows, so their peak memory is their own.
 #include <frostvdb/core/Bench.h>
 #include <frostvdb/fluid/MultigridPoisson.h>
 #include <frostvdb/fluid/SparseFluid.h>
@@ -113,8 +114,10 @@ int benchFluid(const BenchArgs& args)
         gc = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism, args.threads);
     std::vector<std::string> sizes;
     bool refs = true; // "noref": skip the Jacobi-CG and tools::poisson references
+    bool plateOnly = false;
     for (const std::string& a : args.args) {
         if (a == "noref") refs = false; // step timing only (no Jacobi-CG / tools::poisson)
+        else if (a == "plate") plateOnly = true; // only the disc-in-wind band rows (their own peak memory)
         else sizes.push_back(a);
     }
     if (sizes.empty())
@@ -132,6 +135,10 @@ int benchFluid(const BenchArgs& args)
         Problem pb{std::stoi(sz.substr(hat + 1)), std::stoi(sz.substr(0, hat)), 0};
         if (pb.dim != 2 && pb.dim != 3) { std::fprintf(stderr, "bench fluid: size '%s' is not n^2 or n^3\n", sz.c_str()); return 2; }
         pb.r = 0.1 * pb.n;
+        if (plateOnly) {
+            if (pb.dim == 3) benchPlate(pb.n, args.quick ? 2 : 3);
+            continue;
+        }
         bench::resetPeakRss();
         auto t0 = Clock::now();
         double c0 = bench::cpuSeconds();

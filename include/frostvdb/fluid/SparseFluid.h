@@ -106,7 +106,9 @@ public:
     double maxSpeed() const;
     /// Storage that follows the band: allocated face blocks of the box's blocks, and the bytes
     /// of the face velocities (current and advected copy) in them.
-    size_t faceBlocks() const { return mBlockOrigin.size(); }
+    size_t faceBlocks() const { return mDenseY ? mSlot.size() : mBlockOrigin.size(); }
+    /// True when the band covers so much of the box that one box array is the smaller store.
+    bool denseFaces() const { return mDenseY > 0; }
     size_t boxBlocks() const { return mSlot.size(); }
     size_t faceBytes() const;
     /// Bytes still sized by the box: cell flags and the multigrid's index.
@@ -120,14 +122,22 @@ private:
     {
         return {mN.x() + (c == 0), mN.y() + (c == 1), mN.z() + (c == 2 && mDim == 3)};
     }
-    /// Storage: block b of the box's blocks holds 2^mLogVol entries; entry = slot << mLogVol | local.
-    int64_t slotOf(int i, int j, int k) const
+    /// Storage entry of face or cell (i, j, k), or -1 if in no allocated block. Blocked: block
+    /// slot << mLogVol | local offset; dense (mDenseY > 0): one array over the (n + 1) box.
+    int64_t entryOf(int i, int j, int k) const
     {
-        return mSlot[(size_t(k >> 3) * mBlocks.y() + size_t(j >> 3)) * mBlocks.x() + size_t(i >> 3)];
+        if (mDenseY) return i + j * mDenseY + k * mDenseZ;
+        const int64_t s = mSlot[(size_t(k >> 3) * mBlocks.y() + size_t(j >> 3)) * mBlocks.x() + size_t(i >> 3)];
+        return s < 0 ? -1 : (s << mLogVol) | ((i & 7) | (j & 7) << 3 | (k & 7) << 6);
     }
-    static uint32_t local(int i, int j, int k) { return uint32_t((i & 7) | (j & 7) << 3 | (k & 7) << 6); }
     openvdb::Coord entryCoord(uint32_t e) const
     {
+        if (mDenseY) {
+            const int k = mDim == 3 ? int(e / uint32_t(mDenseZ)) : 0;
+            const uint32_t r = mDim == 3 ? e - uint32_t(k) * uint32_t(mDenseZ) : e;
+            const int j = int(r / uint32_t(mDenseY));
+            return {int(r - uint32_t(j) * uint32_t(mDenseY)), j, k};
+        }
         const openvdb::Coord& o = mBlockOrigin[e >> mLogVol];
         return {o.x() + int(e & 7), o.y() + int((e >> 3) & 7), mDim == 3 ? o.z() + int((e >> 6) & 7) : 0};
     }
@@ -146,6 +156,7 @@ private:
     /// component the face values of the allocated blocks.
     openvdb::Coord mBlocks;
     int mLogVol = 9;
+    int64_t mDenseY = 0, mDenseZ = 0; ///< > 0: the faces are one array over the box (row, plane strides)
     std::vector<int32_t> mSlot;
     std::vector<openvdb::Coord> mBlockOrigin;
     std::array<std::vector<double>, 3> mU;
