@@ -573,17 +573,23 @@ double SparseFluid::maxDivergence() const
 void SparseFluid::project()
 {
     // The fixed faces already hold their values (applyBoundaries runs when the band changes).
-    const size_t n = mPoisson->unknowns();
-    mRhs.resize(n);
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 4096), [&](const tbb::blocked_range<size_t>& r) {
-        for (size_t u = r.begin(); u != r.end(); ++u) {
-            const openvdb::Coord c = mPoisson->cellOf(u);
-            mRhs[u] = -divergence(c.x(), c.y(), c.z());
-        }
+    // Every unknown is a listed fluid cell (a pocket's pinned cell is not an unknown).
+    const MultigridPoisson::IndexView index = mPoisson->indexView();
+    const Layout L{mN, mDim, mBlocks, mSlot.data(), mLogVol, mDenseY, mDenseZ};
+    const FaceBackground bg = backgroundOf(mP, mN, mDim, mSide);
+    mRhs.resize(mPoisson->unknowns());
+    forList(mCells.size(), [&](size_t t) {
+        const openvdb::Coord q = entryCoord(mCells[t]);
+        const int64_t u = index.at(q.x(), q.y(), q.z());
+        if (u < 0) return;
+        double d = 0;
+        for (int c = 0; c < mDim; ++c)
+            d += faceAt(L, mU[size_t(c)], c, q.x() + (c == 0), q.y() + (c == 1), q.z() + (c == 2), bg) -
+                 faceAt(L, mU[size_t(c)], c, q.x(), q.y(), q.z(), bg);
+        mRhs[size_t(u)] = -d;
     });
     mStats = mPoisson->solve(mRhs, mPressure, mP.poisson);
     // Faces reach one cell outside the box at most: the padded index answers there (not an unknown).
-    const MultigridPoisson::IndexView index = mPoisson->indexView();
     auto p = [&](int i, int j, int k) {
         const int64_t u = index.at(i, j, k);
         return u >= 0 ? mPressure[size_t(u)] : 0.0;
