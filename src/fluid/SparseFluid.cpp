@@ -431,8 +431,10 @@ size_t SparseFluid::faceBytes() const
 size_t SparseFluid::boxBytes() const
 {
     const size_t cells = mSolid.size() + mCell.size() + mSlot.size() * sizeof(int32_t);
-    // The multigrid's fine padded index (4 bytes per cell) and its coarse levels (an eighth each).
-    const double padded = double(mN.x() + 2) * (mN.y() + 2) * (mDim == 3 ? mN.z() + 2 : 1);
+    // The multigrid's fine padded index over the band's bounding box (4 bytes per cell) and its
+    // coarse levels (an eighth each).
+    const openvdb::Coord& d = mPoissonDims;
+    const double padded = double(d.x() + 2) * (d.y() + 2) * (mDim == 3 ? d.z() + 2 : 1);
     return cells + size_t(4.0 * padded * (mDim == 3 ? 8.0 / 7.0 : 4.0 / 3.0));
 }
 
@@ -449,12 +451,27 @@ void SparseFluid::updateBand()
         // Downstream of a band cell is band too: look upstream by up to L cells.
         act = (mP.inflowSide & 1) ? dilateAlong(act, mN, flow, 0, L) : dilateAlong(act, mN, flow, -L, 0);
     }
-    // act becomes the cell kinds in place (no second box array).
+    // act becomes the cell kinds in place (no second box array); the band's bounding box too.
     size_t count = 0;
-    for (size_t x = 0; x < act.size(); ++x) {
-        act[x] = mSolid[x] ? kSolidCell : act[x] ? kFluidCell : kInactiveCell;
-        count += act[x] == kFluidCell;
-    }
+    openvdb::CoordBBox bbox;
+    for (int k = 0; k < mN.z(); ++k)
+        for (int j = 0; j < mN.y(); ++j) {
+            int lo = -1, hi = -1;
+            for (int i = 0; i < mN.x(); ++i) {
+                const size_t x = cellIndex(i, j, k);
+                act[x] = mSolid[x] ? kSolidCell : act[x] ? kFluidCell : kInactiveCell;
+                count += act[x] == kFluidCell;
+                if (act[x] != kInactiveCell) {
+                    if (lo < 0) lo = i;
+                    hi = i;
+                }
+            }
+            if (lo >= 0) {
+                bbox.expand(openvdb::Coord(lo, j, k));
+                bbox.expand(openvdb::Coord(hi, j, k));
+            }
+        }
+    if (bbox.empty()) bbox = openvdb::CoordBBox(openvdb::Coord(0), openvdb::Coord(0));
     if (mPoisson && act == mCell) return;
     mCell.swap(act);
     act = std::vector<uint8_t>();
@@ -462,22 +479,32 @@ void SparseFluid::updateBand()
     allocateBlocks();
     listActive();
     applyBoundaries(); // the fixed faces change only here (and in setFreeStream)
+    // The pressure system lives on the band's bounding box: cells beyond it are inactive, so its
+    // sides inside the domain are Dirichlet (p = 0) and the multigrid's box-sized index follows
+    // the band's extent, not the domain's.
     std::unique_ptr<MultigridPoisson> old = std::move(mPoisson);
+    const openvdb::Coord oldOrigin = mPoissonOrigin;
     std::vector<double> oldPressure = std::move(mPressure);
+    const openvdb::Coord o = bbox.min(), dims = bbox.dim();
+    std::array<bool, 6> dirichlet{};
+    for (int a = 0; a < 3; ++a) {
+        dirichlet[size_t(2 * a)] = bbox.min()[a] > 0 || mSide[size_t(2 * a)] == SideKind::Outflow;
+        dirichlet[size_t(2 * a + 1)] = bbox.max()[a] < mN[a] - 1 || mSide[size_t(2 * a + 1)] == SideKind::Outflow;
+    }
+    mPoissonOrigin = o;
+    mPoissonDims = dims;
     mPoisson = std::make_unique<MultigridPoisson>(
-        mDim, mN,
-        [this](int i, int j, int k) {
-            const uint8_t c = mCell[cellIndex(i, j, k)];
+        mDim, dims,
+        [this, o](int i, int j, int k) {
+            const uint8_t c = mCell[cellIndex(i + o.x(), j + o.y(), k + o.z())];
             return c == kSolidCell ? CellKind::Solid : c == kFluidCell ? CellKind::Fluid : CellKind::Dirichlet;
         },
-        std::array<bool, 6>{mSide[0] == SideKind::Outflow, mSide[1] == SideKind::Outflow,
-                            mSide[2] == SideKind::Outflow, mSide[3] == SideKind::Outflow,
-                            mSide[4] == SideKind::Outflow, mSide[5] == SideKind::Outflow});
+        dirichlet);
     // Keep the warm start where a cell stays an unknown (new cells start at 0).
     mPressure.assign(mPoisson->unknowns(), 0.0);
     if (old)
         for (size_t u = 0; u < mPressure.size(); ++u) {
-            const openvdb::Coord c = mPoisson->cellOf(u);
+            const openvdb::Coord c = mPoisson->cellOf(u) + o - oldOrigin;
             const int64_t v = old->unknownIndex(c.x(), c.y(), c.z());
             if (v >= 0) mPressure[u] = oldPressure[size_t(v)];
         }
@@ -575,12 +602,13 @@ void SparseFluid::project()
     // The fixed faces already hold their values (applyBoundaries runs when the band changes).
     // Every unknown is a listed fluid cell (a pocket's pinned cell is not an unknown).
     const MultigridPoisson::IndexView index = mPoisson->indexView();
+    const openvdb::Coord po = mPoissonOrigin; // the multigrid's box starts here
     const Layout L{mN, mDim, mBlocks, mSlot.data(), mLogVol, mDenseY, mDenseZ};
     const FaceBackground bg = backgroundOf(mP, mN, mDim, mSide);
     mRhs.resize(mPoisson->unknowns());
     forList(mCells.size(), [&](size_t t) {
         const openvdb::Coord q = entryCoord(mCells[t]);
-        const int64_t u = index.at(q.x(), q.y(), q.z());
+        const int64_t u = index.at(q.x() - po.x(), q.y() - po.y(), q.z() - po.z());
         if (u < 0) return;
         double d = 0;
         for (int c = 0; c < mDim; ++c)
@@ -591,7 +619,7 @@ void SparseFluid::project()
     mStats = mPoisson->solve(mRhs, mPressure, mP.poisson);
     // Faces reach one cell outside the box at most: the padded index answers there (not an unknown).
     auto p = [&](int i, int j, int k) {
-        const int64_t u = index.at(i, j, k);
+        const int64_t u = index.at(i - po.x(), j - po.y(), k - po.z());
         return u >= 0 ? mPressure[size_t(u)] : 0.0;
     };
     for (int c = 0; c < mDim; ++c) {

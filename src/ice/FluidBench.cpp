@@ -28,11 +28,11 @@ namespace {
 using bench::Clock;
 
 /// Where the solver's memory goes: allocated 8^3 face blocks of the box's, the face velocities
-/// in them, and what is still sized by the box (cell flags, the multigrid's index).
+/// in them, the cell flags (box-sized) and the multigrid index (the band's bounding box).
 std::string storage(const fluid::SparseFluid& f)
 {
     char buf[200];
-    std::snprintf(buf, sizeof buf, "face blocks %zu of %zu (%.1f%%), faces %.0f MiB, box-sized %.0f MiB", f.faceBlocks(),
+    std::snprintf(buf, sizeof buf, "face blocks %zu of %zu (%.1f%%), faces %.0f MiB, cell flags + MG index %.0f MiB", f.faceBlocks(),
                   f.boxBlocks(), 100.0 * double(f.faceBlocks()) / double(f.boxBlocks()), f.faceBytes() / 1048576.0,
                   f.boxBytes() / 1048576.0);
     return buf;

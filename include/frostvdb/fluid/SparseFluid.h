@@ -23,8 +23,9 @@
 /// work (advection, projection, the compact unknowns of fluid/MultigridPoisson.h) is spent on the
 /// listed active faces and cells only, and the fixed faces (solid, boundary, free stream) are
 /// written only when the band changes. Scratch buffers live as long as the solver.
-/// What is still box-sized: two bytes of cell flags per box cell (solid, band) and the
-/// multigrid's 4-byte padded index (fluid/MultigridPoisson.h).
+/// The pressure system (fluid/MultigridPoisson.h) is set up on the bounding box of the band, so
+/// its 4-byte padded index follows the band's extent. What is still box-sized: two bytes of cell
+/// flags per box cell (solid, band).
 ///
 /// Units: one cell = 1 length unit; dt in the same time unit as the velocities.
 #include <frostvdb/fluid/MultigridPoisson.h>
@@ -111,7 +112,7 @@ public:
     bool denseFaces() const { return mDenseY > 0; }
     size_t boxBlocks() const { return mSlot.size(); }
     size_t faceBytes() const;
-    /// Bytes still sized by the box: cell flags and the multigrid's index.
+    /// Bytes of the cell flags (two per box cell) and the multigrid index (its bounding box).
     size_t boxBytes() const;
     double advectSeconds = 0, projectSeconds = 0;
 
@@ -163,6 +164,7 @@ private:
     std::vector<uint8_t> mSolid, mCell;
     size_t mActive = 0;
     std::unique_ptr<MultigridPoisson> mPoisson;
+    openvdb::Coord mPoissonOrigin{0, 0, 0}, mPoissonDims{0, 0, 0}; ///< its box: the band's bounding box
     std::vector<double> mPressure; ///< on the poisson unknowns; warm start
     PoissonStats mStats;
     /// The faces that are not fixed (per component) and the fluid cells, as storage entries: the
