@@ -130,12 +130,19 @@ __attribute__((always_inline)) inline double sampleArray(const Layout& L, const 
         v[0] = p[0], v[1] = p[1], v[2] = p[8], v[3] = p[9];
         if (z2) v[4] = p[64], v[5] = p[65], v[6] = p[72], v[7] = p[73];
     } else {
+        // The stencil crosses into neighbouring blocks (or lies in none): one table read per
+        // corner, the block steps found once per axis.
+        const size_t bx = size_t(L.blocks.x()), bxy = bx * size_t(L.blocks.y());
+        const size_t base = size_t(k >> 3) * bxy + size_t(j >> 3) * bx + size_t(i >> 3);
+        const size_t step[3] = {size_t((i & 7) == 7), size_t((j & 7) == 7) * bx, size_t(z2 && (k & 7) == 7) * bxy};
+        const size_t lx[2] = {size_t(i & 7), size_t((i + 1) & 7)}, ly[2] = {size_t(j & 7) << 3, size_t((j + 1) & 7) << 3},
+                     lz[2] = {size_t(k & 7) << 6, size_t((k + 1) & 7) << 6};
         auto at = [&](int a, int b, int e) {
-            const int64_t t = L.slotOf(a, b, e);
-            return t >= 0 ? f[(size_t(t) << L.logVol) + Layout::local(a, b, e)] : outside(c, a, b, e);
+            const int64_t t = L.slot[base + (a ? step[0] : 0) + (b ? step[1] : 0) + (e ? step[2] : 0)];
+            return t >= 0 ? f[(size_t(t) << L.logVol) | (lx[a] | ly[b] | lz[e])] : outside(c, i + a, j + b, k + e);
         };
-        v[0] = at(i, j, k), v[1] = at(i + 1, j, k), v[2] = at(i, j + 1, k), v[3] = at(i + 1, j + 1, k);
-        if (z2) v[4] = at(i, j, k + 1), v[5] = at(i + 1, j, k + 1), v[6] = at(i, j + 1, k + 1), v[7] = at(i + 1, j + 1, k + 1);
+        v[0] = at(0, 0, 0), v[1] = at(1, 0, 0), v[2] = at(0, 1, 0), v[3] = at(1, 1, 0);
+        if (z2) v[4] = at(0, 0, 1), v[5] = at(1, 0, 1), v[6] = at(0, 1, 1), v[7] = at(1, 1, 1);
     }
     auto lerp = [](double a, double b, double t) { return a + t * (b - a); };
     const double a0 = lerp(lerp(v[0], v[1], tx), lerp(v[2], v[3], tx), ty);
