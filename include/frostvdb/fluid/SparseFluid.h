@@ -97,8 +97,9 @@ public:
     size_t activeCells() const { return mActive; }
     double freeStream(int c, double i, double j, double k) const;
     const PoissonStats& pressureStats() const { return mStats; }
-    /// The arrays carried from step to step (face velocities; the pressure on the current
-    /// unknowns, the next solve's warm start), for checkpoints.
+    /// The arrays carried from step to step (face velocities in their storage, blocks or one
+    /// box array as the band decides; the pressure on the current unknowns, the next solve's
+    /// warm start), for checkpoints.
     std::vector<std::pair<const char*, std::vector<double>*>> historyArrays()
     {
         return {{"u", &mU[0]}, {"v", &mU[1]}, {"w", &mU[2]}, {"pressure", &mPressure}};
