@@ -10,6 +10,7 @@
 
 #include <cmath>
 #include <cstring>
+#include <memory>
 #include <random>
 
 using namespace frostvdb;
@@ -147,14 +148,28 @@ TEST_CASE("sparse fluid: MacCormack advection stays within the data at CFL 5", "
     f.project();
     std::mt19937 rng(3);
     std::uniform_real_distribution<double> d(0.0, 1.0);
-    std::vector<double> T(size_t(n.x()) * n.y());
-    for (auto& t : T) t = d(rng);
-    double lo = 1, hi = 0;
-    for (double t : T) { lo = std::min(lo, t); hi = std::max(hi, t); }
-    for (int s = 0; s < 5; ++s) f.advectScalar(T, 1.0);
-    for (double t : T) {
-        REQUIRE(t >= lo);
-        REQUIRE(t <= hi);
+    // T on a grid offset from the box (cell (i, j) is voxel origin + (i, j)), random in every cell.
+    const openvdb::Coord origin(-5, 3, 0);
+    auto T = openvdb::FloatGrid::create(0.5f);
+    auto acc = T->getAccessor();
+    float lo = 1, hi = 0;
+    for (int j = 0; j < n.y(); ++j)
+        for (int i = 0; i < n.x(); ++i) {
+            const float t = float(d(rng));
+            acc.setValue(origin + openvdb::Coord(i, j, 0), t);
+            lo = std::min(lo, t);
+            hi = std::max(hi, t);
+        }
+    size_t moved = 0;
+    for (int s = 0; s < 5; ++s) {
+        const auto changes = f.advectScalar(*T, origin, 1.0);
+        moved += changes.size();
+        for (const auto& ch : changes) acc.setValue(origin + ch.cell, float(ch.value));
+    }
+    CHECK(moved > 0);
+    for (auto it = T->cbeginValueOn(); it; ++it) {
+        REQUIRE(*it >= lo);
+        REQUIRE(*it <= hi);
     }
     // The velocity too: no face exceeds the largest speed present before the step.
     double before = 0, after = 0;
@@ -217,4 +232,76 @@ TEST_CASE("sparse fluid over the whole box equals the dense 2D reference solver"
     for (int j = 0; j <= n.y(); ++j)
         for (int i = 0; i < n.x(); ++i) err = std::max(err, std::fabs(f.face(1, i, j, 0) - d.v(i, j)));
     CHECK(err < 1e-6);
+}
+
+TEST_CASE("sparse fluid: face storage follows the band, not the box", "[fluid]")
+{
+    // A disc of ice facing the wind (radius 6, 2 cells thick) in boxes of 64^3 and 128^3: the same
+    // band (same place relative to the 8^3 blocks), a box eight times larger.
+    auto plate = [](int n) {
+        SparseFluidParams p;
+        p.bandWidth = 4;
+        p.wakeLength = 8;
+        auto f = std::make_unique<SparseFluid>(p, openvdb::Coord(n), 3);
+        const double c = 0.5 * (n - 1);
+        f->setSolid([=](int i, int j, int k) {
+            return std::fabs(i - c) <= 1.0 && (j - c) * (j - c) + (k - c) * (k - c) <= 36.0;
+        });
+        f->setFreeStream();
+        return f;
+    };
+    auto small = plate(64), large = plate(128);
+    INFO("face blocks " << small->faceBlocks() << " of " << small->boxBlocks() << ", " << large->faceBlocks() << " of "
+                        << large->boxBlocks());
+    CHECK(small->activeCells() == large->activeCells());
+    CHECK(large->faceBlocks() == small->faceBlocks()); // storage follows the band volume
+    CHECK(large->faceBytes() == small->faceBytes());
+    CHECK(large->boxBlocks() > 6 * small->boxBlocks());
+    CHECK(large->faceBlocks() * 50 < large->boxBlocks()); // under 2 % of the box's blocks
+    // Blocks hold the band and its edge: at most 4x the band and the ice, cell for cell.
+    CHECK(large->faceBlocks() * 512 < 4 * (large->activeCells() + 6 * 6 * 4 * 3));
+    // Faces in no block read as the free stream, also after a step.
+    large->step(1.0);
+    CHECK(large->face(0, 3, 5, 7) == 1.0);
+    CHECK(large->face(1, 120, 100, 2) == 0.0);
+    CHECK(large->sample(openvdb::Vec3d(5.3, 110.2, 9.9)).x() == 1.0);
+    CHECK(large->maxDivergence() < 1e-3);
+    // In blocked storage: 1 and 2 threads give the same faces and the same band-only T advection
+    // (T read from a grid, from the blocks inside the band and from the grid where traces leave
+    // them), and T stays within its data.
+    auto blockedRun = [&](int threads) {
+        tbb::global_control gc(tbb::global_control::max_allowed_parallelism, threads);
+        auto f = plate(64);
+        f->step(2.0);
+        auto T = openvdb::FloatGrid::create(0.0f);
+        auto acc = T->getAccessor();
+        std::mt19937 rng(5);
+        std::uniform_real_distribution<float> d(0.0f, 1.0f);
+        for (int k = 0; k < 64; ++k)
+            for (int j = 0; j < 64; ++j)
+                for (int i = 0; i < 64; ++i) acc.setValue(openvdb::Coord(i, j, k), d(rng));
+        std::vector<double> out;
+        const auto changes = f->advectScalar(*T, openvdb::Coord(0), 2.0);
+        CHECK(changes.size() > 1000);
+        for (const auto& ch : changes) {
+            CHECK((ch.value >= 0.0 && ch.value <= 1.0));
+            out.push_back(ch.value);
+            out.push_back(ch.cell.x() + 64.0 * (ch.cell.y() + 64.0 * ch.cell.z()));
+        }
+        for (int c = 0; c < 3; ++c)
+            for (int k = 20; k < 44; ++k)
+                for (int j = 20; j < 44; ++j)
+                    for (int i = 20; i < 64; ++i) out.push_back(f->face(c, i, j, k));
+        return out;
+    };
+    const auto one = blockedRun(1), two = blockedRun(2);
+    REQUIRE(one.size() == two.size());
+    CHECK(std::memcmp(one.data(), two.data(), one.size() * sizeof(double)) == 0);
+    CHECK(small->denseFaces() == false);
+    // The whole box (band width 0) allocates every block.
+    SparseFluidParams all;
+    all.bandWidth = 0;
+    SparseFluid f(all, openvdb::Coord(20, 17, 9), 3);
+    CHECK(f.faceBlocks() == f.boxBlocks());
+    CHECK(f.denseFaces());
 }

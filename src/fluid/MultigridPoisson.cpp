@@ -49,7 +49,7 @@ struct MultigridPoisson::Level {
     int64_t stride[3] = {1, 0, 0};
     std::array<bool, 6> side{};
     std::vector<int32_t> index;   ///< padded box: unknown index, kSolid or kDirichlet
-    std::vector<int64_t> lin;     ///< padded linear position of each unknown
+    std::vector<uint32_t> lin;    ///< padded linear position of each unknown (32 bits: less to stream per sweep)
     std::vector<uint8_t> diag;    ///< non-solid neighbours of each unknown
     std::vector<int32_t> colour[2];
     double scale = 1;             ///< operator scale (1/4 per coarsening)
@@ -77,6 +77,7 @@ struct MultigridPoisson::Level {
         stride[1] = n[0] + 2;
         stride[2] = dim == 3 ? stride[1] * (n[1] + 2) : 0;
         const size_t padded = size_t(stride[1]) * (n[1] + 2) * (dim == 3 ? n[2] + 2 : 1);
+        if (padded >= (size_t(1) << 32)) throw std::invalid_argument("MultigridPoisson: box too large (32-bit positions)");
         index.assign(padded, kSolid);
         const int rows = n[1] * nz;
         std::vector<int64_t> count(size_t(rows) + 1, 0);
@@ -103,7 +104,7 @@ struct MultigridPoisson::Level {
                     const int64_t p = padLin(i, j, k);
                     if (index[size_t(p)] != 0) continue;
                     index[size_t(p)] = int32_t(next);
-                    lin[size_t(next++)] = p;
+                    lin[size_t(next++)] = uint32_t(p);
                 }
             }
         });

@@ -1,7 +1,8 @@
 // `frostvdb bench fluid [SIZE...]`: the pressure solve of a flow past a ball (a disc in 2D) by
 // the multigrid-preconditioned CG, next to the Jacobi-preconditioned CG on the same system and
 // OpenVDB's tools::poisson, then what a whole fluid step costs. SIZE is n^2 or n^3 (default
-// 256^2 1024^2 128^3 256^3; --quick: 64^2 32^3).
+// 256^2 1024^2 128^3 256^3; --quick: 64^2 32^3). "noref" skips the slow reference solvers; "plate"
+// runs only the disc-in-wind band rows, so their peak memory is their own.
 #include <frostvdb/core/Bench.h>
 #include <frostvdb/fluid/MultigridPoisson.h>
 #include <frostvdb/fluid/SparseFluid.h>
@@ -25,6 +26,17 @@ namespace frostvdb {
 namespace {
 
 using bench::Clock;
+
+/// Where the solver's memory goes: allocated 8^3 face blocks of the box's, the face velocities
+/// in them, the cell flags (box-sized) and the multigrid index (the band's bounding box).
+std::string storage(const fluid::SparseFluid& f)
+{
+    char buf[200];
+    std::snprintf(buf, sizeof buf, "face blocks %zu of %zu (%.1f%%), faces %.0f MiB, cell flags + MG index %.0f MiB", f.faceBlocks(),
+                  f.boxBlocks(), 100.0 * double(f.faceBlocks()) / double(f.boxBlocks()), f.faceBytes() / 1048576.0,
+                  f.boxBytes() / 1048576.0);
+    return buf;
+}
 
 /// Starts @a f from the free stream, projected, then times @a steps whole steps: advection and
 /// projection seconds per step (both solvers keep these two counters) and the process's CPU
@@ -59,9 +71,9 @@ void benchPlate(int n, int steps)
     double adv = 0, proj = 0, cpu = 0;
     timeSteps(f, steps, adv, proj, cpu);
     std::printf("%5d^3 plate | active cells %zu (%.1f%% of the box) | MG it %d | adv %.3f s proj %.3f s step %.3f s "
-                "[CPU %.2f s] | peak %.0f MiB\n",
+                "[CPU %.2f s] | peak %.0f MiB | %s\n",
                 n, f.activeCells(), 100.0 * double(f.activeCells()) / (double(n) * n * n), f.pressureStats().iterations,
-                adv, proj, adv + proj, cpu, bench::peakRssMiB());
+                adv, proj, adv + proj, cpu, bench::peakRssMiB(), storage(f).c_str());
     std::fflush(stdout);
 }
 
@@ -102,8 +114,10 @@ int benchFluid(const BenchArgs& args)
         gc = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism, args.threads);
     std::vector<std::string> sizes;
     bool refs = true; // "noref": skip the Jacobi-CG and tools::poisson references
+    bool plateOnly = false;
     for (const std::string& a : args.args) {
         if (a == "noref") refs = false; // step timing only (no Jacobi-CG / tools::poisson)
+        else if (a == "plate") plateOnly = true; // only the disc-in-wind band rows (their own peak memory)
         else sizes.push_back(a);
     }
     if (sizes.empty())
@@ -121,6 +135,10 @@ int benchFluid(const BenchArgs& args)
         Problem pb{std::stoi(sz.substr(hat + 1)), std::stoi(sz.substr(0, hat)), 0};
         if (pb.dim != 2 && pb.dim != 3) { std::fprintf(stderr, "bench fluid: size '%s' is not n^2 or n^3\n", sz.c_str()); return 2; }
         pb.r = 0.1 * pb.n;
+        if (plateOnly) {
+            if (pb.dim == 3) benchPlate(pb.n, args.quick ? 2 : 3);
+            continue;
+        }
         bench::resetPeakRss();
         auto t0 = Clock::now();
         double c0 = bench::cpuSeconds();
@@ -171,6 +189,7 @@ int benchFluid(const BenchArgs& args)
         // Whole steps: the 2D reference layout with the multigrid projection, or the sparse 3D solver.
         double adv = 0, proj = 0, cpuStep = 0;
         int stepIterations = 0;
+        std::string fullStorage;
         const int steps = args.quick ? 2 : 3;
         if (pb.dim == 2) {
             ice::FluidParams fp;
@@ -190,12 +209,14 @@ int benchFluid(const BenchArgs& args)
             f.setSolid([&](int i, int j, int k) { return pb.solid(i, j, k); });
             timeSteps(f, steps, adv, proj, cpuStep);
             stepIterations = f.pressureStats().iterations;
+            fullStorage = storage(f);
         }
         std::printf("%8s %10zu | %5d %8.3f %8.3f | %s | %s | %9.3f %9.3f %9.3f | %8.0f\n", sz.c_str(), n, st.iterations,
                     tSetup, tMg, jc, vdb, adv, proj, adv + proj, bench::peakRssMiB());
         std::printf("%8s %10s | %5s [%6.2f] [%6.2f]   (MG relative residual %.2e, %d levels; step [CPU %.2f s], "
                     "%d MG iterations in the last step)\n", "", "", "", cSetup, cMg, st.relativeResidual, st.levels, cpuStep,
                     stepIterations);
+        if (!fullStorage.empty()) std::printf("%8s full box: %s\n", "", fullStorage.c_str());
         std::fflush(stdout);
         if (pb.dim == 3) benchPlate(pb.n, steps);
     }

@@ -114,34 +114,12 @@ void FluidEffect::advectTemperatureSparse(World& world, double dt)
     const auto t0 = Clock::now();
     auto T = world.fields.get<openvdb::FloatGrid>(ice::kTemperature);
     if (!T || mSparse->maxSpeed() == 0.0) return; // still air: T unchanged, bit for bit
-    const openvdb::Coord n = mSparse->dims();
-    const double bg = T->background();
-    std::vector<double> f(size_t(n.x()) * n.y() * n.z(), bg);
-    const openvdb::CoordBBox box(mOrigin, mOrigin + n - openvdb::Coord(1));
-    for (auto it = T->cbeginValueOn(); it; ++it) {
-        if (it.isTileValue()) {
-            openvdb::CoordBBox b = it.getBoundingBox();
-            b.intersect(box);
-            for (auto c = b.begin(); c; ++c) {
-                const openvdb::Coord q = *c - mOrigin;
-                f[(size_t(q.z()) * n.y() + q.y()) * n.x() + q.x()] = *it;
-            }
-            continue;
-        }
-        if (!box.isInside(it.getCoord())) continue;
-        const openvdb::Coord q = it.getCoord() - mOrigin;
-        f[(size_t(q.z()) * n.y() + q.y()) * n.x() + q.x()] = *it;
-    }
-    const std::vector<double> before = f;
-    mSparse->advectScalar(f, dt);
+    // Only the band cells move (the solver reads T where its traces leave the band); the grid's
+    // copy takes their new values.
+    const auto changes = mSparse->advectScalar(*T, mOrigin, dt);
     auto tNew = T->deepCopy();
     auto acc = tNew->getAccessor();
-    for (size_t x = 0; x < f.size(); ++x) {
-        if (f[x] == before[x]) continue;
-        const int i = int(x % size_t(n.x())), j = int((x / size_t(n.x())) % size_t(n.y())),
-                  k = int(x / (size_t(n.x()) * n.y()));
-        acc.setValue(mOrigin + openvdb::Coord(i, j, k), float(f[x]));
-    }
+    for (const auto& ch : changes) acc.setValue(mOrigin + ch.cell, float(ch.value));
     if (!world.region.dense) truncateToTolerance(*tNew, world.region.tolerance);
     world.fields.replace(ice::kTemperature, tNew);
     mAdvectTSeconds += since(t0);
