@@ -60,9 +60,7 @@ double lwcnDecayRate(const std::shared_ptr<const shell::ShellBand>& band, int l,
     }
     shell::ShellStepStats st;
     for (int s = 0; s < steps; ++s) pf.step((s + 1) * dt, s, 0, &st);
-    WARN("steps " << steps << " kernel " << st.kernelSeconds << " solve " << st.solveSeconds << " extend "
-                  << st.extendSeconds << " iterations T " << double(st.iterationsT) / double(st.solves) << " rows/step "
-                  << double(st.voxelUpdates) / double(st.solves) << " band " << band->size());
+    CHECK(st.unconverged == 0);
     double mean = 0; // as the explicit test: P_l has a small constant part over the band's voxels
     for (float v : u0) mean += v;
     mean /= double(u0.size());
@@ -139,9 +137,9 @@ TEST_CASE("Shell lw_cn heat: a zonal harmonic on a sphere decays at l(l+1)/R^2 w
     shell::BandSettings bs;
     bs.voxelSize = 1.0;
     auto band = shell::ShellBand::build(makeIcosphere(R, 5), bs);
-    for (int l : {1, 2, 3}) {
+    for (int l : {2, 3}) { // (l = 1 takes 3x the steps; the explicit test has it)
         const double expected = l * (l + 1) / (R * R);
-        const int n = int(std::ceil(0.25 / expected / 0.3)); // to about exp(-1/4)
+        const int n = int(std::ceil(0.15 / expected / 0.3)); // to about exp(-0.15)
         const double rate = lwcnDecayRate(band, l, 0.3, n);
         WARN("lw_cn heat, l = " << l << ": measured " << rate << " expected " << expected << " ("
                                 << 100.0 * (rate / expected - 1.0) << " %)");
@@ -160,7 +158,7 @@ TEST_CASE("Shell lw_cn: second order in time on a tilted plate (dt ladder)", "[f
     for (int level = 0; level < 4; ++level) {
         const double dt = dt0 / double(1 << level);
         Plate run = makePlateRun(L, 30, 30, lwcnParams(dt));
-        steps(run, int(std::lround(T / dt)));
+        steps(run, int(std::lround(T / dt0)) << level); // the same final time at every level
         u.push_back(run.pf->p());
     }
     std::vector<double> d;
@@ -178,11 +176,11 @@ TEST_CASE("Shell lw_cn: second order in time on a tilted plate (dt ladder)", "[f
 
 TEST_CASE("Shell lw_cn: a plate grows the plane's lw_cn crystal (ice area within 5 %)", "[fast][shell][lw_cn]")
 {
-    const double L = 56;
+    const double L = 40;
     KobayashiParams k = lwcnParams(0.0008);
     k.epsBar = 0.015; // as the explicit plate test: eps / h 0.32
     k.dt = std::min(k.dt, shellLimit(k));
-    const int n = int(std::lround(0.06 / k.dt));
+    const int n = int(std::lround(0.03 / k.dt));
     // the plane: PhaseFieldSolver's lw_cn on an L x L square of the same spacing, same seed
     const Domain dom = makePlaneDomain(Lattice(LatticeKind::Square, kH), openvdb::Coord(int(L), int(L), 1), 1e-4);
     RegionSettings rs;
@@ -211,7 +209,9 @@ TEST_CASE("Shell lw_cn: a plate grows the plane's lw_cn crystal (ice area within
                                << 100.0 * (areas.back() / planeArea - 1.0) << " %); mean BiCGSTAB iterations p "
                                << double(run.stats.iterationsP) / double(run.stats.solves) << ", T "
                                << double(run.stats.iterationsT) / double(run.stats.solves) << ", clipped "
-                               << run.stats.clippedVoxels);
+                               << run.stats.clippedVoxels << "; kernel " << run.stats.kernelSeconds << " s, solve "
+                               << run.stats.solveSeconds << " s, extend " << run.stats.extendSeconds << " s, rows "
+                               << run.stats.voxelUpdates / run.stats.solves << ", band " << run.band->size());
         CHECK(std::fabs(areas.back() / planeArea - 1.0) < 0.05);
         CHECK(run.stats.unconverged == 0);
     }
@@ -265,3 +265,4 @@ TEST_CASE("Shell lw_cn: a sphere of curvature radius 5 voxels stays bounded", "[
     CHECK(ice > 0);
     CHECK(stats.unconverged == 0);
 }
+
