@@ -139,7 +139,7 @@ TEST_CASE("Shell lw_cn heat: a zonal harmonic on a sphere decays at l(l+1)/R^2 w
     auto band = shell::ShellBand::build(makeIcosphere(R, 5), bs);
     for (int l : {2, 3}) { // (l = 1 takes 3x the steps; the explicit test has it)
         const double expected = l * (l + 1) / (R * R);
-        const int n = int(std::ceil(0.15 / expected / 0.3)); // to about exp(-0.15)
+        const int n = int(std::ceil(0.1 / expected / 0.3)); // to about exp(-0.1)
         const double rate = lwcnDecayRate(band, l, 0.3, n);
         WARN("lw_cn heat, l = " << l << ": measured " << rate << " expected " << expected << " ("
                                 << 100.0 * (rate / expected - 1.0) << " %)");
@@ -209,7 +209,7 @@ TEST_CASE("Shell lw_cn: a plate grows the plane's lw_cn crystal (ice area within
                                << 100.0 * (areas.back() / planeArea - 1.0) << " %); mean BiCGSTAB iterations p "
                                << double(run.stats.iterationsP) / double(run.stats.solves) << ", T "
                                << double(run.stats.iterationsT) / double(run.stats.solves) << ", clipped "
-                               << run.stats.clippedVoxels << "; kernel " << run.stats.kernelSeconds << " s, solve "
+                               << run.stats.clippedVoxels << " (max " << run.stats.maxClip << "); kernel " << run.stats.kernelSeconds << " s, solve "
                                << run.stats.solveSeconds << " s, extend " << run.stats.extendSeconds << " s, rows "
                                << run.stats.voxelUpdates / run.stats.solves << ", band " << run.band->size());
         CHECK(std::fabs(areas.back() / planeArea - 1.0) < 0.05);
@@ -225,7 +225,7 @@ TEST_CASE("Shell lw_cn: bit-identical at 1 and 2 threads (active region, noise)"
         KobayashiParams k = lwcnParams(0.0005);
         k.noise = 0.01;
         Plate run = makePlateRun(40, 30, 30, k, /*lazy=*/true);
-        steps(run, 30, 7);
+        steps(run, 20, 7);
         p[threads - 1] = run.pf->p();
         t[threads - 1] = run.pf->T();
     }
@@ -257,12 +257,48 @@ TEST_CASE("Shell lw_cn: a sphere of curvature radius 5 voxels stays bounded", "[
         ice += pf.p()[i] > 0.5f ? 1 : 0;
     }
     WARN("R 5 lw_cn: p in [" << lo << ", " << hi << "], T in [" << tlo << ", " << thi << "], ice voxels " << ice
-                             << " of " << band->size() << ", clipped " << stats.clippedVoxels);
+                             << " of " << band->size() << ", clipped " << stats.clippedVoxels << " of "
+                             << stats.voxelUpdates << " row updates, by at most " << stats.maxClip);
     CHECK(lo >= 0.f);
     CHECK(hi <= 1.f);
     CHECK(tlo >= -0.05f); // T starts at 0 and only warms (latent heat K dp)
     CHECK(thi <= 1.5f + 0.05f);
     CHECK(ice > 0);
     CHECK(stats.unconverged == 0);
+    // p' is clipped back into [0, 1] where the cubic extension undershoots: rarely and by little
+    CHECK(double(stats.clippedVoxels) < 0.02 * double(stats.voxelUpdates));
+    CHECK(stats.maxClip < 1e-3);
 }
 
+
+TEST_CASE("Shell lw_cn scene: a run resumed from a checkpoint steps the same bits (history, region)",
+          "[fast][shell][lw_cn][checkpoint]")
+{
+    const std::string text = "[scene]\nname = \"lwcn_resume\"\nseed = 7\nframes = 1\nsteps_per_frame = 10\n"
+                             "[domain]\nkind = \"shell\"\nvoxel_size = 0.0001\nsphere_radius = 0.0012\n"
+                             "[[crystal.seed]]\nshape = \"point\"\nspace = \"world\"\nposition = [0.0012, 0, 0]\n"
+                             "radius = 3\n[phase_field]\nscheme = \"lw_cn\"\nnoise = 0.01\n";
+    const std::string path = test::tempDir("shell_lwcn_resume") + "/x.checkpoint";
+    Simulation straight = test::makeSim(text);
+    for (int s = 0; s < 9; ++s) straight.step();
+    {
+        Simulation first = test::makeSim(text);
+        for (int s = 0; s < 4; ++s) first.step();
+        REQUIRE(first.atCheckpointBoundary());
+        first.saveCheckpoint(path);
+    }
+    Simulation resumed = test::makeSim(text);
+    resumed.loadCheckpoint(path);
+    for (int s = 4; s < 9; ++s) resumed.step();
+    for (const char* f : {"p", "T", "growth_acc", "freeze_time"}) {
+        INFO("field " << f);
+        auto a = straight.world().fields.get<openvdb::FloatGrid>(f);
+        auto b = resumed.world().fields.get<openvdb::FloatGrid>(f);
+        CHECK(a->activeVoxelCount() == b->activeVoxelCount());
+        CHECK(test::maxAbsDiff(*a, *b) == 0.0);
+        CHECK(test::maxAbsDiff(*b, *a) == 0.0);
+    }
+    float pMax = 0;
+    for (auto it = straight.world().fields.get<openvdb::FloatGrid>("p")->cbeginValueOn(); it; ++it) pMax = std::max(pMax, *it);
+    CHECK(pMax > 0.9f); // the seed is there
+}

@@ -55,7 +55,8 @@ struct ShellStepStats {
     // lw_cn (the implicit closest-point method) only:
     double solveSeconds = 0;            ///< the two band solves
     int64_t solves = 0, iterationsP = 0, iterationsT = 0, unconverged = 0;
-    int64_t clippedVoxels = 0;          ///< p' clipped back into [0, 1] (a solve that stopped early)
+    int64_t clippedVoxels = 0;          ///< p' clipped back into [0, 1] (see stepImplicit)
+    double maxClip = 0;                 ///< the largest distance clipped
     double lastResidual = 0;
 };
 
