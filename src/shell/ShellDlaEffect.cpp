@@ -62,7 +62,28 @@ public:
     void step(World& world, const StepInfo& info) override;
     void addToFrame(World& world, Frame& frame) override;
     double time() const override { return mTime; }
-    bool supportsCheckpoint() const override { return false; }
+    // Checkpoints: the walkers' ice (stick points are off the lattice: p cannot rebuild it), p as
+    // this effect left it (the next step's incremental sync), the hit counts and the clock. The
+    // walks are keyed by (seed, step, walker): no stream to save.
+    bool supportsCheckpoint() const override { return true; }
+    void saveState(const World&, StateWriter& out) const override
+    {
+        out.putDouble("time", mTime);
+        out.putArray("ice_points", mWalkers->icePointList());
+        out.putArray("p_left", mPLeft);
+        out.putArray("hits", mHits);
+    }
+    void loadState(World&, const StateReader& in) override
+    {
+        mTime = in.getDouble("time");
+        std::vector<double> ice;
+        in.getArray("ice_points", ice);
+        mWalkers->restoreIce(ice);
+        in.getArray("p_left", mPLeft);
+        in.getArray("hits", mHits);
+        if ((!mPLeft.empty() && mPLeft.size() != mBand->size()) || (mParams.hits > 1 && mHits.size() != mBand->size()))
+            throw CheckpointError("[dla] on a shell: the checkpoint's band does not match this scene's");
+    }
 
     std::vector<std::pair<std::string, double>> timings() const override
     {

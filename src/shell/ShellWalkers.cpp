@@ -118,6 +118,19 @@ void SurfacePointIndex::insert(const Vec3d& q)
     ++mCount;
 }
 
+std::vector<double> SurfacePointIndex::pointList() const
+{
+    std::vector<uint64_t> keys;
+    keys.reserve(mFine.size());
+    for (const auto& [k, v] : mFine) keys.push_back(k);
+    std::sort(keys.begin(), keys.end());
+    std::vector<double> out;
+    out.reserve(3 * mCount);
+    for (uint64_t k : keys)
+        for (const Vec3d& q : mFine.at(k)) out.insert(out.end(), {q.x(), q.y(), q.z()});
+    return out;
+}
+
 double SurfacePointIndex::distance(const Vec3d& x) const
 {
     if (mCount == 0) return kFar;
