@@ -2,7 +2,9 @@
 /// @file ShellPhaseField.h
 /// @brief Surface PDEs on a shell band by the explicit closest point method (Ruuth & Merriman
 /// 2008): a Cartesian 3D step in the band's update set, then the closest-point re-extension
-/// u(x) = interp(u, cp(x)) with tricubic interpolation (ShellBand::extend).
+/// u(x) = interp(u, cp(x)) with tricubic interpolation (ShellBand::extend). The lw_cn scheme
+/// (params.scheme = SecondOrder) uses the implicit closest point method instead (Macdonald &
+/// Ruuth 2009; stepImplicit below, shell/ShellImplicit.h).
 ///
 /// Heat: u' = u + dt lap u (7-point Laplacian), re-extended. Wind (optional): a prescribed
 /// direction projected on each tangent plane advects T (first-order upwind), as [fluid]'s flow
