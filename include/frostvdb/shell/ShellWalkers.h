@@ -137,6 +137,11 @@ public:
     struct Inputs {
         const std::vector<float>* melt = nullptr;           ///< sticking probability
         const std::vector<openvdb::Vec3f>* drift = nullptr; ///< voxels per lattice step (tangential)
+        /// Steam (the plane's rule): walkers from baseWalkers on are released at a layer site
+        /// (band index, steamSites) drawn by the cumulative weights steamCdf.
+        int64_t baseWalkers = 0;
+        const std::vector<double>* steamCdf = nullptr;
+        const std::vector<size_t>* steamSites = nullptr;
     };
     /// Walkers [first, first + count) of @a step in parallel; results indexed by walker - first.
     void walkBatch(int64_t step, uint64_t first, uint64_t count, const Inputs& in,
