@@ -127,21 +127,6 @@ void BandRows::build(const ShellBand& band, const std::vector<uint32_t>& leafSlo
     });
 }
 
-void BandRows::extendAt(const ShellBand& band, const std::vector<float>& u, double background, bool fixedOnly,
-                        std::vector<double>& out) const
-{
-    out.resize(mPoint.size());
-    forRange(mPoint.size(), [&](size_t m) {
-        if (mFixed[m]) {
-            out[m] = double(u[mPoint[m]]) - background;
-            return;
-        }
-        out[m] = gatherExtension(band, mPoint[m], [&](size_t j) {
-            return fixedOnly && mRowOf[j] >= 0 ? 0.0 : double(u[j]) - background;
-        });
-    });
-}
-
 void BandRows::extendAt(const ShellBand& band, const std::vector<float>& u, double background,
                         std::vector<double>& full, std::vector<double>& fixed) const
 {

@@ -20,7 +20,7 @@
 ///
 /// Values of nodes that are not rows (update-set voxels of leaves not stepped, which hold the
 /// background within the region's tolerance) are fixed: the caller moves them to the right-hand
-/// side (extendAt with fixedOnly).
+/// side (extendAt's fixed part).
 #include <frostvdb/ice/ImplicitSystem.h> // SolveReport
 #include <frostvdb/shell/ShellBand.h>
 
@@ -49,11 +49,9 @@ public:
     /// Weight of row r's own voxel in the extension at its neighbour k (0 when not a node).
     double selfWeight(size_t r, int k) const { return mSelf[6 * r + size_t(k)]; }
 
-    /// (E (u - background)) at every extension point, in double (a fixed point: its own value);
-    /// @a fixedOnly: the rows' values taken as 0 (the fixed nodes' part, for the right-hand side).
-    void extendAt(const ShellBand& band, const std::vector<float>& u, double background, bool fixedOnly,
-                  std::vector<double>& out) const;
-    /// Both at once: @a full = E (u - background), @a fixed = the same with the rows' values 0.
+    /// (E (u - background)) at every extension point, in double, into @a full (a fixed point: its
+    /// own value), and into @a fixed the same with the rows' values taken as 0 (the fixed nodes'
+    /// part, for the right-hand side).
     void extendAt(const ShellBand& band, const std::vector<float>& u, double background, std::vector<double>& full,
                   std::vector<double>& fixed) const;
 
