@@ -16,6 +16,7 @@
 #include <cmath>
 #include <cstring>
 #include <functional>
+#include <map>
 
 using namespace frostvdb;
 using openvdb::Vec3d;
@@ -83,7 +84,7 @@ struct Plate {
     double dt = 0;
 };
 
-Plate makePlateRun(double L, double rx, double ry, const KobayashiParams& k, bool lazy = false)
+Plate makePlateRun(double L, double rx, double ry, const KobayashiParams& k, bool lazy = false, double tol = 0.0)
 {
     MeshPlacement m;
     m.rotateDegrees = Vec3d(rx, ry, 0);
@@ -99,7 +100,7 @@ Plate makePlateRun(double L, double rx, double ry, const KobayashiParams& k, boo
     run.band = lazy ? shell::ShellBand::buildLazy(mesh, bs) : shell::ShellBand::build(mesh, bs);
     run.pf = std::make_unique<shell::ShellPhaseField>(run.band, k, kH);
     if (lazy) {
-        run.pf->setActiveRegion(true, 0.0);
+        run.pf->setActiveRegion(true, tol);
         run.band->nearSurfacePoint(Vec3d(0.0), 6.0);
         run.pf->grow();
     }
@@ -326,4 +327,18 @@ TEST_CASE("Shell lw_cn scene: a run resumed from a checkpoint steps the same bit
     float pMax = 0;
     for (auto it = straight.world().fields.get<openvdb::FloatGrid>("p")->cbeginValueOn(); it; ++it) pMax = std::max(pMax, *it);
     CHECK(pMax > 0.9f); // the seed is there
+}
+
+TEST_CASE("Shell lw_cn: how far the active region spreads (measurement)", "[.][shellexp]")
+{
+    // stepped voxels of lw_cn and euler on a lazy 128^2 plate at three tolerances, same time
+    for (double tol : {0.0, 1e-6, 1e-4})
+        for (bool lw : {false, true}) {
+            KobayashiParams k = lw ? lwcnParams(0.0007) : KobayashiParams{};
+            Plate run = makePlateRun(128, 30, 30, k, true, tol);
+            const int n = lw ? 30 : 105; // t = 0.021
+            steps(run, n);
+            WARN((lw ? "lw_cn" : "euler") << ", tolerance " << tol << ", t 0.021: built " << run.band->size()
+                                          << ", stepped " << run.pf->steppedVoxels());
+        }
 }
