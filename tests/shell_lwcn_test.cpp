@@ -329,7 +329,7 @@ TEST_CASE("Shell lw_cn scene: a run resumed from a checkpoint steps the same bit
     CHECK(pMax > 0.9f); // the seed is there
 }
 
-TEST_CASE("Shell lw_cn: how far the active region spreads (measurement)", "[.][shellexp]")
+TEST_CASE("Shell lw_cn: how far the active region spreads (measurement)", "[.][slow][shellexp]")
 {
     // stepped voxels of lw_cn and euler on a lazy 128^2 plate at three tolerances, same time
     for (double tol : {0.0, 1e-6, 1e-4})
