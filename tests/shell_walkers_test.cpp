@@ -295,3 +295,79 @@ TEST_CASE("Shell walkers drift with the tangential wind: more sticks on the upwi
     CHECK(windy > 0.7);
     CHECK(std::fabs(normal - calm) < 0.03);
 }
+
+TEST_CASE("Shell [dla] scene: a run resumed from a checkpoint steps the same bits", "[fast][shell][dla][checkpoint]")
+{
+    // walkers alone (with [phase_field] the front's new ice, re-read each step, shields the stick
+    // points, so a lost ice set went unnoticed); hits = 2: hit counts in the state
+    const std::string text = "[scene]\nname = \"shdr\"\nseed = 3\nframes = 1\nsteps_per_frame = 12\n"
+                             "[domain]\nkind = \"shell\"\nvoxel_size = 0.0001\nsphere_radius = 0.0012\n"
+                             "[[crystal.seed]]\nshape = \"point\"\nspace = \"world\"\nposition = [0, 0, 0.0012]\n"
+                             "radius = 3\n[dla]\nhumidity = 150\nbatch = 64\nhits = 2\n";
+    const std::string path = test::tempDir("shell_dla_resume") + "/x.checkpoint";
+    Simulation straight = test::makeSim(text);
+    for (int s = 0; s < 12; ++s) straight.step();
+    {
+        Simulation first = test::makeSim(text);
+        for (int s = 0; s < 5; ++s) first.step();
+        REQUIRE(first.atCheckpointBoundary());
+        first.saveCheckpoint(path);
+    }
+    Simulation resumed = test::makeSim(text);
+    resumed.loadCheckpoint(path);
+    for (int s = 5; s < 12; ++s) resumed.step();
+    for (const char* f : {"p", "T", "growth_acc", "freeze_time"}) {
+        INFO("field " << f);
+        auto a = straight.world().fields.get<openvdb::FloatGrid>(f);
+        auto b = resumed.world().fields.get<openvdb::FloatGrid>(f);
+        CHECK(test::maxAbsDiff(*a, *b) == 0.0);
+        CHECK(test::maxAbsDiff(*b, *a) == 0.0);
+    }
+    double frozen[2] = {0, 0};
+    int k = 0;
+    for (Simulation* sim : {&straight, &resumed}) {
+        for (const auto& e : sim->effects())
+            if (e->name() == "dla")
+                for (const auto& [key, v] : e->counters())
+                    if (key == "frozen") frozen[k] = v;
+        ++k;
+    }
+    INFO("frozen straight " << frozen[0] << ", resumed (after the checkpoint) " << frozen[1]);
+    CHECK(frozen[0] > 20); // the walkers did freeze ice, before and after the checkpoint
+    CHECK(frozen[1] > 0);
+}
+
+TEST_CASE("Shell [dla] steam_humidity: steam beside the object adds walkers released under it",
+          "[fast][shell][dla]")
+{
+    // a sphere of radius 16 voxels with ice at both poles of x; a steam column beside its +x side
+    auto run = [](double gain) {
+        const std::string text =
+            "[scene]\nname = \"shst\"\nseed = 5\nframes = 1\nsteps_per_frame = 8\n"
+            "[domain]\nkind = \"shell\"\nvoxel_size = 0.0001\nsphere_radius = 0.0016\n"
+            "[[crystal.seed]]\nshape = \"point\"\nspace = \"world\"\nposition = [0.0016, 0, 0]\nradius = 3\n"
+            "[[crystal.seed]]\nshape = \"point\"\nspace = \"world\"\nposition = [-0.0016, 0, 0]\nradius = 3\n"
+            "[steam]\ncenter = [0.0024, 0, -0.001]\nradius = 0.0012\nheight = 0.002\ndensity_scale = 40.0\n"
+            "threshold = 0.01\n"
+            "[dla]\nhumidity = 40\nbatch = 64\nsteam_humidity = " + std::to_string(gain) + "\n";
+        auto sim = test::makeSim(text);
+        for (int s = 0; s < 8; ++s) sim.step();
+        double released = 0;
+        for (const auto& e : sim.effects())
+            if (e->name() == "dla")
+                for (const auto& [k, v] : e->counters())
+                    if (k == "released") released = v;
+        // growth on the steam side (x > 0) and the other
+        auto g = sim.world().fields.get<openvdb::FloatGrid>("growth_acc");
+        double plus = 0, minus = 0;
+        for (auto it = g->cbeginValueOn(); it; ++it) (it.getCoord().x() > 0 ? plus : minus) += *it;
+        return std::array<double, 3>{released, plus, minus};
+    };
+    const auto dry = run(0.0), wet = run(200.0);
+    INFO("released " << dry[0] << " -> " << wet[0] << "; growth +x/-x " << dry[1] << "/" << dry[2] << " -> " << wet[1]
+                     << "/" << wet[2]);
+    CHECK(dry[0] == 8 * 40);
+    CHECK(wet[0] > dry[0] * 1.2); // extra walkers from the steam
+    CHECK(wet[1] > dry[1] * 1.2); // and they freeze on the steam side
+    CHECK(std::fabs(wet[2] - dry[2]) < 0.5 * std::max(1.0, dry[2]) + 0.3 * (wet[1] - dry[1]));
+}

@@ -29,8 +29,11 @@ std::unique_ptr<Effect> PhaseFieldEffect::create(ParamDict& d, const World& worl
                     "advection and diffusion in a Crank-Nicolson average, implicit solve, second order; the paper's section 5)");
     k.scheme = scheme == "euler" ? PhaseFieldScheme::Euler : PhaseFieldScheme::SecondOrder;
     const bool euler = k.scheme == PhaseFieldScheme::Euler;
-    k.dt = d.getFloat("dt", euler ? 0.0002 : 0.0008, 1e-8, 0.1, "",
-                      "time step (dimensionless; the paper uses 0.0002 for euler and 0.0008 for lw_cn, the defaults)");
+    // a shell's 7-point stencil (centre weight 6 / h^2) puts lw_cn's limit at h^2 / 3 = 0.00073
+    const bool onShell = bool(shell::bandOf(world.domain));
+    k.dt = d.getFloat("dt", euler ? 0.0002 : (onShell ? 0.0007 : 0.0008), 1e-8, 0.1, "",
+                      "time step (dimensionless; the paper uses 0.0002 for euler and 0.0008 for lw_cn, the defaults; "
+                      "lw_cn on shell domains: 0.0007, below its 3D stability limit)");
     const std::string precision = d.getString(
         "precision", "wp", {"wp", "rp", "custom"},
         "lw_cn: solve the implicit systems to working precision (residual 1e-8), reduced precision (5e-3, the "
@@ -81,8 +84,13 @@ std::unique_ptr<Effect> PhaseFieldEffect::create(ParamDict& d, const World& worl
         "closed mesh with free stream `wind` (OpenVDB tools::PotentialFlow), its surface velocity on the tangent "
         "planes (about 1.5x the free stream at a sphere's equator, 0 at its stagnation points)") == "potential";
     d.onlyWhen(fx->mOnShell, "wind_model", "[domain] kind = \"" + world.domain.kind() + "\"");
-    if (fx->mOnShell) // the closest-point solver: Euler only, yet
-        if (!euler) d.fail("scheme", "lw_cn is not available on shell domains yet (allowed: euler)");
+    // lw_cn on a shell: the implicit closest-point system (shell/ShellImplicit.h) is not an
+    // M-matrix (the extension's cubic weights are not all positive): BiCGSTAB only
+    if (fx->mOnShell && !euler) {
+        if (d.has("solver") && !k.useBiCGSTAB)
+            d.fail("solver", "shell domains solve lw_cn's closest-point band system with BiCGSTAB (allowed: bicgstab)");
+        k.useBiCGSTAB = true;
+    }
     const double limit = k.stabilityLimit(world.domain.stencil(), !world.domain.flat());
     fx->mStabilityLimit = limit;
     fx->mSubsteps = 1;
@@ -102,10 +110,12 @@ std::unique_ptr<Effect> PhaseFieldEffect::create(ParamDict& d, const World& worl
         const double h = world.domain.lattice().spacing();
         // a potential flow is faster than its free stream over the object (1.5x on a sphere): allow 2x
         const double v1 = (fx->mPotentialWind ? 2.0 : 1.0) * (std::fabs(wind[0]) + std::fabs(wind[1]) + std::fabs(wind[2]));
-        const double windLimit = 1.0 / (6.0 / (h * h) + v1 / h);
+        // lw_cn: only the explicit half of the Crank-Nicolson average needs it (dt / 2)
+        const double windLimit = (euler ? 1.0 : 2.0) / (6.0 / (h * h) + v1 / h);
         if (v1 > 0 && k.dt / fx->mSubsteps > windLimit)
             d.fail("wind", "with dt " + std::to_string(k.dt / fx->mSubsteps) + " the wind's upwind heat step needs dt <= " +
-                               std::to_string(windLimit) + " (|v|_1 <= " + std::to_string((fx->mSubsteps / k.dt - 6.0 / (h * h)) * h) +
+                               std::to_string(windLimit) + " (|v|_1 <= " +
+                               std::to_string(((euler ? 1.0 : 2.0) * fx->mSubsteps / k.dt - 6.0 / (h * h)) * h) +
                                " at this dt)");
     }
     return fx;
@@ -274,7 +284,15 @@ bool PhaseFieldEffect::writePreview(World&, const Frame& frame, const std::strin
 void PhaseFieldEffect::saveState(const World& world, StateWriter& out) const
 {
     out.putDouble("time", mTime);
-    if (mShell) { // explicit: the band fields are World fields, no history; the active region is ours
+    if (mShell) { // the band fields are World fields; lw_cn's history and the active region are ours
+        if (mParams.scheme == PhaseFieldScheme::SecondOrder) {
+            const shell::ShellPhaseField& sh = *mShell;
+            out.putInt("shell_history", sh.hasHistory() ? 1 : 0);
+            out.putDouble("shell_last_step_dt", sh.lastStepDt());
+            out.putGrid("shell_history_p", shell::toGrid(mShell->band(), sh.historyP(), 0.f, "shell_history_p"));
+            out.putGrid("shell_history_T", shell::toGrid(mShell->band(), sh.historyT(), float(mParams.farTemperature),
+                                                         "shell_history_T"));
+        }
         if (!mShell->activeRegion()) return;
         auto boxes = openvdb::Int32Grid::create(0);
         auto stepped = openvdb::MaskGrid::create();
@@ -306,6 +324,12 @@ void PhaseFieldEffect::loadState(World& world, const StateReader& in)
         if (in.has("shell_region_stepped"))
             mShell->restoreRegion(*in.getGrid<openvdb::Int32Grid>("shell_region_boxes"),
                                   *in.getGrid<openvdb::MaskGrid>("shell_region_stepped"));
+        if (mParams.scheme == PhaseFieldScheme::SecondOrder) {
+            mShell->hasHistory() = in.getInt("shell_history") != 0;
+            mShell->lastStepDt() = in.getDouble("shell_last_step_dt");
+            shell::fromGrid(mShell->band(), *in.getGrid<openvdb::FloatGrid>("shell_history_p"), mShell->historyP());
+            shell::fromGrid(mShell->band(), *in.getGrid<openvdb::FloatGrid>("shell_history_T"), mShell->historyT());
+        }
         return;
     }
     for (auto& [name, grid] : mSolver->historyGrids()) *grid = in.getGrid<openvdb::FloatGrid>(name);
@@ -321,10 +345,15 @@ void PhaseFieldEffect::loadState(World& world, const StateReader& in)
 
 std::vector<std::pair<std::string, double>> PhaseFieldEffect::timings() const
 {
-    if (mShell)
-        return {{"kernel", mShellStats.kernelSeconds}, {"extend", mShellStats.extendSeconds},
-                {"voxel_updates", double(mShellStats.voxelUpdates)}, {"substeps", double(mSubsteps)},
-                {"stability_limit_dt", mStabilityLimit}};
+    if (mShell) {
+        std::vector<std::pair<std::string, double>> t{{"kernel", mShellStats.kernelSeconds},
+                                                      {"extend", mShellStats.extendSeconds},
+                                                      {"voxel_updates", double(mShellStats.voxelUpdates)},
+                                                      {"substeps", double(mSubsteps)},
+                                                      {"stability_limit_dt", mStabilityLimit}};
+        if (mParams.scheme == PhaseFieldScheme::SecondOrder) t.push_back({"solve", mShellStats.solveSeconds});
+        return t;
+    }
     std::vector<std::pair<std::string, double>> t{
         {"region", mStats.regionSeconds}, {"kernel", mStats.kernelSeconds}, {"truncate", mStats.truncateSeconds}};
     if (mParams.scheme == PhaseFieldScheme::SecondOrder) {
@@ -336,6 +365,19 @@ std::vector<std::pair<std::string, double>> PhaseFieldEffect::timings() const
 
 std::vector<std::pair<std::string, double>> PhaseFieldEffect::counters() const
 {
+    if (mShell) {
+        std::vector<std::pair<std::string, double>> t{{"region_rebuilds", 0.0}};
+        if (mParams.scheme == PhaseFieldScheme::SecondOrder) {
+            const double n = double(std::max<int64_t>(1, mShellStats.solves));
+            t.push_back({"mean_iterations_p", double(mShellStats.iterationsP) / n});
+            t.push_back({"mean_iterations_T", double(mShellStats.iterationsT) / n});
+            t.push_back({"unconverged_solves", double(mShellStats.unconverged)});
+            t.push_back({"clipped_voxels", double(mShellStats.clippedVoxels)});
+        }
+        t.push_back({"substeps", double(mSubsteps)});
+        t.push_back({"stability_limit_dt", mStabilityLimit});
+        return t;
+    }
     std::vector<std::pair<std::string, double>> t{{"region_rebuilds", double(mStats.rebuilds)}};
     if (mParams.scheme == PhaseFieldScheme::SecondOrder) {
         const double n = std::max<int64_t>(1, mStats.solves);

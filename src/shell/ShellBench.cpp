@@ -119,12 +119,57 @@ void benchLargePanel(const BenchArgs& a)
     std::printf("\n");
 }
 
+/// lw_cn (the implicit closest-point method) against the explicit step on one sphere (whole band),
+/// both to the same simulated time: time per step, per unit of simulated time, frosted area.
+void benchSchemes(const BenchArgs& a)
+{
+    const double R = a.quick ? 16 : 32, T = a.quick ? 0.008 : 0.04;
+    TriangleMesh sphere = makeIcosphere(R, 5);
+    shell::BandSettings bs;
+    bs.voxelSize = 1.0;
+    auto band = shell::ShellBand::build(sphere, bs);
+    std::printf("lw_cn vs euler on sphere R %d (whole band, %zu band voxels), to t = %g:\n", int(R), band->size(), T);
+    std::printf("%-7s %9s %6s %10s %12s %14s %12s %14s %9s %11s\n", "scheme", "dt", "steps", "step ms", "cpu ms/step",
+                "cpu s per 0.01 t", "frosted vox", "iterations p/T", "clipped", "max clip");
+    for (bool lw : {false, true}) {
+        KobayashiParams k;
+        if (lw) {
+            k.scheme = PhaseFieldScheme::SecondOrder;
+            k.dt = 0.0007; // the shell's lw_cn default (its 3D limit is h^2 / 3 = 0.00073)
+            k.useBiCGSTAB = true;
+        }
+        shell::ShellPhaseField pf(band, k, 3.0 / 64.0);
+        for (size_t i = 0; i < band->size(); ++i) {
+            const double d = (band->closestPoint(i) - openvdb::Vec3d(0, 0, R)).length();
+            pf.p()[i] = d > 6 ? 0.f : float(0.5 * (1.0 - std::tanh((d - 3.0) / 0.7)));
+        }
+        const int steps = int(std::lround(T / k.dt));
+        shell::ShellStepStats st;
+        const auto t0 = Clock::now();
+        const double c0 = bench::cpuSeconds();
+        for (int s = 0; s < steps; ++s) pf.step((s + 1) * k.dt, s, 1, &st);
+        const double sec = bench::since(t0), cpu = bench::cpuSeconds() - c0;
+        const double n = double(std::max<int64_t>(1, st.solves));
+        std::printf("%-7s %9.5f %6d %10.2f %12.2f %14.2f %12.0f %7.1f/%-6.1f %9lld %11.2g\n", lw ? "lw_cn" : "euler",
+                    k.dt, steps, 1e3 * sec / steps, 1e3 * cpu / steps, cpu / (steps * k.dt) * 0.01,
+                    frostedArea(*band, pf.p()),
+                    lw ? double(st.iterationsP) / n : 0.0, lw ? double(st.iterationsT) / n : 0.0,
+                    (long long)st.clippedVoxels, st.maxClip);
+        std::fflush(stdout);
+    }
+    std::printf("\n");
+}
+
 int benchShell(const BenchArgs& a)
 {
     std::unique_ptr<tbb::global_control> threads;
     if (a.threads > 0)
         threads = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism, size_t(a.threads));
-    benchLargePanel(a);
+    // `bench shell schemes`: only the lw_cn / euler comparison
+    const bool onlySchemes = !a.args.empty() && a.args[0] == "schemes";
+    if (!onlySchemes) benchLargePanel(a);
+    benchSchemes(a);
+    if (onlySchemes) return 0;
     const int steps = a.quick ? 20 : 200;
     std::vector<ShellResult> rows;
     for (double R : a.quick ? std::vector<double>{12, 24} : std::vector<double>{16, 32, 64}) {
@@ -168,6 +213,7 @@ int benchShell(const BenchArgs& a)
 FROSTVDB_REGISTER_BENCH(shell, "shell",
     "frost on objects: memory and time per step against frosted area on a 2 m panel at 0.25 mm (active "
     "region), band size, memory and time per phase-field step for spheres and a tilted panel (whole band), "
+    "lw_cn (implicit closest-point method) against euler on a sphere to the same time (word: schemes = only that), "
     "and the shell's update rate against the plane's", benchShell);
 
 } // namespace frostvdb

@@ -6,6 +6,10 @@
 
 #include <frostvdb/core/Error.h>
 #include <frostvdb/core/Random.h>
+#include <frostvdb/core/FieldKeys.h>
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
 #include <frostvdb/ice/IceState.h>
 #include <frostvdb/shell/ShellDomain.h>
 #include <frostvdb/shell/ShellGrids.h>
@@ -41,6 +45,7 @@ public:
             .use(ice::kGrowth, kInitialises | kWrites)
             .use(ice::kFreezeTime, kInitialises | kWrites)
             .use(ice::kMelt, kReads);
+        if (mParams.steamHumidity > 0) d.use(gas::kDensity, kReads);
         d.output(out::kIce).output(out::kIceSdf).output(out::kIceTemperature).output(out::kGrowth).output(out::kFreezeTime);
         return d;
     }
@@ -62,11 +67,33 @@ public:
     void step(World& world, const StepInfo& info) override;
     void addToFrame(World& world, Frame& frame) override;
     double time() const override { return mTime; }
-    bool supportsCheckpoint() const override { return false; }
+    // Checkpoints: the walkers' ice (stick points are off the lattice: p cannot rebuild it), p as
+    // this effect left it (the next step's incremental sync), the hit counts and the clock. The
+    // walks are keyed by (seed, step, walker): no stream to save.
+    bool supportsCheckpoint() const override { return true; }
+    void saveState(const World&, StateWriter& out) const override
+    {
+        out.putDouble("time", mTime);
+        out.putArray("ice_points", mWalkers->icePointList());
+        out.putArray("p_left", mPLeft);
+        out.putArray("hits", mHits);
+    }
+    void loadState(World&, const StateReader& in) override
+    {
+        mTime = in.getDouble("time");
+        std::vector<double> ice;
+        in.getArray("ice_points", ice);
+        mWalkers->restoreIce(ice);
+        in.getArray("p_left", mPLeft);
+        in.getArray("hits", mHits);
+        if ((!mPLeft.empty() && mPLeft.size() != mBand->size()) || (mParams.hits > 1 && mHits.size() != mBand->size()))
+            throw CheckpointError("[dla] on a shell: the checkpoint's band does not match this scene's");
+    }
 
     std::vector<std::pair<std::string, double>> timings() const override
     {
-        return {{"walkers", mStats.walkSeconds}, {"apply", mStats.applySeconds}, {"sync", mStats.syncSeconds}};
+        return {{"walkers", mStats.walkSeconds}, {"apply", mStats.applySeconds}, {"sync", mStats.syncSeconds},
+                {"steam", mStats.steamSeconds}};
     }
     std::vector<std::pair<std::string, double>> counters() const override
     {
@@ -86,6 +113,52 @@ private:
     std::vector<float> mP, mT, mGrowth, mFreeze, mMelt, mStaticMelt;
     std::vector<openvdb::Vec3f> mDrift;
     std::vector<float> mPLeft; ///< p as this effect left it last step (empty: none yet)
+    // steam humidity (the plane's rule, DlaEffect::updateSteam): per layer site, the largest
+    // density x (1 - h / reach) along its outward normal up to steam_reach; rebuilt when the gas
+    // publishes a new density grid
+    openvdb::FloatGrid::ConstPtr mSteamSource;
+    std::vector<double> mSteamCdf;
+    std::vector<size_t> mSteamSites;
+    double mSteamSum = 0;
+
+    void updateSteam(World& world)
+    {
+        auto density = world.fields.get<openvdb::FloatGrid>(gas::kDensity);
+        if (density == mSteamSource) return;
+        mSteamSource = density;
+        mSteamCdf.clear();
+        mSteamSites.clear();
+        mSteamSum = 0;
+        if (!density || density->activeVoxelCount() == 0) return;
+        const ShellBand& b = *mBand;
+        const auto& sites = mWalkers->layer();
+        const auto& xf = *b.transform();
+        const auto& dxf = density->transform();
+        const double reach = mParams.steamReach, dz = dxf.voxelSize()[2];
+        const int samples = reach > 0 ? std::max(1, int(std::ceil(reach / dz))) : 0;
+        std::vector<float> w(sites.size(), 0.f);
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, sites.size(), 256), [&](const tbb::blocked_range<size_t>& r) {
+            auto acc = density->getConstAccessor();
+            for (size_t k = r.begin(); k < r.end(); ++k) {
+                const openvdb::Vec3d p = xf.indexToWorld(b.closestPoint(sites[k]));
+                const openvdb::Vec3d up = b.frame(sites[k]).normal;
+                float best = 0.f;
+                for (int s = 0; s <= samples; ++s) {
+                    const double h = s * dz;
+                    if (reach > 0 && h > reach) break;
+                    const float wgt = reach > 0 ? float(1.0 - h / reach) : 1.f;
+                    best = std::max(best, acc.getValue(dxf.worldToIndexNodeCentered(p + up * h)) * wgt);
+                }
+                w[k] = best;
+            }
+        });
+        for (size_t k = 0; k < sites.size(); ++k) {
+            if (!(w[k] > 0.f)) continue;
+            mSteamSum += w[k];
+            mSteamCdf.push_back(mSteamSum);
+            mSteamSites.push_back(sites[k]);
+        }
+    }
 
     /// The walkers' ice from p: in full at the first step or when ice melted, else only the
     /// voxels another effect (the phase field) turned to ice since our last step.
@@ -176,7 +249,23 @@ void ShellDlaEffect::step(World& world, const StepInfo& info)
         if (e.kind == ShellWalkEnd::Exhausted) ++mStats.exhausted;
     };
 
-    const uint64_t total = uint64_t(mParams.humidityAt(info.step));
+    const int64_t H = mParams.humidityAt(info.step);
+    uint64_t total = uint64_t(H);
+    in.baseWalkers = H;
+    if (mParams.steamHumidity > 0) { // extra walkers H x gain x mean steam weight, released in the steam
+        t0 = Clock::now();
+        updateSteam(world);
+        const size_t cells = mWalkers->layer().size();
+        if (mSteamSum > 0 && cells > 0) {
+            const double e = double(H) * mParams.steamHumidity * mSteamSum / double(cells);
+            uint64_t extra = uint64_t(std::floor(e));
+            if (toUnit(hashCounters(world.seed, 0x57EA4ull, uint64_t(info.step))) < e - std::floor(e)) ++extra;
+            total += extra;
+            in.steamCdf = &mSteamCdf;
+            in.steamSites = &mSteamSites;
+        }
+        mStats.steamSeconds += since(t0);
+    }
     mStats.released += total;
     std::vector<ShellWalkEnd> ends;
     for (uint64_t first = 0; first < total; first += uint64_t(mParams.batch)) {
@@ -230,8 +319,6 @@ void ShellDlaEffect::addToFrame(World& world, Frame& frame)
 
 std::unique_ptr<Effect> makeShellDla(const ice::DlaParams& params, ParamDict& d, const World& world)
 {
-    if (params.steamHumidity > 0)
-        d.fail("steam_humidity", "steam humidity is not available on shell domains (allowed: 0)");
     if (params.release == ice::DlaRelease::Perimeter) {
         if (bandOf(world.domain)->borderEdgeCount() == 0) d.fail("release", "perimeter on a shell releases on the open mesh's border; this mesh is closed (allowed: uniform)");
     }

@@ -118,6 +118,19 @@ void SurfacePointIndex::insert(const Vec3d& q)
     ++mCount;
 }
 
+std::vector<double> SurfacePointIndex::pointList() const
+{
+    std::vector<uint64_t> keys;
+    keys.reserve(mFine.size());
+    for (const auto& [k, v] : mFine) keys.push_back(k);
+    std::sort(keys.begin(), keys.end());
+    std::vector<double> out;
+    out.reserve(3 * mCount);
+    for (uint64_t k : keys)
+        for (const Vec3d& q : mFine.at(k)) out.insert(out.end(), {q.x(), q.y(), q.z()});
+    return out;
+}
+
 double SurfacePointIndex::distance(const Vec3d& x) const
 {
     if (mCount == 0) return kFar;
@@ -256,11 +269,19 @@ ShellWalkEnd ShellWalkers::walk(int64_t step, uint64_t walker, uint64_t salt, co
         x = *start;
     } else { // release on a surface point away from the ice (uniform by area, or on the border)
         const auto& sites = mParams.release == ice::DlaRelease::Perimeter ? mBorderLayer : mLayer;
-        if (sites.empty()) return end;
+        const bool steam = in.steamCdf && !in.steamCdf->empty() && walker >= uint64_t(in.baseWalkers);
+        if (sites.empty() && !steam) return end;
         bool found = false;
         for (int t = 0; t < 64 && !found; ++t) {
-            const uint64_t pick = uint64_t((static_cast<unsigned __int128>(rng.next()) * sites.size()) >> 64);
-            x = b.closestPoint(sites[size_t(pick)]);
+            if (steam) { // a site by its steam weight (DlaEngine::release's rule)
+                const double u = rng.uniform() * in.steamCdf->back();
+                const size_t k = size_t(std::upper_bound(in.steamCdf->begin(), in.steamCdf->end(), u) -
+                                        in.steamCdf->begin());
+                x = b.closestPoint((*in.steamSites)[std::min(k, in.steamSites->size() - 1)]);
+            } else {
+                const uint64_t pick = uint64_t((static_cast<unsigned __int128>(rng.next()) * sites.size()) >> 64);
+                x = b.closestPoint(sites[size_t(pick)]);
+            }
             found = mIce.distance(x) > kStickRadius;
         }
         if (!found) return end;

@@ -204,6 +204,12 @@ public:
                      const std::vector<uint32_t>* leafSlots = nullptr,
                      const std::vector<uint32_t>* nodeSlots = nullptr) const;
 
+    /// The extension's stencil at voxel @a i (its leaf prepared): 64 node indices (x fastest, then
+    /// y, then z) and the 3 x 4 Lagrange weights per axis; extend() is sum_zyx wz wy wx u(node).
+    /// (The implicit closest-point system builds its operator from them, shell/ShellImplicit.h.)
+    const int32_t* stencilNodes(size_t i) const { return &mNodes[64 * i]; }
+    const std::array<float, 12>& stencilWeights(size_t i) const { return mWeights[i]; }
+
     /// Bytes held by the band (the per-voxel arrays, the index grid, the mesh and its hierarchy).
     size_t memoryBytes() const;
 

@@ -2,7 +2,9 @@
 /// @file ShellPhaseField.h
 /// @brief Surface PDEs on a shell band by the explicit closest point method (Ruuth & Merriman
 /// 2008): a Cartesian 3D step in the band's update set, then the closest-point re-extension
-/// u(x) = interp(u, cp(x)) with tricubic interpolation (ShellBand::extend).
+/// u(x) = interp(u, cp(x)) with tricubic interpolation (ShellBand::extend). The lw_cn scheme
+/// (params.scheme = SecondOrder) uses the implicit closest point method instead (Macdonald &
+/// Ruuth 2009; stepImplicit below, shell/ShellImplicit.h).
 ///
 /// Heat: u' = u + dt lap u (7-point Laplacian), re-extended. Wind (optional): a prescribed
 /// direction projected on each tangent plane advects T (first-order upwind), as [fluid]'s flow
@@ -37,6 +39,7 @@
 /// depend on the thread count.
 #include <frostvdb/ice/Kobayashi.h>
 #include <frostvdb/shell/ShellBand.h>
+#include <frostvdb/shell/ShellImplicit.h>
 
 #include <functional>
 #include <memory>
@@ -51,6 +54,12 @@ void heatStep(const ShellBand& band, std::vector<float>& u, double dt, double h,
 struct ShellStepStats {
     double kernelSeconds = 0, extendSeconds = 0;
     uint64_t voxelUpdates = 0; ///< band voxels stepped (update set) summed over steps
+    // lw_cn (the implicit closest-point method) only:
+    double solveSeconds = 0;            ///< the two band solves
+    int64_t solves = 0, iterationsP = 0, iterationsT = 0, unconverged = 0;
+    int64_t clippedVoxels = 0;          ///< p' clipped back into [0, 1] (see stepImplicit)
+    double maxClip = 0;                 ///< the largest distance clipped
+    double lastResidual = 0;
 };
 
 class ShellPhaseField {
@@ -108,14 +117,40 @@ public:
 
     /// Re-extends p and T off the surface (after seeds were written anywhere in the band).
     void extendAll();
-    /// One forward-Euler step of dt at time @a time (the time after the step goes to freeze_time).
+    /// One step of dt at time @a time (the time after the step goes to freeze_time): forward
+    /// Euler, or with params.scheme = SecondOrder the lw_cn step (see "lw_cn" below).
     void step(double time, ShellStepStats* stats = nullptr) { step(time, 0, 0, stats); }
     /// The same with Kobayashi's interface noise (params.noise > 0): chi in [-1/2, 1/2] is a pure
     /// function of (@a seed, @a stepIndex, the voxel's coordinate), as on a plane, so the result
     /// does not depend on the thread count or on the band's voxel order.
     void step(double time, int64_t stepIndex, uint64_t seed, ShellStepStats* stats);
 
+    // ---- lw_cn: the plane's second-order scheme (Kobayashi.h kobayashiSecondOrderRow) by the
+    // implicit closest point method (Macdonald & Ruuth 2009, shell/ShellImplicit.h) ----
+    // The phase row: eq. 8's advection-diffusion a lap p + grad a . grad p with a = eps^2(theta)
+    // (theta in the voxel's tangent frame, of p extrapolated to the step's midpoint) as the plane's
+    // advectionDiffusionCoefficients on the 7-point stencil, in a Crank-Nicolson average, plus
+    // the plane's bounded linearised reaction; the heat row: lap T (plus the tangential wind,
+    // upwind) in a Crank-Nicolson average, the latent heat K (p' - p) added once p' is solved.
+    // Every neighbour value of an implicit row is the extension E of the unknowns (the centre the
+    // unknown itself: M&R's stabilised split), the explicit half reads E of the start values the
+    // same way; rows are the update set of the stepped leaves. After the solves only the voxels
+    // that are not rows (d > 3.5, read by the next step's coefficients and by the outputs) are
+    // filled by extension. The first step is two implicit-Euler half-steps (Rannacher), as on a
+    // plane. The history below is what a checkpoint must keep to resume bit for bit.
+    /// Start values of the last step (band order) and its dt; empty history: no step taken yet.
+    std::vector<float>& historyP() { return mStartP; }
+    std::vector<float>& historyT() { return mStartT; }
+    bool& hasHistory() { return mHistory; }
+    double& lastStepDt() { return mLastDt; }
+    const std::vector<float>& historyP() const { return mStartP; }
+    const std::vector<float>& historyT() const { return mStartT; }
+    bool hasHistory() const { return mHistory; }
+    double lastStepDt() const { return mLastDt; }
+
 private:
+    /// One theta-step of @a dt (theta 1/2: Crank-Nicolson, 1: implicit Euler).
+    void stepImplicit(double dt, double theta, double tNext, int64_t stepIndex, uint64_t seed, ShellStepStats* stats);
     /// Finds new hot leaves and grows the stepped set (active mode), or lists every leaf.
     void updateRegion();
     std::shared_ptr<const ShellBand> mBand;
@@ -135,6 +170,14 @@ private:
     std::vector<uint32_t> mStepped;               ///< leaf slots stepped (sorted)
     std::vector<float> mPhi;                      ///< extendPhase's atanh(2p - 1)
     size_t mSlotsSeen = 0;                        ///< leaf slots scanned for heat so far
+    // lw_cn
+    std::vector<float> mStartP, mStartT, mPe, mPf; ///< last step's start values; p at the step's theta-point and end
+    bool mHistory = false;
+    double mLastDt = 0;
+    std::unique_ptr<BandRows> mRows;
+    size_t mRowsStepped = size_t(-1), mRowsBand = size_t(-1); ///< what mRows was built for
+    BandSystem mSysP, mSysT;
+    std::vector<double> mXP, mXT, mP0, mEP, mEPFixed, mET, mETFixed, mEPhiN, mEPhiF;
 };
 
 } // namespace frostvdb::shell

@@ -50,6 +50,8 @@ public:
     void clear();
     void insert(const openvdb::Vec3d& q);
     size_t size() const { return mCount; }
+    /// Every point as x, y, z triples, bucket by bucket in key order.
+    std::vector<double> pointList() const;
     /// Lower bound of the Euclidean distance from @a x to the nearest point: exact when it is at
     /// most kBucket; kFar when there is no point within the pyramid's top level.
     double distance(const openvdb::Vec3d& x) const;
@@ -115,6 +117,14 @@ public:
     /// Lower bound of the distance (voxels) from @a x to the ice.
     double iceDistance(const openvdb::Vec3d& x) const { return mIce.distance(x); }
     size_t icePoints() const { return mIce.size(); }
+    /// The walkers' ice as x, y, z triples (bucket by bucket in key order; for checkpoints), and
+    /// the same set restored (distances are minima: the order does not change any result).
+    std::vector<double> icePointList() const { return mIce.pointList(); }
+    void restoreIce(const std::vector<double>& xyz)
+    {
+        mIce.clear();
+        for (size_t k = 0; k + 2 < xyz.size(); k += 3) mIce.insert(openvdb::Vec3d(xyz[k], xyz[k + 1], xyz[k + 2]));
+    }
     /// Band voxels whose closest point lies within kMarkRadius of @a x (ascending band index).
     std::vector<size_t> markDisc(const openvdb::Vec3d& x) const;
     /// Band index of the voxel holding @a x (the walker's site: hits and melt are read there).
@@ -127,6 +137,11 @@ public:
     struct Inputs {
         const std::vector<float>* melt = nullptr;           ///< sticking probability
         const std::vector<openvdb::Vec3f>* drift = nullptr; ///< voxels per lattice step (tangential)
+        /// Steam (the plane's rule): walkers from baseWalkers on are released at a layer site
+        /// (band index, steamSites) drawn by the cumulative weights steamCdf.
+        int64_t baseWalkers = 0;
+        const std::vector<double>* steamCdf = nullptr;
+        const std::vector<size_t>* steamSites = nullptr;
     };
     /// Walkers [first, first + count) of @a step in parallel; results indexed by walker - first.
     void walkBatch(int64_t step, uint64_t first, uint64_t count, const Inputs& in,
