@@ -8,7 +8,9 @@
 
 #include <catch2/catch.hpp>
 
+#include <map>
 #include <set>
+#include <tuple>
 
 using namespace frostvdb;
 using namespace frostvdb::test;
@@ -238,4 +240,46 @@ TEST_CASE("A region grown around written cells covers the region a full rebuild 
     const auto g = voxelsOf(*grown);
     for (const auto& v : voxelsOf(*rebuilt)) CHECK(g.count(v) == 1);
     for (const auto& v : g) CHECK(d.dom.contains(v)); // clipped to the domain
+}
+
+TEST_CASE("Walkers and phase field: the region keeps its cadence and tolerance 0 equals dense bit for bit",
+          "[fast][dla][region]")
+{
+    const char* scene = R"(
+[scene]
+name = "walkers"
+frames = 1
+steps_per_frame = 30
+seed = 5
+[domain]
+lattice = "hexagonal"
+size = [128, 128]
+voxel_size = 0.0001
+[[crystal.seed]]
+shape = "point"
+position = [0.5, 0.5]
+radius = 3
+[dla]
+humidity = 400
+batch = 64
+[phase_field]
+anisotropy_mode = 6
+)";
+    auto run = [&](const std::vector<std::string>& extra) {
+        Simulation sim = makeSim(scene, extra);
+        sim.initialize();
+        for (int s = 0; s < 30; ++s) sim.step();
+        std::map<std::string, double> counts;
+        for (auto& [k, v] : sim.effect("phase_field")->counters()) counts[k] = v;
+        return std::make_tuple(sim.world().fields.get<openvdb::FloatGrid>("p"),
+                               sim.world().fields.get<openvdb::FloatGrid>("T"), counts);
+    };
+    const auto [pd, td, cd] = run({"region.dense=true"});
+    const auto [ps, ts, cs] = run({"region.tolerance=0"});
+    CHECK(maxAbsDiff(*ps, *pd) == 0.0);
+    CHECK(maxAbsDiff(*ts, *td) == 0.0);
+    // the walkers froze cells in every step, yet the region was not rebuilt every step
+    CHECK(cs.at("region_rebuilds") <= 15);
+    const auto [p6, t6, c6] = run({"region.tolerance=1e-6"});
+    CHECK(c6.at("region_rebuilds") == 15); // automatic k = 2 over 30 steps
 }

@@ -125,8 +125,8 @@ void DlaEffect::initialize(World& world)
     // Every cell this effect writes in p and T is listed (freezeCell), so the phase field can grow
     // its active region around the new ice instead of rebuilding it (core/FieldEdits.h).
     FieldEdits& edits = world.state<FieldEdits>();
-    edits.reports(kPhase.name);
-    edits.reports(kTemperature.name);
+    edits.reports(kPhase.name, this);
+    edits.reports(kTemperature.name, this);
     if (mParams.hits > 1) world.fields.require<openvdb::Int32Grid>(kDlaHits, 0);
     const auto t0 = Clock::now();
     mEngine = std::make_unique<DlaEngine>(world.domain, mParams, world.seed);
