@@ -134,11 +134,126 @@ void fillLeaves(openvdb::MaskTree& tree, const Domain& domain)
     });
 }
 
+/// True when some field stores an active tile (a pruned block): the leaf-level plane path
+/// reads leaves only.
+bool anyActiveTile(const std::vector<const openvdb::FloatGrid*>& fields)
+{
+    for (const auto* f : fields) {
+        auto it = f->tree().cbeginValueOn();
+        it.setMaxDepth(openvdb::FloatTree::ValueOnCIter::LEAF_DEPTH - 1);
+        if (it) return true;
+    }
+    return false;
+}
+
+/// The plane region computed leaf by leaf, the same set of whole leaves the voxel dilation
+/// gives (a leaf is in when one of its cells lies within `iterations` of a source voxel: L1
+/// for the 4-neighbour dilation, Chebyshev for the hexagonal 3x3 one), without building or
+/// dilating a voxel mask: each source leaf marks the neighbour leaves its voxels reach. Cost
+/// follows the fields' leaves. Returns @a previous itself when the leaf set is unchanged.
+/// Null when the reach spans more than two leaves (the voxel dilation handles that).
+openvdb::MaskGrid::Ptr planeRegionByLeaves(const std::vector<const openvdb::FloatGrid*>& fields, int iterations,
+                                           bool chebyshev, const Domain& domain,
+                                           const openvdb::MaskGrid::Ptr& previous)
+{
+    constexpr int kMaxLeaves = 3; // neighbour leaves reached along an axis
+    const int R = (iterations + kLeafDim - 1) / kLeafDim;
+    if (R > kMaxLeaves) return nullptr;
+    constexpr int kSide = 2 * kMaxLeaves + 1; // (2 kMaxLeaves + 1)^2 <= 64 bits
+    const openvdb::CoordBBox& box = domain.bbox();
+    auto floorDiv = [](int v) { return v >= 0 ? v / kLeafDim : -((-v + kLeafDim - 1) / kLeafDim); };
+    const int lx0 = floorDiv(box.min().x()), ly0 = floorDiv(box.min().y());
+    const int nx = floorDiv(box.max().x()) - lx0 + 1, ny = floorDiv(box.max().y()) - ly0 + 1;
+    const int z0 = box.min().z(), zLeaf = z0 & ~(kLeafDim - 1), zBit = z0 & (kLeafDim - 1);
+    // gap from local coordinate v (0..7) to the cells of the leaf d leaves away along that axis
+    auto gap = [](int v, int d) { return d == 0 ? 0 : d > 0 ? d * kLeafDim - v : v + 1 + (-d - 1) * kLeafDim; };
+    std::vector<uint8_t> table(size_t(nx) * size_t(ny), 0);
+    for (const auto* f : fields) {
+        openvdb::tree::LeafManager<const openvdb::FloatTree> leaves(f->tree());
+        // Per source leaf: which of the (2R+1)^2 leaves around it its voxels reach (bit per leaf).
+        std::vector<uint64_t> reached(leaves.leafCount(), 0);
+        leaves.foreach([&](const openvdb::FloatTree::LeafNodeType& leaf, size_t i) {
+            const openvdb::Coord o = leaf.origin();
+            if (o.z() != zLeaf) return;
+            // per x: the plane layer's active y's inside the domain (bit y)
+            const openvdb::CoordBBox in = leaf.getNodeBoundingBox();
+            const bool inside = box.isInside(openvdb::CoordBBox(openvdb::Coord(in.min().x(), in.min().y(), z0),
+                                                                openvdb::Coord(in.max().x(), in.max().y(), z0)));
+            uint8_t rows[kLeafDim];
+            bool any = false;
+            for (int x = 0; x < kLeafDim; ++x) {
+                const uint64_t w = leaf.getValueMask().template getWord<uint64_t>(openvdb::Index(x)) >> zBit;
+                uint8_t r = 0;
+                for (int y = 0; y < kLeafDim; ++y)
+                    if ((w >> (y * 8)) & 1u) r |= uint8_t(1u << y);
+                if (r && !inside)
+                    for (int y = 0; y < kLeafDim; ++y)
+                        if (!box.isInside(openvdb::Coord(o.x() + x, o.y() + y, z0))) r &= uint8_t(~(1u << y));
+                rows[x] = r;
+                any = any || r;
+            }
+            if (!any) return;
+            uint64_t bits = 0;
+            for (int dy = -R; dy <= R; ++dy)
+                for (int dx = -R; dx <= R; ++dx) {
+                    // the nearest row cell: its lowest y for leaves below, highest for above
+                    int best = 1 << 20;
+                    for (int x = 0; x < kLeafDim; ++x) {
+                        if (!rows[x]) continue;
+                        const int y = dy < 0 ? __builtin_ctz(rows[x]) : 31 - __builtin_clz(rows[x]);
+                        const int gx = gap(x, dx), gy = gap(y, dy);
+                        best = std::min(best, chebyshev ? std::max(gx, gy) : gx + gy);
+                    }
+                    if (best <= iterations) bits |= uint64_t(1) << ((dy + kMaxLeaves) * kSide + dx + kMaxLeaves);
+                }
+            reached[i] = bits;
+        });
+        for (size_t i = 0; i < reached.size(); ++i) {
+            if (!reached[i]) continue;
+            const int lx = floorDiv(leaves.leaf(i).origin().x()), ly = floorDiv(leaves.leaf(i).origin().y());
+            for (uint64_t b = reached[i]; b; b &= b - 1) {
+                const int k = __builtin_ctzll(b);
+                const int x = lx + k % kSide - kMaxLeaves - lx0, y = ly + k / kSide - kMaxLeaves - ly0;
+                if (x >= 0 && y >= 0 && x < nx && y < ny) table[size_t(y) * size_t(nx) + size_t(x)] = 1;
+            }
+        }
+    }
+    size_t marked = 0;
+    for (uint8_t t : table) marked += t;
+    if (previous && previous->tree().leafCount() == marked) { // unchanged? (whole leaves: same set, same mask)
+        bool same = true;
+        for (auto it = previous->tree().cbeginLeaf(); it && same; ++it) {
+            const int x = floorDiv(it->origin().x()) - lx0, y = floorDiv(it->origin().y()) - ly0;
+            same = it->origin().z() == zLeaf && x >= 0 && y >= 0 && x < nx && y < ny &&
+                   table[size_t(y) * size_t(nx) + size_t(x)];
+        }
+        if (same) return previous;
+    }
+    auto region = openvdb::MaskGrid::create(false);
+    region->setTransform(domain.transform()->copy());
+    {
+        openvdb::tree::ValueAccessor<openvdb::MaskTree> acc(region->tree());
+        for (int y = 0; y < ny; ++y)
+            for (int x = 0; x < nx; ++x)
+                if (table[size_t(y) * size_t(nx) + size_t(x)])
+                    acc.touchLeaf(openvdb::Coord((lx0 + x) * kLeafDim, (ly0 + y) * kLeafDim, zLeaf));
+    }
+    fillLeaves(region->tree(), domain);
+    domain.clipToSupport(region->tree());
+    return region;
+}
+
 } // namespace
 
 openvdb::MaskGrid::Ptr buildActiveRegion(const std::vector<const openvdb::FloatGrid*>& fields,
-                                         const RegionSettings& settings, int reach, const Domain& domain, int steps)
+                                         const RegionSettings& settings, int reach, const Domain& domain, int steps,
+                                         const openvdb::MaskGrid::Ptr& previous)
 {
+    if (!settings.dense && domain.flat() && !anyActiveTile(fields)) {
+        const int iterations = std::max(1, steps) * (reach + settings.frontTravel);
+        const bool hex = domain.lattice().kind() == LatticeKind::Hexagonal;
+        if (auto r = planeRegionByLeaves(fields, iterations, hex, domain, previous)) return r;
+    }
     auto region = openvdb::MaskGrid::create(false);
     region->setTransform(domain.transform()->copy());
     if (settings.dense) {
@@ -169,7 +284,38 @@ openvdb::MaskGrid::Ptr buildActiveRegion(const std::vector<const openvdb::FloatG
     // groups and implicit-system layouts of the last region are reused as they are.
     fillLeaves(region->tree(), domain);
     domain.clipToSupport(region->tree());
+    if (previous && region->tree().hasSameTopology(previous->tree())) return previous;
     return region;
+}
+
+bool growActiveRegion(openvdb::MaskGrid& region, const std::vector<openvdb::Coord>& cells, int radius,
+                      const Domain& domain)
+{
+    if (cells.empty()) return false;
+    const openvdb::CoordBBox& dom = domain.bbox();
+    const bool flat = domain.flat();
+    openvdb::tree::ValueAccessor<const openvdb::MaskTree> racc(region.tree());
+    openvdb::MaskTree added(false);
+    openvdb::tree::ValueAccessor<openvdb::MaskTree> aacc(added);
+    const int m = ~(kLeafDim - 1);
+    for (const openvdb::Coord& c : cells) {
+        const openvdb::Coord r(radius, radius, flat ? 0 : radius);
+        openvdb::CoordBBox box(c - r, c + r);
+        box.intersect(dom);
+        if (box.empty()) continue;
+        for (int x = box.min().x() & m; x <= box.max().x(); x += kLeafDim)
+            for (int y = box.min().y() & m; y <= box.max().y(); y += kLeafDim)
+                for (int z = box.min().z() & m; z <= box.max().z(); z += kLeafDim) {
+                    const openvdb::Coord o(x, y, z);
+                    if (!racc.probeConstLeaf(o) && !aacc.probeConstLeaf(o)) aacc.touchLeaf(o);
+                }
+    }
+    if (added.leafCount() == 0) return false;
+    fillLeaves(added, domain); // whole leaves, as the rebuild makes them
+    domain.clipToSupport(added);
+    if (added.leafCount() == 0) return false;
+    region.tree().topologyUnion(added);
+    return true;
 }
 
 bool regionFillsDomain(const openvdb::MaskGrid& region, const Domain& domain)
@@ -177,7 +323,7 @@ bool regionFillsDomain(const openvdb::MaskGrid& region, const Domain& domain)
     return region.tree().activeVoxelCount() == domain.voxelCount();
 }
 
-void matchTopology(openvdb::FloatGrid& grid, const openvdb::MaskGrid& region)
+void matchTopology(openvdb::FloatGrid& grid, const openvdb::MaskGrid& region, bool offHoldsBackground)
 {
     using FloatLeaf = openvdb::FloatTree::LeafNodeType;
     auto& tree = grid.tree();
@@ -190,8 +336,9 @@ void matchTopology(openvdb::FloatGrid& grid, const openvdb::MaskGrid& region)
             if (!racc.probeConstLeaf(it->origin())) gone.push_back(it->origin());
         for (const auto& o : gone) delete tree.stealNode<FloatLeaf>(o, bg, false);
     }
-    // Tiles are not expected (kernels write leaves); a tile would hide voxels, so voxelize.
-    tree.voxelizeActiveTiles();
+    // Tiles are not expected (kernels write leaves); a tile would hide voxels, so voxelize
+    // (looking first: the voxelize pass visits every internal node).
+    if (anyActiveTile({&grid})) tree.voxelizeActiveTiles();
     // Leaves it gains (serial: topology changes), then masks and background values in parallel.
     {
         openvdb::tree::ValueAccessor<openvdb::FloatTree> acc(tree);
@@ -200,13 +347,18 @@ void matchTopology(openvdb::FloatGrid& grid, const openvdb::MaskGrid& region)
     }
     openvdb::tree::LeafManager<openvdb::FloatTree> leaves(tree);
     leaves.foreach([&](FloatLeaf& leaf, size_t) {
-        openvdb::tree::ValueAccessor<const openvdb::MaskTree> racc(region.tree());
-        const MaskLeaf* m = racc.probeConstLeaf(leaf.origin());
+        // the tree itself, not an accessor per leaf (registering one costs more than the lookup)
+        const MaskLeaf* m = region.tree().probeConstLeaf(leaf.origin());
         const auto& want = m->getValueMask();
         if (leaf.getValueMask() == want) return; // off voxels already hold the background
+        // Word by word; when off voxels are known to hold the background, only the voxels that
+        // leave the region are written (a plane leaf's other 448 are never touched).
         float* v = leaf.buffer().data();
-        for (openvdb::Index n = 0; n < FloatLeaf::SIZE; ++n)
-            if (!want.isOn(n)) v[n] = bg;
+        for (openvdb::Index w = 0; w < MaskLeaf::NodeMaskType::WORD_COUNT; ++w) {
+            uint64_t bits = ~want.template getWord<uint64_t>(w);
+            if (offHoldsBackground) bits &= leaf.getValueMask().template getWord<uint64_t>(w);
+            for (; bits; bits &= bits - 1) v[w * 64 + openvdb::Index(__builtin_ctzll(bits))] = bg;
+        }
         leaf.setValueMask(want);
     });
 }

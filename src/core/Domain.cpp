@@ -48,10 +48,18 @@ void DomainImpl::clipToSupport(openvdb::MaskTree& tree) const
     for (const auto& o : outside) delete tree.stealNode<MaskLeaf>(o, false, false);
     openvdb::tree::LeafManager<openvdb::MaskTree> leaves(tree);
     leaves.foreach([&](MaskLeaf& leaf, size_t) {
-        if (box.isInside(leaf.getNodeBoundingBox())) return;
+        openvdb::CoordBBox in = leaf.getNodeBoundingBox();
+        if (box.isInside(in)) return;
+        // Word by word: a word is one x, its bits (y << 3 | z); a plane's leaves all straddle
+        // its one-layer box, so this runs for every leaf of a plane region.
+        in.intersect(box);
+        const openvdb::Coord lo = in.min() - leaf.origin(), hi = in.max() - leaf.origin();
+        const uint64_t zBits = ((uint64_t(2) << hi.z()) - 1) & ~((uint64_t(1) << lo.z()) - 1);
+        uint64_t keep = 0;
+        for (int y = lo.y(); y <= hi.y(); ++y) keep |= zBits << (8 * y);
         auto& mask = leaf.getValueMask();
-        for (auto it = leaf.cbeginValueOn(); it; ++it)
-            if (!box.isInside(it.getCoord())) mask.setOff(it.pos());
+        for (int x = 0; x < 8; ++x)
+            mask.template getWord<uint64_t>(openvdb::Index(x)) &= (x >= lo.x() && x <= hi.x()) ? keep : 0;
     });
 }
 

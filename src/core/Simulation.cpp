@@ -357,6 +357,12 @@ Frame Simulation::currentFrame(int64_t frameNumber)
 
 std::string Simulation::writeFrame(const Frame& frame, const std::string& dir)
 {
+    Frame copy = frame; // shares the grids
+    return writeFrame(std::move(copy), dir);
+}
+
+std::string Simulation::writeFrame(Frame&& frame, const std::string& dir)
+{
     makeDirectories(dir);
     openvdb::MetaMap meta;
     meta.insertMeta("creator", openvdb::StringMetadata(std::string("frostvdb ") + FROSTVDB_VERSION));
@@ -371,7 +377,11 @@ std::string Simulation::writeFrame(const Frame& frame, const std::string& dir)
     meta.insertMeta("step", openvdb::Int64Metadata(frame.step));
     meta.insertMeta("time", openvdb::DoubleMetadata(frame.time));
     meta.insertMeta("voxel_size_m", openvdb::DoubleMetadata(mWorld.domain.voxelSize()));
-    openvdb::GridPtrVec grids = exportGrids(frame.grids, mWorld.domain, mOutput.keepLattice);
+    openvdb::GridPtrVec grids;
+    for (auto& g : frame.grids) { // one at a time, each source dropped once exported
+        grids.push_back(exportGrid(g, mWorld.domain, mOutput.keepLattice));
+        g.reset();
+    }
     const double worldScale = mWorld.worldScale;
     if (worldScale != 1.0) { // shallow copies: the frame's own grids keep their transforms
         meta.insertMeta("world_scale", openvdb::DoubleMetadata(worldScale));
@@ -629,11 +639,15 @@ std::string Simulation::writeFramePreview(const Frame& frame, int64_t f, const s
 void Simulation::writeFrameOutputs(int64_t f, int64_t last, const std::string& dir, RunSummary& sum)
 {
     Frame frame = currentFrame(f);
-    if (mOutput.vdb) sum.files.push_back(writeFrame(frame, dir));
-    for (const auto& png : writeDisplacement(frame, dir)) sum.files.push_back(png);
+    // The PNGs first and the VDB last, so that it can consume the frame (one resampled grid at
+    // a time); the summary lists them in the usual order.
+    const std::vector<std::string> displacement = writeDisplacement(frame, dir);
+    std::string preview;
+    if (mOutput.preview && (mOutput.previewEvery || f == last)) preview = writeFramePreview(frame, f, dir);
+    if (mOutput.vdb) sum.files.push_back(writeFrame(std::move(frame), dir));
+    for (const auto& png : displacement) sum.files.push_back(png);
     ++sum.framesWritten;
-    if (mOutput.preview && (mOutput.previewEvery || f == last))
-        if (auto png = writeFramePreview(frame, f, dir); !png.empty()) sum.files.push_back(png);
+    if (!preview.empty()) sum.files.push_back(preview);
 }
 
 void Simulation::simulateFrames(int64_t first, int64_t last, const RunOptions& opt, const std::string& dir,

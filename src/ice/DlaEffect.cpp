@@ -1,6 +1,7 @@
 /// @file DlaEffect.cpp
 /// @brief Section [dla]: reads its keys, runs the walkers of each step in deterministic batches
 /// and applies their sticks (hits, freezing, heat, growth) in walker order.
+#include <frostvdb/core/FieldEdits.h>
 #include <frostvdb/core/Progress.h>
 #include <frostvdb/ice/Dla.h>
 #include <frostvdb/core/Error.h>
@@ -121,6 +122,11 @@ void DlaEffect::initialize(World& world)
     if (!sh.dtOwnedByPhaseField) sh.dt = mParams.dt;
     requireIceFields(world);
     mHeat = mParams.heatRelease < 0 ? sh.latentHeat / 6.0 : mParams.heatRelease;
+    // Every cell this effect writes in p and T is listed (freezeCell), so the phase field can grow
+    // its active region around the new ice instead of rebuilding it (core/FieldEdits.h).
+    FieldEdits& edits = world.state<FieldEdits>();
+    edits.reports(kPhase.name, this);
+    edits.reports(kTemperature.name, this);
     if (mParams.hits > 1) world.fields.require<openvdb::Int32Grid>(kDlaHits, 0);
     const auto t0 = Clock::now();
     mEngine = std::make_unique<DlaEngine>(world.domain, mParams, world.seed);
@@ -217,6 +223,10 @@ void DlaEffect::step(World& world, const StepInfo& info)
     IceShared& sh = shared(world);
     auto p = world.fields.get<openvdb::FloatGrid>(kPhase);
     auto T = world.fields.get<openvdb::FloatGrid>(kTemperature);
+    if (T && T->treePtr().use_count() > 2) { // (the grid's + this copy) a frame shares it: keep its snapshot
+        T = T->deepCopy();
+        world.fields.replace(kTemperature, T);
+    }
     auto growth = world.fields.get<openvdb::FloatGrid>(kGrowth);
     auto freeze = world.fields.get<openvdb::FloatGrid>(kFreezeTime);
     auto hitsGrid = world.fields.get<openvdb::Int32Grid>(kDlaHits);
@@ -265,6 +275,9 @@ void DlaEffect::step(World& world, const StepInfo& info)
     if (T && sh.temperatureEvolves && mHeat != 0) tAcc = std::make_unique<openvdb::FloatGrid::Accessor>(T->getAccessor());
     const bool counting = hitsGrid && mParams.hits > 1;
     std::vector<int64_t> touched;
+    // the cells written in p (and T at the same cell) for whoever keeps state about them
+    std::vector<openvdb::Coord>* editsP = world.state<FieldEdits>().sink(kPhase.name);
+    std::vector<openvdb::Coord>* editsT = tAcc ? world.state<FieldEdits>().sink(kTemperature.name) : nullptr;
     const double time = sh.timeAtStep(info.step);
 
     std::vector<int64_t> frozenInBatch; // cells frozen since the batch's walks began
@@ -273,6 +286,8 @@ void DlaEffect::step(World& world, const StepInfo& info)
         const openvdb::Coord c = mEngine->coord(cell);
         const float before = pAcc.getValue(c);
         pAcc.setValue(c, 1.f);
+        if (editsP) editsP->push_back(c);
+        if (editsT) editsT->push_back(c);
         recordPhaseChange(gAcc, fAcc, c, before, 1.f, time);
         if (tAcc) tAcc->setValue(c, tAcc->getValue(c) + float(mHeat * (1.0 - double(before))));
         mEngine->freezeDeferred(cell); // distances relaxed once per batch (or before a resumed walk)

@@ -78,7 +78,9 @@ void addIceOutputs(World& world, Frame& frame)
     frame.add(ice);
 
     if (auto T = world.fields.get<openvdb::FloatGrid>(kTemperature)) {
-        auto temperature = T->deepCopy();
+        // Shares T's tree (the largest grid: the heat's halo): the frame is written before the
+        // next step, and an in-place writer copies a shared tree first (DlaEffect::step).
+        auto temperature = openvdb::gridPtrCast<openvdb::FloatGrid>(T->copyGrid());
         temperature->setName(out::kIceTemperature.name); // dimensionless: not the gas's Kelvin
         temperature->setGridClass(openvdb::GRID_UNKNOWN);
         frame.add(temperature);

@@ -1,4 +1,5 @@
 #include <frostvdb/ice/PhaseFieldEffect.h>
+#include <frostvdb/core/FieldEdits.h>
 #include <frostvdb/core/FieldWriters.h>
 #include <frostvdb/core/Error.h>
 #include <frostvdb/ice/IceState.h>
@@ -189,6 +190,10 @@ void PhaseFieldEffect::initialize(World& world)
         const FieldWriters& w = world.state<FieldWriters>();
         mSolver->setSoleWriter(w.of(ice::kPhase.name) == 1 && w.of(ice::kTemperature.name) == 1);
     }
+    // walkers that list the cells they freeze let the region stand between rebuilds (step())
+    FieldEdits& edits = world.state<FieldEdits>();
+    edits.listen(ice::kPhase.name);
+    edits.listen(ice::kTemperature.name);
 }
 
 void PhaseFieldEffect::gatherShell(World& world)
@@ -241,6 +246,15 @@ void PhaseFieldEffect::step(World& world, const StepInfo& info)
     auto growth = world.fields.get<openvdb::FloatGrid>(ice::kGrowth);
     auto freeze = world.fields.get<openvdb::FloatGrid>(ice::kFreezeTime);
     mSolver->setMeltMap(world.fields.get<openvdb::FloatGrid>(ice::kMelt).get());
+    {
+        // Trust the edit lists only when every other writer of p and T fills them.
+        FieldEdits& edits = world.state<FieldEdits>();
+        const FieldWriters* w = world.hasState<FieldWriters>() ? &world.state<FieldWriters>() : nullptr;
+        auto listed = [&](const std::string& f) { return w && w->of(f) - 1 == edits.reporters(f); };
+        const bool all = listed(ice::kPhase.name) && listed(ice::kTemperature.name);
+        mSolver->setEditLogs(all ? &edits.cells(ice::kPhase.name) : nullptr,
+                             all ? &edits.cells(ice::kTemperature.name) : nullptr);
+    }
     const double subDt = mParams.dt / mSubsteps;
     for (int s = 0; s < mSubsteps; ++s) {
         // Substeps key the noise by their own index so that each draws fresh values.
@@ -378,7 +392,8 @@ std::vector<std::pair<std::string, double>> PhaseFieldEffect::counters() const
         t.push_back({"stability_limit_dt", mStabilityLimit});
         return t;
     }
-    std::vector<std::pair<std::string, double>> t{{"region_rebuilds", double(mStats.rebuilds)}};
+    std::vector<std::pair<std::string, double>> t{{"region_rebuilds", double(mStats.rebuilds)},
+                                                  {"region_growths", double(mStats.regionGrowths)}};
     if (mParams.scheme == PhaseFieldScheme::SecondOrder) {
         const double n = std::max<int64_t>(1, mStats.solves);
         t.push_back({"mean_iterations_p", mStats.solverIterationsP / n});

@@ -523,6 +523,8 @@ bool PhaseFieldSolver::inputsAreOurs(const openvdb::FloatGrid& p, const openvdb:
 {
     if (&p != mOutP || &T != mOutT) return false;
     if (mSoleWriter) return true; // nobody else writes them: no need to look at the values
+    // every other write is listed: ours up to the listed cells (grown around in stepOnce)
+    if (editsReported()) return true;
     return gridFingerprint(p) == mPrintP && gridFingerprint(T) == mPrintT; // T only when p matched
 }
 
@@ -542,6 +544,23 @@ void PhaseFieldSolver::restoreCadence(const CadenceState& state, const openvdb::
     mSpareP.reset();
     mSpareT.reset();
     mSpareGeneration = 0;
+    mSpareOurs = false;
+}
+
+bool PhaseFieldSolver::growRegionAroundEdits()
+{
+    if (mEditsP->empty() && mEditsT->empty()) return false;
+    std::vector<openvdb::Coord> cells;
+    cells.reserve(mEditsP->size() + mEditsT->size());
+    cells.insert(cells.end(), mEditsP->begin(), mEditsP->end());
+    cells.insert(cells.end(), mEditsT->begin(), mEditsT->end());
+    // The standing region serves stepsLeft more steps: what the new values can reach in them.
+    const int radius = std::max(1, mCadence.stepsLeft()) * (kHalo + mRegion.frontTravel);
+    if (mRegionMask.use_count() > 1) mRegionMask = mRegionMask->deepCopy(); // a checkpoint may hold it
+    if (!growActiveRegion(*mRegionMask, cells, radius, mDomain)) return false;
+    ++mGeneration; // a new topology: cached groups and layouts are stale
+    mRegionVoxels = mRegionMask->tree().activeVoxelCount();
+    return true;
 }
 
 openvdb::FloatGrid::Ptr PhaseFieldSolver::outputGrid(openvdb::FloatGrid::Ptr& spare, uint64_t spareGeneration,
@@ -557,7 +576,7 @@ openvdb::FloatGrid::Ptr PhaseFieldSolver::outputGrid(openvdb::FloatGrid::Ptr& sp
         g = openvdb::FloatGrid::create(like.background());
         g->tree().topologyUnion(mRegionMask->tree());
     } else if (spareGeneration != mGeneration) {
-        matchTopology(*g, *mRegionMask);
+        matchTopology(*g, *mRegionMask, mSpareOurs);
     }
     g->setTransform(like.transformPtr());
     g->setGridClass(like.getGridClass());
@@ -596,6 +615,14 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
     // Dense mode: the region is the whole domain whoever writes the fields.
     const bool rebuild = !mRegionMask || (!ours && !mRegion.dense) || mCadence.due();
     uint64_t inputGeneration = ours ? mOutGeneration : 0;
+    if (!rebuild && ours && editsReported() && !mRegion.dense && growRegionAroundEdits()) {
+        inputGeneration = 0; // the inputs lack the new leaves
+        if (stats) stats->regionGrowths += 1;
+    }
+    if (editsReported()) { // read (a rebuild reads the fields themselves): start the next lists
+        mEditsP->clear();
+        mEditsT->clear();
+    }
     if (rebuild) {
         if (!mRegion.dense && !mInputsTruncated) {
             // Values within the tolerance since the last truncation (an out-of-turn rebuild).
@@ -604,10 +631,10 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
             inputGeneration = 0;
         }
         const int k = mCadence.begin(mRegionMask && !ours);
-        auto region = buildActiveRegion({p.get(), T.get()}, mRegion, kHalo, mDomain, k);
+        auto region = buildActiveRegion({p.get(), T.get()}, mRegion, kHalo, mDomain, k, mRegionMask);
         const bool full = regionFillsDomain(*region, mDomain);
         if (full) mCadence.filledDomain();
-        if (!mRegionMask || !region->tree().hasSameTopology(mRegionMask->tree())) {
+        if (!mRegionMask || (region != mRegionMask && !region->tree().hasSameTopology(mRegionMask->tree()))) {
             ++mGeneration; // a new topology: cached groups and layouts are stale
             mRegionMask = region;
             mRegionVoxels = mRegionMask->tree().activeVoxelCount();
@@ -663,7 +690,7 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
     mInputsTruncated = retire || mRegion.dense;
     mOutP = pNew.get();
     mOutT = tNew.get();
-    if (!mSoleWriter) {
+    if (!mSoleWriter && !editsReported()) {
         mPrintP = gridFingerprint(*pNew);
         mPrintT = gridFingerprint(*tNew);
     }
@@ -672,6 +699,7 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
     mSpareP = p;
     mSpareT = T;
     mSpareGeneration = inputGeneration;
+    mSpareOurs = ours;
     if (stats) stats->truncateSeconds += since(t0);
     p = pNew;
     T = tNew;

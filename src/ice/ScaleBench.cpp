@@ -9,6 +9,7 @@
 ///   frostvdb bench scale            all three sizes (targets: 16384^2 <= 3 min, <= 2 GB)
 ///   frostvdb bench scale 4096       one size
 ///   frostvdb bench scale --quick    512^2, 1024^2, 2048^2
+///   frostvdb bench scale 4096 rebuild_every=4   with [region] rebuild_every = 4 (0: automatic)
 #include <frostvdb/core/Bench.h>
 #include <frostvdb/core/Random.h>
 #include <frostvdb/core/Simulation.h>
@@ -39,7 +40,7 @@ int scaled(int full, int n) { return std::max(1, int(std::lround(double(full) * 
 
 /// The scene at size n: seeds at random positions (a fixed stream, so every size is a
 /// different but reproducible draw), H and the seed count scaled by the area.
-std::string sceneText(int n)
+std::string sceneText(int n, int rebuildEvery)
 {
     std::ostringstream os;
     os << "[scene]\nname = \"scale\"\nframes = " << kFrames << "\nsteps_per_frame = " << kStepsPerFrame
@@ -53,13 +54,14 @@ std::string sceneText(int n)
     }
     os << "[dla]\nhumidity = " << scaled(kFullHumidity, n) << "\nhits = 2\n";
     os << "[phase_field]\nanisotropy_mode = 6\n";
+    if (rebuildEvery > 0) os << "[region]\nrebuild_every = " << rebuildEvery << "\n";
     return os.str();
 }
 
 /// One size, in this process: runs, prints its figures, appends a summary line to @a report.
-int runOne(int n, const BenchArgs& args, const std::string& report)
+int runOne(int n, int rebuildEvery, const BenchArgs& args, const std::string& report)
 {
-    Scene scene = Scene::fromString(sceneText(n), "bench-scale-" + std::to_string(n) + ".toml");
+    Scene scene = Scene::fromString(sceneText(n, rebuildEvery), "bench-scale-" + std::to_string(n) + ".toml");
     const auto out = std::filesystem::temp_directory_path() / ("frostvdb_bench_scale_" + std::to_string(n));
     std::filesystem::remove_all(out);
     Simulation sim(std::move(scene));
@@ -87,6 +89,8 @@ int runOne(int n, const BenchArgs& args, const std::string& report)
     std::printf("| phase field (incl. heat) | %.2f |\n", eff["phase_field"]);
     std::printf("| - region / kernel / truncation | %.2f / %.2f / %.2f |\n", detail["phase_field.region"],
                 detail["phase_field.kernel"], detail["phase_field.truncate"]);
+    std::printf("| - region rebuilds / grown around walker writes (counts) | %.0f / %.0f |\n",
+                detail["phase_field.region_rebuilds"], detail["phase_field.region_growths"]);
     for (auto& [k, v] : eff)
         if (k != "dla" && k != "phase_field") std::printf("| %s | %.2f |\n", k.c_str(), v);
     std::printf("| output (last frame: VDB, displacement, preview) | %.2f |\n", sum.outputSeconds);
@@ -118,9 +122,11 @@ int runOne(int n, const BenchArgs& args, const std::string& report)
 int benchScale(const BenchArgs& args)
 {
     std::string report;
+    int rebuildEvery = 0; // [region] rebuild_every (0: automatic)
     std::vector<int> sizes;
     for (size_t i = 0; i < args.args.size(); ++i) {
         if (args.args[i] == "--report" && i + 1 < args.args.size()) report = args.args[++i];
+        else if (args.args[i].rfind("rebuild_every=", 0) == 0) rebuildEvery = std::atoi(args.args[i].c_str() + 14);
         else sizes.push_back(std::atoi(args.args[i].c_str()));
     }
     for (int n : sizes)
@@ -128,7 +134,11 @@ int benchScale(const BenchArgs& args)
             std::fprintf(stderr, "bench scale: size %d out of range [64, 1048576]\n", n);
             return 2;
         }
-    if (sizes.size() == 1) return runOne(sizes[0], args, report);
+    if (rebuildEvery < 0 || rebuildEvery > 64) {
+        std::fprintf(stderr, "bench scale: rebuild_every=%d out of range [0, 64]\n", rebuildEvery);
+        return 2;
+    }
+    if (sizes.size() == 1) return runOne(sizes[0], rebuildEvery, args, report);
     if (sizes.empty()) sizes = args.quick ? std::vector<int>{512, 1024, 2048} : std::vector<int>{2048, 4096, kFullSize};
 
     std::printf("frostvdb bench scale: hexagonal plane at 0.1 mm, seeds and H scaled by area (16384^2: %d seeds, "
@@ -140,6 +150,7 @@ int benchScale(const BenchArgs& args)
     for (int n : sizes) {
         std::ostringstream cmd;
         cmd << "/proc/self/exe bench scale " << n << " --report " << reportPath.string();
+        if (rebuildEvery > 0) cmd << " rebuild_every=" << rebuildEvery;
         if (args.threads > 0) cmd << " --threads " << args.threads;
         if (std::system(cmd.str().c_str()) != 0) {
             std::fprintf(stderr, "bench scale: the %d^2 run failed\n", n);

@@ -236,36 +236,34 @@ void clipSparse(openvdb::GridBase& grid, const openvdb::CoordBBox& box)
 
 } // namespace
 
-openvdb::GridPtrVec exportGrids(const openvdb::GridPtrVec& grids, const Domain& dom, bool keepLattice)
+openvdb::GridBase::Ptr exportGrid(const openvdb::GridBase::Ptr& g, const Domain& dom, bool keepLattice)
 {
     const bool hex = dom.lattice().kind() == LatticeKind::Hexagonal;
-    if (!hex) return grids;
-    openvdb::GridPtrVec out;
-    auto square = squareTransform(dom);
-    for (const auto& g : grids) {
-        if (g->transform() != *dom.transform()) { // an effect's own raster: leave it alone
-            out.push_back(g);
-            continue;
-        }
-        if (keepLattice) {
-            auto c = g->copyGrid(); // shares the tree, own metadata
-            c->insertMeta("frostvdb_lattice", openvdb::StringMetadata(
-                "hexagonal axial (i, j), sheared transform: world = h (i + j/2, j sqrt(3)/2)"));
-            out.push_back(c);
-            continue;
-        }
-        auto r = resampleGrid(*g, *square);
-        // A flat domain stays one voxel thick: the shear's rounding leaves near-background
-        // values in the layers above and below, and nothing lies outside the raster.
-        if (dom.flat()) {
-            const SquareRaster sr = squareRaster(dom);
-            const int z = dom.bbox().min().z();
-            clipSparse(*r, openvdb::CoordBBox(openvdb::Coord(sr.a0, sr.b0, z), openvdb::Coord(sr.a1, sr.b1, z)));
-        }
-        r->insertMeta("frostvdb_lattice", openvdb::StringMetadata(
-            "square, resampled (trilinear) from the hexagonal lattice of the simulation"));
-        out.push_back(r);
+    if (!hex) return g;
+    if (g->transform() != *dom.transform()) return g; // an effect's own raster: leave it alone
+    if (keepLattice) {
+        auto c = g->copyGrid(); // shares the tree, own metadata
+        c->insertMeta("frostvdb_lattice", openvdb::StringMetadata(
+            "hexagonal axial (i, j), sheared transform: world = h (i + j/2, j sqrt(3)/2)"));
+        return c;
     }
+    auto r = resampleGrid(*g, *squareTransform(dom));
+    // A flat domain stays one voxel thick: the shear's rounding leaves near-background
+    // values in the layers above and below, and nothing lies outside the raster.
+    if (dom.flat()) {
+        const SquareRaster sr = squareRaster(dom);
+        const int z = dom.bbox().min().z();
+        clipSparse(*r, openvdb::CoordBBox(openvdb::Coord(sr.a0, sr.b0, z), openvdb::Coord(sr.a1, sr.b1, z)));
+    }
+    r->insertMeta("frostvdb_lattice", openvdb::StringMetadata(
+        "square, resampled (trilinear) from the hexagonal lattice of the simulation"));
+    return r;
+}
+
+openvdb::GridPtrVec exportGrids(const openvdb::GridPtrVec& grids, const Domain& dom, bool keepLattice)
+{
+    openvdb::GridPtrVec out;
+    for (const auto& g : grids) out.push_back(exportGrid(g, dom, keepLattice));
     return out;
 }
 

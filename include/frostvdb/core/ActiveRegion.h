@@ -22,15 +22,28 @@ namespace frostvdb {
 /// voxel reads voxels at most this far away along lattice directions).
 /// @a steps: how many steps the region must serve before the next rebuild (dilation
 /// steps * (reach + front travel)). Where the support already fills the domain, no dilation.
+/// On a plane the region is computed leaf by leaf (cost follows the fields' leaves). When it
+/// has exactly the topology of @a previous, @a previous itself is returned.
 openvdb::MaskGrid::Ptr buildActiveRegion(const std::vector<const openvdb::FloatGrid*>& fields,
                                          const RegionSettings& settings, int reach, const Domain& domain,
-                                         int steps = 1);
+                                         int steps = 1, const openvdb::MaskGrid::Ptr& previous = nullptr);
+
+/// Grows a standing region around cells written since it was built (walkers freezing cells):
+/// adds every whole leaf, clipped to the domain's support, that meets the box of @a radius cells
+/// around a cell (a box holds any lattice's reach of that many steps), as buildActiveRegion
+/// would have included them had the cells held their values at the build. Leaves already in
+/// the region are whole, so a cell inside one adds nothing. Cost: the cells, not the region.
+/// Returns true when leaves were added.
+bool growActiveRegion(openvdb::MaskGrid& region, const std::vector<openvdb::Coord>& cells, int radius,
+                      const Domain& domain);
 
 /// Gives @a grid exactly the topology of @a region, reusing the leaves it has: leaves outside the
 /// region are deleted, missing ones added, value masks copied, and every voxel the region leaves
 /// off holds the background (kernels read neighbours from the raw leaf buffers). Values of the
-/// region's voxels are left as they are: the caller overwrites them.
-void matchTopology(openvdb::FloatGrid& grid, const openvdb::MaskGrid& region);
+/// region's voxels are left as they are: the caller overwrites them. @a offHoldsBackground: the
+/// grid's off voxels already hold the background (a grid this code or truncateToTolerance made),
+/// so only voxels switched off are written.
+void matchTopology(openvdb::FloatGrid& grid, const openvdb::MaskGrid& region, bool offHoldsBackground = false);
 
 /// A 64-bit fingerprint of a grid's leaf origins, value masks and active values: an
 /// order-independent sum of per-voxel hashes, so it does not depend on the thread count. Equal

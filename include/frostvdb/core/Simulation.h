@@ -100,6 +100,9 @@ public:
     /// Writes a frame file (+ metadata) and returns its path. Grids of a hexagonal domain are
     /// resampled to a square grid unless output.keep_lattice (io/Export.h).
     std::string writeFrame(const Frame& frame, const std::string& dir);
+    /// The same, consuming the frame: each grid is released once exported, so a hexagonal
+    /// domain's frame holds one resampled copy at a time beyond what is written.
+    std::string writeFrame(Frame&& frame, const std::string& dir);
     /// Writes the frame's `growth` grid as a 16-bit PNG `<name>.<frame>.displacement.png`, or as
     /// UDIM tiles `<name>.<frame>.displacement.<udim>.png` beyond output.displacement_tile pixels
     /// (flat domains; none when there is nothing to write or output.displacement_png is off).

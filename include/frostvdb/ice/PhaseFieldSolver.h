@@ -36,6 +36,7 @@ struct PhaseFieldStepStats {
     /// a solve that is not a positive scheme does that now, see PhaseFieldSolver.cpp).
     int64_t clippedVoxels = 0;
     int64_t rebuilds = 0;      ///< region rebuilds (every k steps, or when another effect wrote p or T)
+    int64_t regionGrowths = 0; ///< standing regions grown around cells other effects reported
 };
 
 struct LeafGroups;
@@ -68,6 +69,16 @@ public:
     /// the Euler kernel's instructions).
     void setSoleWriter(bool sole) { mSoleWriter = sole; }
 
+    /// The lists of cells other writers changed in p and T since this solver's last step
+    /// (core/FieldEdits.h), when every other writer reports its cells; null when not. With them
+    /// the solver trusts its last outputs like a sole writer and grows the standing region around
+    /// the listed cells (growActiveRegion) instead of rebuilding it; it clears them after reading.
+    void setEditLogs(std::vector<openvdb::Coord>* p, std::vector<openvdb::Coord>* T)
+    {
+        mEditsP = p;
+        mEditsT = T;
+    }
+
     /// The melt map (field `melt`, values in [0,1]); null for none. Not owned.
     void setMeltMap(const openvdb::FloatGrid* melt) { mMelt = melt; }
 
@@ -94,7 +105,8 @@ public:
     int cadenceStepsLeft() const { return mCadence.stepsLeft(); }
     CadenceState cadenceState(const openvdb::FloatGrid& p, const openvdb::FloatGrid& T) const
     {
-        return {mRegionMask, mCadence.stepsLeft(), mInputsTruncated, mRegionMask && inputsAreOurs(p, T)};
+        const bool unlisted = !editsReported() || (mEditsP->empty() && mEditsT->empty());
+        return {mRegionMask, mCadence.stepsLeft(), mInputsTruncated, mRegionMask && inputsAreOurs(p, T) && unlisted};
     }
     /// Restores @a state and adopts @a p and @a T (the restored fields) as this solver's last output.
     void restoreCadence(const CadenceState& state, const openvdb::FloatGrid& p, const openvdb::FloatGrid& T);
@@ -131,8 +143,14 @@ private:
     uint64_t mPrintP = 0, mPrintT = 0, mOutGeneration = 0;      ///< their fingerprints, topology
     bool mInputsTruncated = true; ///< the last outputs were truncated (or are the initial state)
     bool mSoleWriter = false;     ///< see setSoleWriter
+    std::vector<openvdb::Coord>*mEditsP = nullptr, *mEditsT = nullptr; ///< see setEditLogs
+    bool editsReported() const { return mEditsP && mEditsT; }
+    /// Adds the leaves around the reported cells to the standing region and clears the lists;
+    /// true when the region gained leaves.
+    bool growRegionAroundEdits();
     openvdb::FloatGrid::Ptr mSpareP, mSpareT; ///< last step's inputs: this step's output buffers
     uint64_t mSpareGeneration = 0;
+    bool mSpareOurs = false; ///< the spares were this solver's outputs (their off voxels hold the background)
     std::unique_ptr<LeafGroups> mGroups;      ///< the region's leaves in kernel blocks
     uint64_t mGroupsGeneration = 0;
     std::unique_ptr<SlotLayout> mLayout;      ///< the implicit systems' rows (second order)

@@ -42,6 +42,9 @@ openvdb::GridBase::Ptr resampleGrid(const openvdb::GridBase& grid, const openvdb
 /// write their own resampled outputs) and every grid of a square domain are passed through.
 /// Each grid gains the metadata `frostvdb_lattice` saying which it is.
 openvdb::GridPtrVec exportGrids(const openvdb::GridPtrVec& grids, const Domain& domain, bool keepLattice);
+/// One grid as exportGrids writes it (a caller that drops each source after its export keeps
+/// only one resampled copy more than the sources at a time).
+openvdb::GridBase::Ptr exportGrid(const openvdb::GridBase::Ptr& grid, const Domain& domain, bool keepLattice);
 
 /// Writes @a growth (values in [0,1]) as a 16-bit greyscale PNG on squareRaster(domain), sampled
 /// in world space (so it works for sheared and resampled grids alike). Flat domains only.
