@@ -1,6 +1,7 @@
 #include <frostvdb/ice/PhaseFieldSolver.h>
 #include <frostvdb/core/Error.h>
 #include <frostvdb/core/Random.h>
+#include <frostvdb/ice/EulerRows.h>
 #include <frostvdb/ice/ImplicitSystem.h>
 
 #include <openvdb/tools/Prune.h>
@@ -62,32 +63,6 @@ struct Block {
         return groupOrigin - openvdb::Coord(kHalo, kHalo, plane ? 0 : kHalo);
     }
 };
-
-/// The inner row code of forward Euler, shared by the engine's plane blocks and the plain dense
-/// loop (DensePhaseField), so both run the same machine code (one out-of-line copy each): a row
-/// of pass 1 over cells [i0, i1), then a row of pass 2 writing p', T' (and dp when asked) at the
-/// same indices. @a melt: the melt map at the same indices (null: T_e everywhere); @a chi: the
-/// noise draws at the same indices (null: no noise).
-__attribute__((noinline)) void auxRow(const float* p, size_t i0, size_t i1, const FlatStencil& st,
-                                      const Anisotropy& an, float* a, float* cx, float* cy, float* gx, float* gy,
-                                      float* gz)
-{
-    for (size_t i = i0; i < i1; ++i) kobayashiAux(p, i, st, an, a, cx, cy, gx, gy, gz);
-}
-
-__attribute__((noinline)) void eulerRow(const float* p, const float* T, const float* a, const float* cx,
-                                        const float* cy, const float* gx, const float* gy, const float* gz,
-                                        size_t i0, size_t i1, const FlatStencil& st, const KobayashiParams& k,
-                                        const float* melt, const double* chi, float* pOut, float* tOut,
-                                        double* dpOut)
-{
-    for (size_t i = i0; i < i1; ++i) {
-        const double Te = melt ? k.localMeltTemperature(melt[i]) : k.meltTemperature;
-        const double dp = kobayashiEuler(p, T, a, cx, cy, gx, gy, gz, i, st, k, Te, chi ? chi[i] : 0.0, pOut[i],
-                                         tOut[i]);
-        if (dpOut) dpOut[i] = dp;
-    }
-}
 
 } // namespace
 
@@ -343,8 +318,8 @@ struct LeafKernel {
     Accumulators* acc = nullptr;
     Failure* failure = nullptr;
 
-    /// Pass 1 on a plane block, by runs of needed cells along each row (auxRow, the dense loop's row).
-    static void auxRuns(Block& b, const FlatStencil& st, const Anisotropy& an)
+    /// Pass 1 on a plane block, by runs of needed cells along each row.
+    static void auxRuns(Block& b, const FlatStencil& st, const Anisotropy& an, const EulerRows& rows)
     {
         for (int y = 1; y < b.by - 1; ++y) {
             uint64_t bits = b.need[size_t(y)];
@@ -354,32 +329,55 @@ struct LeafKernel {
                 const uint64_t run = bits + (uint64_t(1) << x0); // clears the run of ones at x0
                 const int x1 = run ? __builtin_ctzll(run & ~bits) : 64;
                 bits &= run;
-                auxRow(b.p.data(), row + size_t(x0), row + size_t(x1), st, an, b.a.data(), b.cx.data(), b.cy.data(),
-                       b.gx.data(), b.gy.data(), b.gz.data());
+                rows.aux(b.p.data(), row + size_t(x0), row + size_t(x1), st, an, b.a.data(), b.cx.data(), b.cy.data(),
+                         b.gx.data(), b.gy.data(), b.gz.data());
             }
         }
     }
 
-    /// Pass 2 on one leaf of a plane block: the dense loop's row code over the leaf's 8 rows of
-    /// 8 cells into the block's scratch (pe, te, dp), then written to the leaf's active voxels
+    /// Pass 2 on a plane block's leaves that take the full update: the row code over runs of
+    /// horizontally adjacent leaves (up to kPlaneGroup * 8 cells per call) into the block's
+    /// scratch (pe, te, dp); planeLeaf then writes each leaf.
+    void planeRows(Block& b, const openvdb::Coord& go, int z0, const FlatStencil& st, const EulerRows& rows,
+                   const FloatLeaf* const* full, size_t nFull) const
+    {
+        const openvdb::Coord bo = b.origin(go);
+        unsigned cols[kPlaneGroup] = {}; // per leaf row of the group: bit lx for each leaf
+        for (size_t q = 0; q < nFull; ++q) {
+            const openvdb::Coord lo = full[q]->origin();
+            cols[(lo.y() - go.y()) / kDim] |= 1u << ((lo.x() - go.x()) / kDim);
+            if (k.noise == 0) continue;
+            const int ox = lo.x() - bo.x(), oy = lo.y() - bo.y();
+            for (int y = 0; y < kDim; ++y)
+                for (int x = 0; x < kDim; ++x)
+                    b.chi[b.index(ox + x, oy + y, 0)] =
+                        noiseDraw(k, seed, stepIndex, openvdb::Coord(lo.x() + x, lo.y() + y, z0));
+        }
+        for (int ly = 0; ly < kPlaneGroup; ++ly) {
+            unsigned bits = cols[ly];
+            while (bits) {
+                const int x0 = __builtin_ctz(bits);
+                const unsigned run = bits + (1u << x0); // clears the run of ones at x0
+                const int x1 = __builtin_ctz(run & ~bits);
+                bits &= run;
+                for (int y = 0; y < kDim; ++y) {
+                    const size_t i0 = b.index(kHalo + x0 * kDim, kHalo + ly * kDim + y, 0);
+                    rows.euler(b.p.data(), b.T.data(), b.a.data(), b.cx.data(), b.cy.data(), b.gx.data(), b.gy.data(),
+                               b.gz.data(), i0, i0 + size_t(x1 - x0) * kDim, st, k, melt ? b.melt.data() : nullptr,
+                               k.noise != 0 ? b.chi.data() : nullptr, b.pe.data(), b.te.data(), b.dp.data());
+                }
+            }
+        }
+    }
+
+    /// Writes one leaf of a plane block from the scratch planeRows filled: its active voxels,
     /// with the bounds check and the accumulators.
-    void planeLeaf(Block& b, const openvdb::Coord& go, int z0, const FlatStencil& st, FloatLeaf& pl, FloatLeaf& tl,
+    void planeLeaf(Block& b, const openvdb::Coord& go, int z0, FloatLeaf& pl, FloatLeaf& tl,
                    float tn1, std::vector<Accumulators::Pending>*& pending) const
     {
         const openvdb::Coord bo = b.origin(go);
         const openvdb::Coord lo = pl.origin();
         const int ox = lo.x() - bo.x(), oy = lo.y() - bo.y();
-        if (k.noise != 0)
-            for (int y = 0; y < kDim; ++y)
-                for (int x = 0; x < kDim; ++x)
-                    b.chi[b.index(ox + x, oy + y, 0)] =
-                        noiseDraw(k, seed, stepIndex, openvdb::Coord(lo.x() + x, lo.y() + y, z0));
-        for (int y = 0; y < kDim; ++y) {
-            const size_t i0 = b.index(ox, oy + y, 0);
-            eulerRow(b.p.data(), b.T.data(), b.a.data(), b.cx.data(), b.cy.data(), b.gx.data(), b.gy.data(),
-                     b.gz.data(), i0, i0 + kDim, st, k, melt ? b.melt.data() : nullptr,
-                     k.noise != 0 ? b.chi.data() : nullptr, b.pe.data(), b.te.data(), b.dp.data());
-        }
         float* pv = pl.buffer().data();
         float* tv = tl.buffer().data();
         FloatLeaf* gl = acc && acc->growth ? acc->growth->probeLeaf(lo) : nullptr;
@@ -434,6 +432,7 @@ struct LeafKernel {
         FlatStencil st(domain.stencil(), proto.bx, std::ptrdiff_t(proto.bx) * proto.by);
         const Anisotropy an(k);
         useD6Forms(st, an);
+        const EulerRows rows = fastestEulerRows(st, an);
         const float tn1 = float(tNext);
         tbb::enumerable_thread_specific<Block> blocks([plane] { return Block(plane); });
         tbb::parallel_for(tbb::blocked_range<size_t>(0, groups.count(), 1), [&](const tbb::blocked_range<size_t>& r) {
@@ -462,13 +461,15 @@ struct LeafKernel {
                 }
                 markNeeded(b, go, full, nFull);
                 if (nFull) {
-                    if (plane) auxRuns(b, st, an);
-                    else auxPass(b, b.p, st, an);
+                    if (plane) {
+                        auxRuns(b, st, an, rows);
+                        planeRows(b, go, z0, st, rows, full, nFull);
+                    } else auxPass(b, b.p, st, an);
                 }
                 for (size_t q = 0; q < count; ++q) {
                     const size_t li = groups.leaves[first + q];
                     if (!heatOnly[q] && plane) {
-                        planeLeaf(b, go, z0, st, pLeaves.leaf(li), tLeaves.leaf(li), tn1, pending);
+                        planeLeaf(b, go, z0, pLeaves.leaf(li), tLeaves.leaf(li), tn1, pending);
                         continue;
                     }
                     if (heatOnly[q]) {
@@ -941,17 +942,18 @@ void DensePhaseField::step()
     FlatStencil st(mStencil, std::ptrdiff_t(mStride), 0);
     const Anisotropy an(mParams);
     useD6Forms(st, an);
+    const EulerRows rows = mVectorRows ? fastestEulerRows(st, an) : plainEulerRows();
     const int W = mNx + 2 * kHalo;
     // Pass 1 on every cell with a full ring of neighbours, pass 2 on the domain cells; the halo
     // keeps the far-field values (Dirichlet), as the sparse solver's reads outside the domain do.
     tbb::parallel_for(tbb::blocked_range<int>(1, mNy + 2 * kHalo - 1, 16), [&](const tbb::blocked_range<int>& r) {
         for (int y = r.begin(); y != r.end(); ++y)
-            auxRow(mP.data(), size_t(y) * mStride + 1, size_t(y) * mStride + size_t(W - 1), st, an, mA.data(),
+            rows.aux(mP.data(), size_t(y) * mStride + 1, size_t(y) * mStride + size_t(W - 1), st, an, mA.data(),
                    mCx.data(), mCy.data(), mGx.data(), mGy.data(), mGz.data());
     });
     tbb::parallel_for(tbb::blocked_range<int>(0, mNy, 16), [&](const tbb::blocked_range<int>& r) {
         for (int j = r.begin(); j != r.end(); ++j)
-            eulerRow(mP.data(), mT.data(), mA.data(), mCx.data(), mCy.data(), mGx.data(), mGy.data(), mGz.data(),
+            rows.euler(mP.data(), mT.data(), mA.data(), mCx.data(), mCy.data(), mGx.data(), mGy.data(), mGz.data(),
                      index(0, j), index(mNx, j), st, mParams, nullptr, nullptr, mPn.data(), mTn.data(), nullptr);
     });
     // Halo cells are never written, so both buffer pairs keep the far field there.

@@ -2,11 +2,13 @@
 // step in sparse and dense mode at several ice fractions, then the kernel's voxel-update rate with
 // the whole domain active against the plain dense-array loop of the same stencil (same run).
 #include <frostvdb/core/Bench.h>
+#include <frostvdb/ice/EulerRows.h>
 #include <frostvdb/ice/PhaseFieldSolver.h>
 
 #include <tbb/global_control.h>
 
 #include <chrono>
+#include <ctime>
 #include <cmath>
 #include <cstdio>
 #include <string>
@@ -20,6 +22,14 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 double since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
+/// CPU seconds of the calling thread: with --threads 1 all of a step's work, and unlike wall time
+/// not inflated by the scheduler when other processes share the cores.
+double threadCpu()
+{
+    timespec ts;
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+    return double(ts.tv_sec) + 1e-9 * double(ts.tv_nsec);
+}
 
 /// Ice discs covering @a fraction of an n x n plane, spread over a few centres (a frost front
 /// rather than one blob), p = 1 inside with a one-cell smooth edge.
@@ -49,6 +59,8 @@ openvdb::FloatGrid::Ptr iceCover(int n, double fraction)
 /// plain dense-array loop of the same equations from the same start, in the same run.
 struct RealisticResult {
     double engineSeconds = 0, denseSeconds = 0, fullEngineSeconds = 0, fullDenseSeconds = 0;
+    double vectorDenseSeconds = 0, fullVectorDenseSeconds = 0; ///< the dense loop on the engine's vector rows
+    double fullEngineCpu = 0, fullDenseCpu = 0, fullVectorDenseCpu = 0; ///< calling thread's CPU seconds
     int64_t fullSteps = 0, rebuilds = 0;
     PhaseFieldStepStats stats, fullStats; ///< all steps; the fully active ones
     double finalFraction = 0;
@@ -69,7 +81,8 @@ RealisticResult realistic(int n, int steps, int rebuildEvery)
     rs.rebuildEvery = rebuildEvery;
     PhaseFieldSolver solver(k, dom, rs);
     solver.setSoleWriter(true); // as in a scene whose only writer of p and T is [phase_field]
-    DensePhaseField ref(k, lat, n, n);
+    DensePhaseField ref(k, lat, n, n), refVec(k, lat, n, n);
+    refVec.setVectorRows(true);
     auto p = openvdb::FloatGrid::create(0.f);
     auto T = openvdb::FloatGrid::create(float(k.farTemperature));
     auto growth = openvdb::FloatGrid::create(0.f), freeze = openvdb::FloatGrid::create(0.f);
@@ -80,6 +93,7 @@ RealisticResult realistic(int n, int steps, int rebuildEvery)
             if (v <= 0) continue;
             p->tree().setValue(openvdb::Coord(i, j, 0), float(v));
             ref.p()[ref.index(i, j)] = float(v);
+            refVec.p()[refVec.index(i, j)] = float(v);
         }
     RealisticResult out;
     // Interleaved step by step so that both see the same machine load; the steps where the
@@ -87,16 +101,27 @@ RealisticResult realistic(int n, int steps, int rebuildEvery)
     for (int s = 0; s < steps; ++s) {
         PhaseFieldStepStats st;
         auto t0 = Clock::now();
+        double c0 = threadCpu();
         solver.step(p, T, growth.get(), freeze.get(), s, s * k.dt, 1, &st);
-        const double te = since(t0);
+        const double te = since(t0), ce = threadCpu() - c0;
         t0 = Clock::now();
+        c0 = threadCpu();
         ref.step();
-        const double td = since(t0);
+        const double td = since(t0), cd = threadCpu() - c0;
+        t0 = Clock::now();
+        c0 = threadCpu();
+        refVec.step();
+        const double tv = since(t0), cv = threadCpu() - c0;
         out.engineSeconds += te;
         out.denseSeconds += td;
+        out.vectorDenseSeconds += tv;
         if (st.regionVoxels == dom.voxelCount()) {
             out.fullEngineSeconds += te;
             out.fullDenseSeconds += td;
+            out.fullVectorDenseSeconds += tv;
+            out.fullEngineCpu += ce;
+            out.fullDenseCpu += cd;
+            out.fullVectorDenseCpu += cv;
             ++out.fullSteps;
             out.fullStats.regionSeconds += st.regionSeconds;
             out.fullStats.kernelSeconds += st.kernelSeconds;
@@ -115,9 +140,19 @@ RealisticResult realistic(int n, int steps, int rebuildEvery)
             const openvdb::Coord q(i, j, 0);
             out.maxDiff = std::max(out.maxDiff, double(std::fabs(pa.getValue(q) - ref.p()[ref.index(i, j)])));
             out.maxDiff = std::max(out.maxDiff, double(std::fabs(ta.getValue(q) - ref.T()[ref.index(i, j)])));
+            out.maxDiff = std::max(out.maxDiff, double(std::fabs(refVec.p()[ref.index(i, j)] - ref.p()[ref.index(i, j)])));
+            out.maxDiff = std::max(out.maxDiff, double(std::fabs(refVec.T()[ref.index(i, j)] - ref.T()[ref.index(i, j)])));
             out.area += ref.p()[ref.index(i, j)] > 0.5f;
         }
     return out;
+}
+
+/// Which row code the engine runs on this machine for the square plane (EulerRows.h).
+std::string rowsName()
+{
+    KobayashiParams k;
+    FlatStencil st(Lattice(LatticeKind::Square, 0.03).stencil(false), 64, 0);
+    return fastestEulerRows(st, Anisotropy(k)).vector ? "AVX2 vector" : "plain";
 }
 
 void benchRealistic(const BenchArgs& args)
@@ -125,29 +160,36 @@ void benchRealistic(const BenchArgs& args)
     const int steps = args.quick ? 200 : 2000;
     std::printf("Realistic full-domain run (issue 10): square plane, spacing 0.03, forward Euler dt 0.0002, delta 0.04, "
                 "K 1.6, one disc seed of radius 5 cells, %d steps, region tolerance 0, threads %s.\n"
-                "Engine = PhaseFieldSolver::step (region + kernel + truncation, growth and freeze-time accumulators); "
-                "dense = DensePhaseField::step, the plain dense-array loop of the same arithmetic, stepped alternately "
-                "in the same run.\n\n",
-                steps, args.threads > 0 ? std::to_string(args.threads).c_str() : "all");
+                "Engine = PhaseFieldSolver::step (region + kernel + truncation, growth and freeze-time accumulators; "
+                "%s row code); dense = DensePhaseField::step, the plain dense-array loop of the same arithmetic "
+                "(one cell at a time); dense, vector rows = the same loop on the engine's row code; the three stepped "
+                "alternately in the same run. max diff: largest |difference| of p and T between the three at the end.\n\n",
+                steps, args.threads > 0 ? std::to_string(args.threads).c_str() : "all", rowsName().c_str());
     std::printf("| size | rebuild_every | engine (s) | region / kernel / truncation (s) | rebuilds | dense loop (s) | "
-                "dense / engine | fully active steps | dense / engine there | final region | max diff |\n");
-    std::printf("|---|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|\n");
+                "dense / engine | fully active steps | dense / engine there | dense, vector rows / engine there | final region | max diff |\n");
+    std::printf("|---|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|\n");
     std::vector<int> sizes{300, 600};
     if (args.args.size() > 1) sizes = {std::stoi(args.args[1])}; // `bench sparse realistic N`: one size
     for (int n : sizes) {
         for (int every : {1, 0}) {
             if (n != 300 && every == 1) continue; // the old cadence once, at the issue's size
             const RealisticResult r = realistic(n, steps, every);
-            std::printf("| %dx%d | %s | %.2f | %.2f / %.2f / %.2f | %lld | %.2f | %.2fx | %lld | %.2fx | %.0f%% | %g |\n", n, n,
+            std::printf("| %dx%d | %s | %.2f | %.2f / %.2f / %.2f | %lld | %.2f | %.2fx | %lld | %.2fx | %.2fx | %.0f%% | %g |\n", n, n,
                         every == 0 ? "auto" : std::to_string(every).c_str(), r.engineSeconds, r.stats.regionSeconds,
                         r.stats.kernelSeconds, r.stats.truncateSeconds, (long long)r.rebuilds, r.denseSeconds,
                         r.denseSeconds / r.engineSeconds, (long long)r.fullSteps,
-                        r.fullSteps ? r.fullDenseSeconds / r.fullEngineSeconds : 0.0, 100.0 * r.finalFraction, r.maxDiff);
+                        r.fullSteps ? r.fullDenseSeconds / r.fullEngineSeconds : 0.0,
+                        r.fullSteps ? r.fullVectorDenseSeconds / r.fullEngineSeconds : 0.0, 100.0 * r.finalFraction, r.maxDiff);
             std::fflush(stdout);
             if (r.fullSteps)
-                std::fprintf(stderr, "  %dx%d fully active steps, per step: region %.3f ms, kernel %.3f ms, truncation %.3f ms; dense loop %.3f ms\n",
+                std::fprintf(stderr, "  %dx%d fully active steps, per step: region %.3f ms, kernel %.3f ms, truncation %.3f ms; dense loop %.3f ms (vector rows %.3f ms)\n",
                              n, n, 1e3 * r.fullStats.regionSeconds / r.fullSteps, 1e3 * r.fullStats.kernelSeconds / r.fullSteps,
-                             1e3 * r.fullStats.truncateSeconds / r.fullSteps, 1e3 * r.fullDenseSeconds / r.fullSteps);
+                             1e3 * r.fullStats.truncateSeconds / r.fullSteps, 1e3 * r.fullDenseSeconds / r.fullSteps,
+                             1e3 * r.fullVectorDenseSeconds / r.fullSteps);
+            if (r.fullSteps && args.threads == 1)
+                std::fprintf(stderr, "  %dx%d fully active steps, CPU ms per step: engine %.3f, dense loop %.3f (vector rows %.3f): "
+                             "dense / engine %.2fx\n", n, n, 1e3 * r.fullEngineCpu / r.fullSteps, 1e3 * r.fullDenseCpu / r.fullSteps,
+                             1e3 * r.fullVectorDenseCpu / r.fullSteps, r.fullDenseCpu / r.fullEngineCpu);
         }
     }
     std::printf("\n");

@@ -170,7 +170,8 @@ private:
 
 /// The plain dense-array loop of the same stencil and arithmetic, on a 2D nx x ny plane with a
 /// halo of 2 cells held at the far field (the sparse solver's boundary condition). Arrays are
-/// (nx+4) x (ny+4), row-major in x. Used as the reference the sparse kernel is measured against.
+/// (nx+4) x (ny+4), row-major in x. Used as the reference the sparse kernel is measured against:
+/// it runs the plain rows (one cell at a time, EulerRows.h) unless told otherwise.
 class DensePhaseField {
 public:
     DensePhaseField(const KobayashiParams& params, const Lattice& lattice, int nx, int ny);
@@ -181,12 +182,16 @@ public:
     std::vector<float>& p() { return mP; }
     std::vector<float>& T() { return mT; }
     void step();
+    /// Run the engine's vector rows (EulerRows.h) instead of the plain ones: the bench's answer
+    /// to "what if the dense loop were vectorized too". Same bits either way.
+    void setVectorRows(bool on) { mVectorRows = on; }
 
 private:
     KobayashiParams mParams;
     Stencil mStencil;
     int mNx, mNy;
     std::size_t mStride;
+    bool mVectorRows = false;
     std::vector<float> mP, mT, mPn, mTn, mA, mCx, mCy, mGx, mGy, mGz;
 };
 

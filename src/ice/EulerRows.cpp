@@ -1,0 +1,207 @@
+#include <frostvdb/ice/EulerRows.h>
+
+#include <cmath>
+#include <cstdlib>
+#include <cstring>
+
+#if defined(__x86_64__) || defined(__i386__)
+#include <immintrin.h>
+#define FROSTVDB_HAVE_AVX2_ROWS 1
+#endif
+
+namespace frostvdb {
+
+namespace {
+
+// Plain rows: one cell at a time, out of line (one copy of the machine code for every caller).
+__attribute__((noinline)) void auxRowPlain(const float* p, std::size_t i0, std::size_t i1, const FlatStencil& st,
+                                           const Anisotropy& an, float* a, float* cx, float* cy, float* gx,
+                                           float* gy, float* gz)
+{
+    for (std::size_t i = i0; i < i1; ++i) kobayashiAux(p, i, st, an, a, cx, cy, gx, gy, gz);
+}
+
+__attribute__((noinline)) void eulerRowPlain(const float* p, const float* T, const float* a, const float* cx,
+                                             const float* cy, const float* gx, const float* gy, const float* gz,
+                                             std::size_t i0, std::size_t i1, const FlatStencil& st,
+                                             const KobayashiParams& k, const float* melt, const double* chi,
+                                             float* pOut, float* tOut, double* dpOut)
+{
+    for (std::size_t i = i0; i < i1; ++i) {
+        const double Te = melt ? k.localMeltTemperature(melt[i]) : k.meltTemperature;
+        const double dp = kobayashiEuler(p, T, a, cx, cy, gx, gy, gz, i, st, k, Te, chi ? chi[i] : 0.0, pOut[i],
+                                         tOut[i]);
+        if (dpOut) dpOut[i] = dp;
+    }
+}
+
+#ifdef FROSTVDB_HAVE_AVX2_ROWS
+// Vector rows: kobayashiAux and kobayashiEuler of the 4-tap square plane (no d6 forms, integer
+// anisotropy mode), transcribed operation by operation onto 4 lanes of doubles. What keeps the
+// bits: every + - * / sqrt is the IEEE operation of the scalar code on the same operands in the
+// same order (accumulators start at +0 as there; products keep their association, e.g.
+// (eps eps') sx); std::min(a, b) is min_pd(b, a) and std::max(a, b) max_pd(b, a) (both return
+// their first argument on ties and NaN, as min_pd/max_pd return their second); the branch on
+// |g|^2 is a select whose discarded lane is the scalar code's (1, 0) (multiplying by 1 and adding
+// +0 is exact, so w stays (1, +0)); atan is libm's, per lane; float <-> double conversions
+// are exact one way and round to nearest the other, as the scalar casts. The target has no FMA,
+// so nothing is contracted.
+#define FV_AVX2 __attribute__((target("avx2")))
+
+FV_AVX2 inline __m256d load4(const float* p) { return _mm256_cvtps_pd(_mm_loadu_ps(p)); }
+FV_AVX2 inline void store4(float* p, __m256d v) { _mm_storeu_ps(p, _mm256_cvtpd_ps(v)); }
+FV_AVX2 inline __m256d vmin(__m256d a, __m256d b) { return _mm256_min_pd(b, a); } // std::min(a, b)
+FV_AVX2 inline __m256d vmax(__m256d a, __m256d b) { return _mm256_max_pd(b, a); } // std::max(a, b)
+FV_AVX2 inline __m256d add(__m256d a, __m256d b) { return _mm256_add_pd(a, b); }
+FV_AVX2 inline __m256d sub(__m256d a, __m256d b) { return _mm256_sub_pd(a, b); }
+FV_AVX2 inline __m256d mul(__m256d a, __m256d b) { return _mm256_mul_pd(a, b); }
+FV_AVX2 inline __m256d splat(double v) { return _mm256_set1_pd(v); }
+
+constexpr int kTaps = 4;
+
+__attribute__((noinline)) FV_AVX2 void auxRowAvx2(const float* p, std::size_t i0, std::size_t i1,
+                                                  const FlatStencil& st, const Anisotropy& an, float* a, float* cx,
+                                                  float* cy, float* gx, float* gy, float* gz)
+{
+    __m256d wG[kTaps], ex[kTaps], ey[kTaps], ez[kTaps];
+    std::ptrdiff_t off[kTaps];
+    for (int q = 0; q < kTaps; ++q) {
+        wG[q] = splat(st.wGrad[q]);
+        ex[q] = splat(st.ex[q]);
+        ey[q] = splat(st.ey[q]);
+        ez[q] = splat(st.ez[q]);
+        off[q] = st.off[q];
+    }
+    const __m256d zero = _mm256_setzero_pd(), one = splat(1.0), tiny = splat(1e-30);
+    const __m256d cj0 = splat(an.cj0), sj0 = splat(an.sj0), epsBar = splat(an.epsBar), delta = splat(an.delta);
+    const __m256d epsPrimeScale = splat(an.epsBar * an.delta * an.j); // (eps_bar delta) j, as the scalar code
+    const int mode = an.integerMode;
+    std::size_t i = i0;
+    for (; i + 4 <= i1; i += 4) {
+        const __m256d p0 = load4(p + i);
+        __m256d sx = zero, sy = zero, sz = zero;
+        for (int q = 0; q < kTaps; ++q) {
+            const __m256d d = mul(wG[q], sub(load4(p + i + off[q]), p0));
+            sx = add(sx, mul(d, ex[q]));
+            sy = add(sy, mul(d, ey[q]));
+            sz = add(sz, mul(d, ez[q]));
+        }
+        // Anisotropy, integer mode: w = (g / |g|)^j where |g|^2 > 1e-30, else w = 1.
+        const __m256d r2 = add(mul(sx, sx), mul(sy, sy));
+        const __m256d big = _mm256_cmp_pd(r2, tiny, _CMP_GT_OQ);
+        const __m256d inv = _mm256_div_pd(one, _mm256_sqrt_pd(r2));
+        const __m256d zr = _mm256_blendv_pd(one, mul(sx, inv), big);
+        const __m256d zi = _mm256_blendv_pd(zero, mul(sy, inv), big);
+        __m256d wr = one, wi = zero;
+        for (int q = 0; q < mode; ++q) {
+            const __m256d t = sub(mul(wr, zr), mul(wi, zi));
+            wi = add(mul(wr, zi), mul(wi, zr));
+            wr = t;
+        }
+        const __m256d c = add(mul(cj0, wr), mul(sj0, wi));
+        const __m256d s = sub(mul(sj0, wr), mul(cj0, wi));
+        const __m256d eps = mul(epsBar, add(one, mul(delta, c)));
+        const __m256d epsPrime = mul(epsPrimeScale, s);
+        const __m256d ee = mul(eps, epsPrime);
+        store4(a + i, mul(eps, eps));
+        store4(cx + i, mul(ee, sx));
+        store4(cy + i, mul(ee, sy));
+        store4(gx + i, sx);
+        store4(gy + i, sy);
+        store4(gz + i, sz);
+    }
+    for (; i < i1; ++i) kobayashiAux(p, i, st, an, a, cx, cy, gx, gy, gz);
+}
+
+__attribute__((noinline)) FV_AVX2 void eulerRowAvx2(const float* p, const float* T, const float* a,
+                                                    const float* cx, const float* cy, const float* gx,
+                                                    const float* gy, const float* gz, std::size_t i0,
+                                                    std::size_t i1, const FlatStencil& st, const KobayashiParams& k,
+                                                    const float* melt, const double* chi, float* pOut, float* tOut,
+                                                    double* dpOut)
+{
+    __m256d wG[kTaps], wL[kTaps], ex[kTaps], nex[kTaps], ey[kTaps], ez[kTaps];
+    std::ptrdiff_t off[kTaps];
+    for (int q = 0; q < kTaps; ++q) {
+        wG[q] = splat(st.wGrad[q]);
+        wL[q] = splat(st.wLap[q]);
+        ex[q] = splat(st.ex[q]);
+        nex[q] = splat(-st.ex[q]);
+        ey[q] = splat(st.ey[q]);
+        ez[q] = splat(st.ez[q]);
+        off[q] = st.off[q];
+    }
+    const __m256d zero = _mm256_setzero_pd(), one = splat(1.0), half = splat(0.5);
+    const __m256d farT = splat(k.farTemperature), meltSpan = splat(k.meltTemperature - k.farTemperature);
+    const __m256d meltT = splat(k.meltTemperature), gamma = splat(k.gamma), alphaPi = splat(k.alpha / M_PI);
+    const __m256d noise = splat(k.noise), r = splat(k.dt / k.tau), dt = splat(k.dt), K = splat(k.latentHeat);
+    std::size_t i = i0;
+    for (; i + 4 <= i1; i += 4) {
+        const __m256d p0 = load4(p + i), t0 = load4(T + i), a0 = load4(a + i);
+        __m256d lo = p0, hi = p0, lapP = zero, lapT = zero;
+        __m256d u[kTaps];
+        for (int q = 0; q < kTaps; ++q) {
+            u[q] = load4(p + i + off[q]);
+            lo = vmin(lo, u[q]);
+            hi = vmax(hi, u[q]);
+        }
+        for (int q = 0; q < kTaps; ++q) lapP = add(lapP, mul(wL[q], sub(u[q], p0)));
+        for (int q = 0; q < kTaps; ++q) lapT = add(lapT, mul(wL[q], sub(load4(T + i + off[q]), t0)));
+        const __m256d cx0 = load4(cx + i), cy0 = load4(cy + i);
+        __m256d dax = zero, day = zero, daz = zero, cross = zero;
+        for (int q = 0; q < kTaps; ++q) {
+            const std::size_t j = i + std::size_t(off[q]);
+            const __m256d da = mul(wG[q], sub(load4(a + j), a0));
+            dax = add(dax, mul(da, ex[q]));
+            day = add(day, mul(da, ey[q]));
+            daz = add(daz, mul(da, ez[q]));
+            cross = add(cross, mul(wG[q], add(mul(nex[q], sub(load4(cy + j), cy0)),
+                                              mul(ey[q], sub(load4(cx + j), cx0)))));
+        }
+        const __m256d rest =
+            add(add(add(mul(dax, load4(gx + i)), mul(day, load4(gy + i))), mul(daz, load4(gz + i))), cross);
+        const __m256d Te = melt ? add(farT, mul(load4(melt + i), meltSpan)) : meltT;
+        alignas(32) double x[4];
+        _mm256_store_pd(x, mul(gamma, sub(Te, t0)));
+        for (double& v : x) v = std::atan(v);
+        const __m256d m = mul(alphaPi, _mm256_load_pd(x));
+        const __m256d ch = chi ? _mm256_loadu_pd(chi + i) : zero;
+        const __m256d reaction = mul(mul(p0, sub(one, p0)), add(add(sub(p0, half), m), mul(noise, ch)));
+        const __m256d pMono = add(p0, mul(r, add(mul(a0, lapP), reaction)));
+        const __m256d pNew = vmin(vmax(pMono, hi), vmax(vmin(pMono, lo), add(pMono, mul(r, rest))));
+        const __m256d dp = sub(pNew, p0);
+        store4(pOut + i, add(pNew, zero));
+        store4(tOut + i, add(add(t0, mul(dt, lapT)), mul(K, dp)));
+        if (dpOut) _mm256_storeu_pd(dpOut + i, dp);
+    }
+    if (i < i1) eulerRowPlain(p, T, a, cx, cy, gx, gy, gz, i, i1, st, k, melt, chi, pOut, tOut, dpOut);
+}
+
+bool cpuHasAvx2()
+{
+    static const bool has = __builtin_cpu_supports("avx2");
+    return has;
+}
+#endif
+
+} // namespace
+
+EulerRows plainEulerRows() { return {&auxRowPlain, &eulerRowPlain, false}; }
+
+EulerRows fastestEulerRows(const FlatStencil& st, const Anisotropy& an)
+{
+#ifdef FROSTVDB_HAVE_AVX2_ROWS
+    static const bool disabled = [] {
+        const char* v = std::getenv("FROSTVDB_NO_VECTOR_ROWS");
+        return v && std::strcmp(v, "0") != 0 && *v;
+    }();
+    if (!disabled && cpuHasAvx2() && st.n == kTaps && !st.hexagonal && !st.d6 && an.integerMode >= 0)
+        return {&auxRowAvx2, &eulerRowAvx2, true};
+#else
+    (void)st;
+    (void)an;
+#endif
+    return plainEulerRows();
+}
+
+} // namespace frostvdb
