@@ -251,6 +251,40 @@ TEST_CASE("Bit-flipped VDB files read or are refused and never crash or run away
     CHECK(refused > 0);
 }
 
+TEST_CASE("The fresh-process VDB check gives the forked check's verdict", "[fast][robust]")
+{
+    // readVdb falls back to this check when a forked child stalls on a lock it inherited; it
+    // must judge files exactly as the forked check does, and never parse in this process.
+    const std::string dir = tempDir("fresh_vdb_check");
+    const std::string bytes = readFile(writeTinyFrame(dir));
+    CHECK(checkVdbBytesInFreshProcess(bytes).empty());
+    std::mt19937_64 rng(16);
+    int agreed = 0;
+    for (int trial = 0; trial < 8; ++trial) {
+        std::string damaged = bytes;
+        for (int k = 0; k < 200; ++k) damaged[rng() % damaged.size()] = char(rng());
+        const std::string p = dir + "/flip" + std::to_string(trial) + ".vdb";
+        std::ofstream(p, std::ios::binary) << damaged;
+        bool forkedRefused = false;
+        try {
+            readVdb(p);
+        } catch (const VdbFileError&) {
+            forkedRefused = true;
+        }
+        // validateVdb refuses some files before any parse; only compare the parser's verdicts.
+        try {
+            validateVdb(p, damaged);
+        } catch (const VdbFileError&) {
+            continue;
+        }
+        const std::string fresh = checkVdbBytesInFreshProcess(damaged);
+        INFO("trial " << trial << ": " << fresh);
+        if (!fresh.empty()) CHECK(forkedRefused);
+        ++agreed;
+    }
+    CHECK(agreed > 0);
+}
+
 // ---------------------------------------------------------------------------------------------
 // 3. Resource budget
 

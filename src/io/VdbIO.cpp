@@ -9,6 +9,7 @@
 #include <atomic>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <iomanip>
 #include <sstream>
@@ -17,6 +18,7 @@
 #include <fstream>
 
 #include <csignal>
+#include <sys/mman.h>
 #include <sys/resource.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -306,42 +308,61 @@ char processState(pid_t pid)
     return close != std::string::npos && close + 2 < text.size() ? text[close + 2] : 0;
 }
 
-/// OpenVDB trusts the tree data inside a grid (node masks, compressed block sizes): a damaged
-/// byte there can corrupt memory or ask for gigabytes. So the bytes are parsed first in a child
-/// process with a memory cap and a time limit, which takes that risk; "" when the parse is safe.
-std::string trialParseInChild(const std::string& bytes)
+/// Environment variable that turns a fresh process into a trial parser: it names a file
+/// descriptor holding the bytes (see trialParseInFreshProcess).
+constexpr const char* kTrialFdVariable = "FROSTVDB_VDB_TRIAL_FD";
+
+/// The trial parse itself, run in a child: caps memory and CPU, parses, and exits with
+/// 0 (parses), 3 (an ordinary error), 4 (asks for too much memory); a crash or SIGXCPU is the
+/// verdict on a hostile file. Never returns.
+[[noreturn]] void trialParseAndExit(const std::string& bytes)
 {
-    const pid_t pid = ::fork();
-    if (pid < 0) return {}; // cannot fork: parse directly, as OpenVDB itself would
-    if (pid == 0) {
-        for (int sig : {SIGSEGV, SIGABRT, SIGBUS, SIGFPE, SIGILL}) std::signal(sig, SIG_DFL);
-        long pages = 0, dummy = 0;
-        if (FILE* f = std::fopen("/proc/self/statm", "r")) {
-            if (std::fscanf(f, "%ld %ld", &pages, &dummy) != 2) pages = 0;
-            std::fclose(f);
-        }
-        const double extra = 2.0 * 1024 * 1024 * 1024 + 64.0 * double(bytes.size());
-        rlimit lim{};
-        lim.rlim_cur = lim.rlim_max = rlim_t(double(pages) * double(::sysconf(_SC_PAGESIZE)) + extra);
-        if (pages > 0) ::setrlimit(RLIMIT_AS, &lim);
-        rlimit cpu{};
-        cpu.rlim_cur = 30; // SIGXCPU after 30 s of CPU
-        cpu.rlim_max = 31;
-        ::setrlimit(RLIMIT_CPU, &cpu);
-        try {
-            parseGrids(bytes, nullptr);
-        } catch (const std::bad_alloc&) {
-            ::_exit(4);
-        } catch (...) {
-            ::_exit(3); // an ordinary error: the parent parses again and reports it
-        }
-        ::_exit(0);
+    for (int sig : {SIGSEGV, SIGABRT, SIGBUS, SIGFPE, SIGILL}) std::signal(sig, SIG_DFL);
+    long pages = 0, dummy = 0;
+    if (FILE* f = std::fopen("/proc/self/statm", "r")) {
+        if (std::fscanf(f, "%ld %ld", &pages, &dummy) != 2) pages = 0;
+        std::fclose(f);
     }
-    // A hostile file makes the reader loop on the CPU: the child's CPU limit (30 s) stops it. A
-    // child that sleeps instead is stuck on a lock some other thread of this process held at
-    // fork() (a forked child inherits locks but not their owners): that says nothing about the
-    // file, so it is killed and the parent parses directly, as OpenVDB itself would.
+    const double extra = 2.0 * 1024 * 1024 * 1024 + 64.0 * double(bytes.size());
+    rlimit lim{};
+    lim.rlim_cur = lim.rlim_max = rlim_t(double(pages) * double(::sysconf(_SC_PAGESIZE)) + extra);
+    if (pages > 0) ::setrlimit(RLIMIT_AS, &lim);
+    rlimit cpu{};
+    cpu.rlim_cur = 30; // SIGXCPU after 30 s of CPU
+    cpu.rlim_max = 31;
+    ::setrlimit(RLIMIT_CPU, &cpu);
+    try {
+        parseGrids(bytes, nullptr);
+    } catch (const std::bad_alloc&) {
+        ::_exit(4);
+    } catch (...) {
+        ::_exit(3); // an ordinary error: the parent parses again and reports it
+    }
+    ::_exit(0);
+}
+
+/// Runs before main() in every program that links this file: a process started by
+/// trialParseInFreshProcess() parses the bytes behind the descriptor and exits, so it never
+/// reaches the program's own main().
+__attribute__((constructor)) void trialParserEntryPoint()
+{
+    const char* fdText = std::getenv(kTrialFdVariable);
+    if (!fdText) return;
+    const int fd = std::atoi(fdText);
+    std::string bytes;
+    char chunk[1 << 16];
+    ::lseek(fd, 0, SEEK_SET);
+    for (ssize_t n; (n = ::read(fd, chunk, sizeof chunk)) > 0;) bytes.append(chunk, size_t(n));
+    openvdb::initialize();
+    trialParseAndExit(bytes);
+}
+
+/// Waits for a trial child. Returns the verdict ("" when the parse is safe) and sets @a stuck
+/// when the child slept for a whole second (see trialParseInChild) and was killed.
+std::string awaitTrial(pid_t pid, bool detectStuck, bool& stuck)
+{
     int status = 0, sleepingPolls = 0;
+    stuck = false;
     for (int i = 0; i < 12000; ++i) { // 120 s of wall time as a last resort
         const pid_t r = ::waitpid(pid, &status, WNOHANG);
         if (r == pid) {
@@ -350,20 +371,73 @@ std::string trialParseInChild(const std::string& bytes)
             if (WIFSIGNALED(status)) return "damaged grid data (parsing it crashed OpenVDB's reader)";
             if (WIFEXITED(status) && WEXITSTATUS(status) == 4)
                 return "damaged grid data (it asks for more than 64x its size in memory)";
+            if (WIFEXITED(status) && WEXITSTATUS(status) != 0 && WEXITSTATUS(status) != 3)
+                return "damaged grid data (the check of the file failed)";
             return {};
         }
         if (r < 0) return {};
-        sleepingPolls = processState(pid) == 'S' ? sleepingPolls + 1 : 0;
+        sleepingPolls = detectStuck && processState(pid) == 'S' ? sleepingPolls + 1 : 0;
         if (sleepingPolls >= 100) break; // asleep for 1 s: stuck, not parsing
         ::usleep(10000);
     }
     ::kill(pid, SIGKILL);
     ::waitpid(pid, &status, 0);
-    if (sleepingPolls >= 100) return {};
-    return "damaged grid data (parsing it takes more than 30 s)";
+    stuck = sleepingPolls >= 100;
+    return stuck ? std::string() : "damaged grid data (parsing it takes more than 30 s)";
+}
+
+/// The same trial in a freshly executed copy of this program (no inherited locks): the bytes go
+/// through an in-memory file the new process reads before its main().
+std::string trialParseInFreshProcess(const std::string& bytes)
+{
+    const int fd = ::memfd_create("frostvdb-vdb-trial", 0); // inherited across exec
+    if (fd < 0) return "the file could not be checked safely (memfd_create failed)";
+    for (size_t done = 0; done < bytes.size();) {
+        const ssize_t n = ::write(fd, bytes.data() + done, bytes.size() - done);
+        if (n <= 0) {
+            ::close(fd);
+            return "the file could not be checked safely (writing the check copy failed)";
+        }
+        done += size_t(n);
+    }
+    const std::string fdText = std::to_string(fd);
+    const pid_t pid = ::fork();
+    if (pid == 0) {
+        ::setenv(kTrialFdVariable, fdText.c_str(), 1);
+        char* const argv[] = {const_cast<char*>("frostvdb-vdb-trial"), nullptr};
+        ::execv("/proc/self/exe", argv);
+        ::_exit(5); // exec failed: reported as a failed check
+    }
+    ::close(fd);
+    if (pid < 0) return "the file could not be checked safely (fork failed)";
+    bool stuck = false;
+    return awaitTrial(pid, /*detectStuck=*/false, stuck);
+}
+
+/// OpenVDB trusts the tree data inside a grid (node masks, compressed block sizes): a damaged
+/// byte there can corrupt memory or ask for gigabytes. So the bytes are parsed first in a child
+/// process with a memory cap and a time limit, which takes that risk; "" when the parse is safe.
+/// The bytes are never parsed in this process before a child has parsed them safely.
+std::string trialParseInChild(const std::string& bytes)
+{
+    const pid_t pid = ::fork();
+    if (pid < 0) return trialParseInFreshProcess(bytes);
+    if (pid == 0) trialParseAndExit(bytes);
+    // A hostile file makes the reader loop on the CPU: the child's CPU limit (30 s) stops it. A
+    // child that sleeps instead is stuck on a lock some other thread of this process held at
+    // fork() (a forked child inherits locks but not their owners): that says nothing about the
+    // file, so the trial is repeated in a freshly executed process, which holds no such lock.
+    bool stuck = false;
+    const std::string verdict = awaitTrial(pid, /*detectStuck=*/true, stuck);
+    return stuck ? trialParseInFreshProcess(bytes) : verdict;
 }
 
 } // namespace
+
+std::string checkVdbBytesInFreshProcess(const std::string& bytes)
+{
+    return trialParseInFreshProcess(bytes);
+}
 
 openvdb::GridPtrVecPtr readVdb(const std::string& path, openvdb::MetaMap::Ptr* fileMeta, bool requireGrids)
 {

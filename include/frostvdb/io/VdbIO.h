@@ -58,6 +58,11 @@ void writeVdbAtomic(const std::string& path, const openvdb::GridPtrVec& grids,
 openvdb::GridPtrVecPtr readVdb(const std::string& path, openvdb::MetaMap::Ptr* fileMeta = nullptr,
                                bool requireGrids = true);
 
+/// The safety check readVdb runs on a file's bytes, in a freshly executed copy of this program
+/// (readVdb uses it when a forked check stalls on a lock): "" when parsing @a bytes is safe,
+/// else why not. Exposed for tests.
+std::string checkVdbBytesInFreshProcess(const std::string& bytes);
+
 /// Creates a directory and its parents.
 void makeDirectories(const std::string& dir);
 
