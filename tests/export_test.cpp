@@ -12,6 +12,7 @@
 #include <catch2/catch.hpp>
 
 #include <cmath>
+#include <cstring>
 
 using namespace frostvdb;
 using namespace frostvdb::test;
@@ -285,4 +286,57 @@ TEST_CASE("Export clips a large hexagonal plane leaf by leaf to OpenVDB's clip v
     }
     CHECK(sq->tree().leafCount() <= ref->tree().leafCount()); // leaves only near the blob
     CHECK(sq->tree().leafCount() <= hex->tree().leafCount() * 4);
+}
+
+TEST_CASE("Sparse resampling equals the box sampler at every output voxel, isolated voxels at leaf edges",
+          "[fast][export]")
+{
+    // Isolated active voxels (the hardest case for the footprints: a leaf's active box is a
+    // single voxel) on leaf faces and corners, on several z layers, some values negative; every
+    // output voxel of a box around them must be on exactly when a corner with a positive weight
+    // is active, with BoxSampler's value, bit for bit.
+    const Domain dom = hexPlane(64);
+    auto hex = openvdb::FloatGrid::create(0.f);
+    hex->setTransform(dom.transform());
+    auto acc = hex->getAccessor();
+    uint64_t h = 12345;
+    const int edges[] = {0, 1, 6, 7, 8, 15, 16, 23, 31, 32, 40};
+    for (int i = 0; i < 60; ++i) {
+        h = h * 6364136223846793005ull + 1442695040888963407ull;
+        const int x = edges[(h >> 20) % 11] + 8 * int((h >> 30) % 3), y = edges[(h >> 40) % 11] + 8 * int((h >> 50) % 2);
+        const int z = int((h >> 60) % 4) == 3 ? 7 : int((h >> 60) % 4);
+        acc.setValue(Coord(x, y, z), float(int((h >> 8) % 2001) - 1000) / 977.f);
+    }
+    const auto target = squareTransform(dom);
+    auto out = openvdb::gridPtrCast<openvdb::FloatGrid>(resampleGrid(*hex, *target));
+    REQUIRE(out);
+    openvdb::CoordBBox box;
+    for (int c = 0; c < 8; ++c) {
+        const Vec3d ip((c & 1) ? 60 : -4, (c & 2) ? 60 : -4, (c & 4) ? 10 : -3);
+        box.expand(target->worldToIndexCellCentered(hex->transform().indexToWorld(ip)));
+    }
+    const auto hacc = hex->getConstAccessor();
+    const auto oacc = out->getConstAccessor();
+    int64_t on = 0, mismatches = 0;
+    for (auto it = box.begin(); it; ++it) {
+        const Vec3d p = hex->transform().worldToIndex(target->indexToWorld(*it));
+        const Coord i0 = Coord::floor(p);
+        const Vec3d f = p - i0.asVec3d();
+        bool expectOn = false;
+        for (int k = 0; k < 8; ++k) {
+            const double wx = (k & 1) ? f.x() : 1.0 - f.x(), wy = (k & 2) ? f.y() : 1.0 - f.y(),
+                         wz = (k & 4) ? f.z() : 1.0 - f.z();
+            if (wx * wy * wz > 0.0 && hacc.isValueOn(i0.offsetBy(k & 1 ? 1 : 0, k & 2 ? 1 : 0, k & 4 ? 1 : 0)))
+                expectOn = true;
+        }
+        float want = 0.f;
+        openvdb::tools::BoxSampler::sample(hacc, p, want);
+        float got = 0.f;
+        const bool gotOn = oacc.probeValue(*it, got);
+        on += expectOn;
+        if (gotOn != expectOn || (expectOn && std::memcmp(&got, &want, sizeof(float)) != 0)) ++mismatches;
+    }
+    CHECK(on > 100); // about 3 output voxels per isolated input voxel
+    CHECK(mismatches == 0);
+    CHECK(int64_t(out->activeVoxelCount()) == on);
 }

@@ -66,8 +66,13 @@ openvdb::GridBase::Ptr resampleSparse(const openvdb::GridBase& base, const openv
         tbb::parallel_for(size_t(0), leaves.leafCount(), [&](size_t i) {
             const auto& leaf = leaves.leaf(i);
             if (leaf.isEmpty()) return;
+            // The active voxels' box widened by one voxel (a margin far above the footprint's
+            // rounding), within the leaf's node box: not the whole node box, which for a flat
+            // grid samples all 8 z layers of the output leaves where 1 or 2 can be reached.
             openvdb::CoordBBox bb;
-            leaf.evalActiveBoundingBox(bb, false);
+            leaf.evalActiveBoundingBox(bb, true);
+            bb.expand(1);
+            bb.intersect(leaf.getNodeBoundingBox());
             boxes[i] = footprint(bb, inXf, target, Nearest);
         });
         auto tile = in.tree().cbeginValueOn();
