@@ -308,14 +308,38 @@ char processState(pid_t pid)
     return close != std::string::npos && close + 2 < text.size() ? text[close + 2] : 0;
 }
 
-/// Environment variable that turns a fresh process into a trial parser: it names a file
-/// descriptor holding the bytes (see trialParseInFreshProcess).
+/// Environment variable that turns a fresh process into a trial parser: "IN,OUT", two file
+/// descriptors (see trialParseInFreshProcess).
 constexpr const char* kTrialFdVariable = "FROSTVDB_VDB_TRIAL_FD";
 
-/// The trial parse itself, run in a child: caps memory and CPU, parses, and exits with
-/// 0 (parses), 3 (an ordinary error), 4 (asks for too much memory); a crash or SIGXCPU is the
-/// verdict on a hostile file. Never returns.
-[[noreturn]] void trialParseAndExit(const std::string& bytes)
+/// Writes all of @a text to @a fd; false on any failure.
+bool writeAll(int fd, const std::string& text)
+{
+    for (size_t done = 0; done < text.size();) {
+        const ssize_t n = ::write(fd, text.data() + done, text.size() - done);
+        if (n <= 0) return false;
+        done += size_t(n);
+    }
+    return true;
+}
+
+/// Everything in @a fd from offset 0 (pread: a forked child shares the descriptor's offset).
+std::string readAllFrom(int fd)
+{
+    std::string text;
+    char chunk[1 << 16];
+    off_t at = 0;
+    for (ssize_t n; (n = ::pread(fd, chunk, sizeof chunk, at)) > 0; at += n) text.append(chunk, size_t(n));
+    return text;
+}
+
+/// The trial parse itself, run in a child: caps memory and CPU, parses @a bytes and writes to
+/// @a outFd either the grids serialised again by OpenVDB's writer (exit 0) or the one-line reason
+/// the parse failed (exit 3); exit 4 when it asks for too much memory; a crash or SIGXCPU is the
+/// verdict on a hostile file. A damaged file can corrupt the heap without crashing the parse,
+/// so this process's "it parsed" proves nothing about memory safety: the caller parses only the
+/// bytes written back here, which OpenVDB's writer made self-consistent. Never returns.
+[[noreturn]] void trialParseAndExit(const std::string& bytes, int outFd)
 {
     for (int sig : {SIGSEGV, SIGABRT, SIGBUS, SIGFPE, SIGILL}) std::signal(sig, SIG_DFL);
     long pages = 0, dummy = 0;
@@ -331,14 +355,23 @@ constexpr const char* kTrialFdVariable = "FROSTVDB_VDB_TRIAL_FD";
     cpu.rlim_cur = 30; // SIGXCPU after 30 s of CPU
     cpu.rlim_max = 31;
     ::setrlimit(RLIMIT_CPU, &cpu);
+    std::string reason;
     try {
-        parseGrids(bytes, nullptr);
+        openvdb::MetaMap::Ptr meta;
+        const auto grids = parseGrids(bytes, &meta);
+        std::ostringstream os(std::ios::binary);
+        MemoryArchive().writeTo(os, *grids, *meta);
+        ::_exit(os && writeAll(outFd, std::move(os).str()) ? 0 : 5);
     } catch (const std::bad_alloc&) {
         ::_exit(4);
+    } catch (const std::ios_base::failure&) {
+        reason = "damaged grid data (a read runs past the end of the file)";
+    } catch (const std::exception& e) {
+        reason = std::string("damaged grid data (") + e.what() + ")";
     } catch (...) {
-        ::_exit(3); // an ordinary error: the parent parses again and reports it
+        reason = "damaged grid data";
     }
-    ::_exit(0);
+    ::_exit(writeAll(outFd, reason) ? 3 : 5);
 }
 
 /// Runs before main() in every program that links this file: a process started by
@@ -348,59 +381,77 @@ __attribute__((constructor)) void trialParserEntryPoint()
 {
     const char* fdText = std::getenv(kTrialFdVariable);
     if (!fdText) return;
-    const int fd = std::atoi(fdText);
-    std::string bytes;
-    char chunk[1 << 16];
-    ::lseek(fd, 0, SEEK_SET);
-    for (ssize_t n; (n = ::read(fd, chunk, sizeof chunk)) > 0;) bytes.append(chunk, size_t(n));
+    int inFd = -1, outFd = -1;
+    if (std::sscanf(fdText, "%d,%d", &inFd, &outFd) != 2) ::_exit(5);
+    const std::string bytes = readAllFrom(inFd);
     openvdb::initialize();
-    trialParseAndExit(bytes);
+    trialParseAndExit(bytes, outFd);
 }
 
-/// Waits for a trial child. Returns the verdict ("" when the parse is safe) and sets @a stuck
-/// when the child slept for a whole second (see trialParseInChild) and was killed.
-std::string awaitTrial(pid_t pid, bool detectStuck, bool& stuck)
+/// What a trial child found: @a reason is empty when the file parsed; then @a clean holds the
+/// grids as OpenVDB's writer serialised them again in the child.
+struct TrialResult {
+    std::string reason;
+    std::string clean;
+    bool stuck = false; ///< the child slept for a whole second and was killed (no verdict)
+};
+
+/// Waits for a trial child that writes its result to @a outFd.
+TrialResult awaitTrial(pid_t pid, int outFd, bool detectStuck)
 {
+    TrialResult t;
     int status = 0, sleepingPolls = 0;
-    stuck = false;
     for (int i = 0; i < 12000; ++i) { // 120 s of wall time as a last resort
         const pid_t r = ::waitpid(pid, &status, WNOHANG);
         if (r == pid) {
+            const int code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
             if (WIFSIGNALED(status) && WTERMSIG(status) == SIGXCPU)
-                return "damaged grid data (parsing it takes more than 30 s)";
-            if (WIFSIGNALED(status)) return "damaged grid data (parsing it crashed OpenVDB's reader)";
-            if (WIFEXITED(status) && WEXITSTATUS(status) == 4)
-                return "damaged grid data (it asks for more than 64x its size in memory)";
-            if (WIFEXITED(status) && WEXITSTATUS(status) != 0 && WEXITSTATUS(status) != 3)
-                return "damaged grid data (the check of the file failed)";
-            return {};
+                t.reason = "damaged grid data (parsing it takes more than 30 s)";
+            else if (WIFSIGNALED(status))
+                t.reason = "damaged grid data (parsing it crashed OpenVDB's reader)";
+            else if (code == 4)
+                t.reason = "damaged grid data (it asks for more than 64x its size in memory)";
+            else if (code == 3)
+                t.reason = readAllFrom(outFd);
+            else if (code == 0)
+                t.clean = readAllFrom(outFd);
+            else
+                t.reason = "the file could not be checked (the check process failed)";
+            if (code == 3 && t.reason.empty()) t.reason = "damaged grid data";
+            return t;
         }
-        if (r < 0) return {};
+        if (r < 0) {
+            t.reason = "the file could not be checked (lost the check process)";
+            return t;
+        }
         sleepingPolls = detectStuck && processState(pid) == 'S' ? sleepingPolls + 1 : 0;
         if (sleepingPolls >= 100) break; // asleep for 1 s: stuck, not parsing
         ::usleep(10000);
     }
     ::kill(pid, SIGKILL);
     ::waitpid(pid, &status, 0);
-    stuck = sleepingPolls >= 100;
-    return stuck ? std::string() : "damaged grid data (parsing it takes more than 30 s)";
+    t.stuck = sleepingPolls >= 100;
+    if (!t.stuck) t.reason = "damaged grid data (parsing it takes more than 30 s)";
+    return t;
 }
+
+/// A memory file for the child's answer; -1 on failure.
+int makeAnswerFile() { return ::memfd_create("frostvdb-vdb-trial-answer", 0); }
 
 /// The same trial in a freshly executed copy of this program (no inherited locks): the bytes go
 /// through an in-memory file the new process reads before its main().
-std::string trialParseInFreshProcess(const std::string& bytes)
+TrialResult trialParseInFreshProcess(const std::string& bytes)
 {
-    const int fd = ::memfd_create("frostvdb-vdb-trial", 0); // inherited across exec
-    if (fd < 0) return "the file could not be checked safely (memfd_create failed)";
-    for (size_t done = 0; done < bytes.size();) {
-        const ssize_t n = ::write(fd, bytes.data() + done, bytes.size() - done);
-        if (n <= 0) {
-            ::close(fd);
-            return "the file could not be checked safely (writing the check copy failed)";
-        }
-        done += size_t(n);
+    TrialResult t;
+    const int inFd = ::memfd_create("frostvdb-vdb-trial", 0); // inherited across exec
+    const int outFd = makeAnswerFile();
+    if (inFd < 0 || outFd < 0 || !writeAll(inFd, bytes)) {
+        if (inFd >= 0) ::close(inFd);
+        if (outFd >= 0) ::close(outFd);
+        t.reason = "the file could not be checked (no memory file for the check process)";
+        return t;
     }
-    const std::string fdText = std::to_string(fd);
+    const std::string fdText = std::to_string(inFd) + "," + std::to_string(outFd);
     const pid_t pid = ::fork();
     if (pid == 0) {
         ::setenv(kTrialFdVariable, fdText.c_str(), 1);
@@ -408,35 +459,45 @@ std::string trialParseInFreshProcess(const std::string& bytes)
         ::execv("/proc/self/exe", argv);
         ::_exit(5); // exec failed: reported as a failed check
     }
-    ::close(fd);
-    if (pid < 0) return "the file could not be checked safely (fork failed)";
-    bool stuck = false;
-    return awaitTrial(pid, /*detectStuck=*/false, stuck);
+    ::close(inFd);
+    if (pid < 0) {
+        t.reason = "the file could not be checked (fork failed)";
+    } else {
+        t = awaitTrial(pid, outFd, /*detectStuck=*/false);
+        if (t.stuck) t.reason = "the file could not be checked (the check process stalled)";
+    }
+    ::close(outFd);
+    return t;
 }
 
 /// OpenVDB trusts the tree data inside a grid (node masks, compressed block sizes): a damaged
-/// byte there can corrupt memory or ask for gigabytes. So the bytes are parsed first in a child
-/// process with a memory cap and a time limit, which takes that risk; "" when the parse is safe.
-/// The bytes are never parsed in this process before a child has parsed them safely.
-std::string trialParseInChild(const std::string& bytes)
+/// byte there can corrupt memory or ask for gigabytes. So the bytes are parsed in a child process
+/// with a memory cap and a time limit, which takes that risk; this process parses only what the
+/// child wrote back (see trialParseAndExit), never the file's own bytes.
+TrialResult trialParseInChild(const std::string& bytes)
 {
+    const int outFd = makeAnswerFile();
+    if (outFd < 0) return trialParseInFreshProcess(bytes);
     const pid_t pid = ::fork();
-    if (pid < 0) return trialParseInFreshProcess(bytes);
-    if (pid == 0) trialParseAndExit(bytes);
+    if (pid == 0) trialParseAndExit(bytes, outFd);
+    if (pid < 0) {
+        ::close(outFd);
+        return trialParseInFreshProcess(bytes);
+    }
     // A hostile file makes the reader loop on the CPU: the child's CPU limit (30 s) stops it. A
     // child that sleeps instead is stuck on a lock some other thread of this process held at
     // fork() (a forked child inherits locks but not their owners): that says nothing about the
     // file, so the trial is repeated in a freshly executed process, which holds no such lock.
-    bool stuck = false;
-    const std::string verdict = awaitTrial(pid, /*detectStuck=*/true, stuck);
-    return stuck ? trialParseInFreshProcess(bytes) : verdict;
+    TrialResult t = awaitTrial(pid, outFd, /*detectStuck=*/true);
+    ::close(outFd);
+    return t.stuck ? trialParseInFreshProcess(bytes) : t;
 }
 
 } // namespace
 
 std::string checkVdbBytesInFreshProcess(const std::string& bytes)
 {
-    return trialParseInFreshProcess(bytes);
+    return trialParseInFreshProcess(bytes).reason;
 }
 
 openvdb::GridPtrVecPtr readVdb(const std::string& path, openvdb::MetaMap::Ptr* fileMeta, bool requireGrids)
@@ -444,13 +505,10 @@ openvdb::GridPtrVecPtr readVdb(const std::string& path, openvdb::MetaMap::Ptr* f
     const std::string bytes = readWholeFile(path);
     const VdbLayout layout = validateVdb(path, bytes);
     if (requireGrids && layout.gridCount == 0) throw VdbFileError(path, "the file holds no grids");
-    if (const std::string why = trialParseInChild(bytes); !why.empty()) throw VdbFileError(path, why);
+    const TrialResult trial = trialParseInChild(bytes);
+    if (!trial.reason.empty()) throw VdbFileError(path, trial.reason);
     try {
-        return parseGrids(bytes, fileMeta);
-    } catch (const std::ios_base::failure&) {
-        throw VdbFileError(path, "damaged grid data (a read runs past the end of the file)");
-    } catch (const std::bad_alloc&) {
-        throw VdbFileError(path, "damaged grid data (a size field asks for more memory than exists)");
+        return parseGrids(trial.clean, fileMeta);
     } catch (const std::exception& e) {
         throw VdbFileError(path, std::string("damaged grid data (") + e.what() + ")");
     }
