@@ -703,7 +703,7 @@ int benchAccuracy(const BenchArgs& args)
           "had frozen and the last step thawed back; see section 5; `bench snowflake` now reports 0 clipped "
           "voxels). A run-time clip remains only for a solve that is not a positive scheme (BiCGSTAB stopped "
           "early), and it is counted.\n\n"
-          "Beyond the phase field on planes, the suite (`frostvdb_tests \"[stability]\"`, 21 test cases, each tagged in the file of its part) also runs: a shell sphere of curvature radius 5 voxels, seeds touching an open mesh's border, shell walkers at 3000 per step under a potential wind, a 3D box in a CFL-3 wind (band fluid, MacCormack T), MacCormack advection at CFL 5, the multigrid PCG with fluid pockets walled in by ice, and the gas probe findings (an empty fire, far flows, a swirl period of 1e-310 frames: every grid finite).\n\n");
+          "Beyond the phase field on planes, the suite (`frostvdb_tests \"[stability]\"`, 22 test cases, each tagged in the file of its part) also runs: a shell sphere of curvature radius 5 voxels (explicit and lw_cn), seeds touching an open mesh's border, shell walkers at 3000 per step under a potential wind, a 3D box in a CFL-3 wind (band fluid, MacCormack T), MacCormack advection at CFL 5, the multigrid PCG with fluid pockets walled in by ice, and the gas probe findings (an empty fire, far flows, a swirl period of 1e-310 frames: every grid finite).\n\n");
     R.out("---\nBench wall time: " + fmt("%.0f", since(tStart)) + " s; load average at the end " +
           loadAverageText() + ".\n");
     R.out("\n## 8. The fluid band against the full-domain solve\n\nMeasured by the fluid tests, not this "
