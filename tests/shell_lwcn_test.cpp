@@ -19,6 +19,7 @@
 #include <map>
 
 using namespace frostvdb;
+using test::iceArea;
 using openvdb::Vec3d;
 
 namespace {
@@ -117,15 +118,6 @@ void steps(Plate& run, int n, uint64_t seed = 0)
 double plateP(const Plate& run, const openvdb::FloatGrid& grid, double u, double v)
 {
     return openvdb::tools::BoxSampler::sample(grid.tree(), run.placement.transform(Vec3d(u, v, 0)));
-}
-
-/// Ice area (p > 1/2) in square voxels, sampled every half voxel over an L x L square.
-double iceArea(const std::function<double(double, double)>& p, double L)
-{
-    int n = 0;
-    for (double v = -L / 2 + 0.25; v < L / 2; v += 0.5)
-        for (double u = -L / 2 + 0.25; u < L / 2; u += 0.5) n += p(u, v) > 0.5 ? 1 : 0;
-    return n * 0.25;
 }
 
 } // namespace

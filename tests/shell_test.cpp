@@ -24,6 +24,7 @@
 #include <cmath>
 
 using namespace frostvdb;
+using test::iceArea;
 using openvdb::Vec3d;
 
 namespace {
@@ -112,15 +113,6 @@ struct PlateSampler {
         return openvdb::tools::BoxSampler::sample(grid->tree(), w);
     }
 };
-
-/// Ice area (p > 1/2) in square voxels, sampled every half voxel over the plate.
-double iceArea(const std::function<double(double, double)>& p, double L)
-{
-    int n = 0;
-    for (double v = -L / 2 + 0.25; v < L / 2; v += 0.5)
-        for (double u = -L / 2 + 0.25; u < L / 2; u += 0.5) n += p(u, v) > 0.5 ? 1 : 0;
-    return n * 0.25;
-}
 
 /// Arms: runs of p > 1/2 on a circle of radius @a r about the centre.
 int armCount(const std::function<double(double, double)>& p, double r)

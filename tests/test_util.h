@@ -12,6 +12,7 @@
 #include <filesystem>
 #include <unistd.h>
 #include <fstream>
+#include <functional>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -127,6 +128,16 @@ inline int runCommand(const std::string& cmd, const std::string& outFile)
 {
     const int rc = std::system((cmd + " > " + outFile + " 2>&1").c_str());
     return WIFEXITED(rc) ? WEXITSTATUS(rc) : -1;
+}
+
+/// Ice area (p > 1/2) in square voxels of a plate, sampling @a p (in plate coordinates u, v,
+/// centred) every half voxel over an L x L square.
+inline double iceArea(const std::function<double(double, double)>& p, double L)
+{
+    int n = 0;
+    for (double v = -L / 2 + 0.25; v < L / 2; v += 0.5)
+        for (double u = -L / 2 + 0.25; u < L / 2; u += 0.5) n += p(u, v) > 0.5 ? 1 : 0;
+    return n * 0.25;
 }
 
 } // namespace frostvdb::test
