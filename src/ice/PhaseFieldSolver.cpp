@@ -304,6 +304,54 @@ struct PhaseFieldSolver::Accumulators {
 namespace {
 using Accumulators = PhaseFieldSolver::Accumulators;
 
+/// The new values of an in-place step, leaf by leaf in LeafManager order: one slot per voxel a
+/// leaf can hold on the domain (64 on a plane: its one z layer, slot = offset >> 3; 512 in a
+/// box). A plane step so needs 2 x 256 bytes per leaf instead of a second pair of 2 KiB leaves.
+struct StagedValues {
+    float *p0 = nullptr, *t0 = nullptr;
+    int shift = 0;
+    size_t slots = 0;
+    StagedValues(std::vector<float>& p, std::vector<float>& t, size_t leaves, bool plane)
+        : shift(plane ? 3 : 0), slots(plane ? size_t(kDim * kDim) : size_t(kDim * kDim * kDim))
+    {
+        p.resize(leaves * slots); // resize, not assign: every slot the commit reads is written
+        t.resize(leaves * slots);
+        p0 = p.data();
+        t0 = t.data();
+    }
+    float* p(size_t li) const { return p0 + li * slots; }
+    float* t(size_t li) const { return t0 + li * slots; }
+};
+
+/// Copies the staged values into the leaves' active voxels (the voxels the kernel wrote).
+void commitStaged(openvdb::tree::LeafManager<openvdb::FloatTree>& pLeaves,
+                  openvdb::tree::LeafManager<openvdb::FloatTree>& tLeaves, const StagedValues& sv)
+{
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, pLeaves.leafCount(), 64), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t li = r.begin(); li != r.end(); ++li) {
+            FloatLeaf& pl = pLeaves.leaf(li);
+            float* pv = pl.buffer().data();
+            float* tv = tLeaves.leaf(li).buffer().data();
+            const float* sp = sv.p(li);
+            const float* st = sv.t(li);
+            const auto& mask = pl.getValueMask();
+            for (openvdb::Index w = 0; w < FloatLeaf::NodeMaskType::WORD_COUNT; ++w)
+                for (uint64_t bits = mask.template getWord<uint64_t>(w); bits; bits &= bits - 1) {
+                    const openvdb::Index n = w * 64 + openvdb::Index(__builtin_ctzll(bits));
+                    pv[n] = sp[n >> sv.shift];
+                    tv[n] = st[n >> sv.shift];
+                }
+        }
+    });
+}
+
+/// Gives @a grid a tree of its own before it is written in place: a frame may share it
+/// (addIceOutputs shares T's tree with the frame it writes).
+void ownTree(openvdb::FloatGrid& grid)
+{
+    if (grid.treePtr().use_count() > 2) grid.setTree(std::make_shared<openvdb::FloatTree>(grid.tree()));
+}
+
 /// The kernel over every leaf of the new grids (whose topology is the region), group by group:
 /// gather, pass 1, pass 2. Accumulators and the failure report are optional (benchmarks pass none).
 struct LeafKernel {
@@ -317,6 +365,24 @@ struct LeafKernel {
     uint64_t seed = 0;
     Accumulators* acc = nullptr;
     Failure* failure = nullptr;
+    /// In-place steps: new values go to a staging area (one slot per voxel a leaf can hold on
+    /// this domain, leaf by leaf in LeafManager order), since p and T are read while the kernel
+    /// runs; null: they go straight into the output leaves (separate output grids).
+    StagedValues* staged = nullptr;
+
+    /// Where leaf @a li's new values go: the staging slots or the leaf buffer itself, and the
+    /// shift from a leaf offset to its slot (planes keep one z layer: 64 slots, offset >> 3).
+    struct Out {
+        float *p, *t;
+        int shift;
+        float& atP(openvdb::Index n) const { return p[n >> shift]; }
+        float& atT(openvdb::Index n) const { return t[n >> shift]; }
+    };
+    Out out(size_t li, FloatLeaf& pl, FloatLeaf& tl) const
+    {
+        if (staged) return {staged->p(li), staged->t(li), staged->shift};
+        return {pl.buffer().data(), tl.buffer().data(), 0};
+    }
 
     /// Pass 1 on a plane block, by runs of needed cells along each row.
     static void auxRuns(Block& b, const FlatStencil& st, const Anisotropy& an, const EulerRows& rows)
@@ -372,14 +438,12 @@ struct LeafKernel {
 
     /// Writes one leaf of a plane block from the scratch planeRows filled: its active voxels,
     /// with the bounds check and the accumulators.
-    void planeLeaf(Block& b, const openvdb::Coord& go, int z0, FloatLeaf& pl, FloatLeaf& tl,
+    void planeLeaf(Block& b, const openvdb::Coord& go, int z0, const FloatLeaf& pl, const Out& o,
                    float tn1, std::vector<Accumulators::Pending>*& pending) const
     {
         const openvdb::Coord bo = b.origin(go);
         const openvdb::Coord lo = pl.origin();
         const int ox = lo.x() - bo.x(), oy = lo.y() - bo.y();
-        float* pv = pl.buffer().data();
-        float* tv = tl.buffer().data();
         FloatLeaf* gl = acc && acc->growth ? acc->growth->probeLeaf(lo) : nullptr;
         FloatLeaf* fl = acc && acc->freeze ? acc->freeze->probeLeaf(lo) : nullptr;
         // The accumulator leaves' buffers and masks directly: what setValueOn does, per voxel.
@@ -402,8 +466,8 @@ struct LeafKernel {
                     if (!std::isfinite(pn) || pn < -0.05f || pn > 1.05f) failure->report(c, "p (ice)", pn);
                     if (!std::isfinite(tn)) failure->report(c, "T (temperature)", tn);
                 }
-                pv[n] = pn;
-                tv[n] = tn;
+                o.atP(n) = pn;
+                o.atT(n) = tn;
                 const double dp = b.dp[i];
                 if (growth && dp > 0) {
                     if (gv) {
@@ -468,26 +532,22 @@ struct LeafKernel {
                 }
                 for (size_t q = 0; q < count; ++q) {
                     const size_t li = groups.leaves[first + q];
+                    FloatLeaf& pl = pLeaves.leaf(li);
+                    const Out o = out(li, pl, tLeaves.leaf(li));
                     if (!heatOnly[q] && plane) {
-                        planeLeaf(b, go, z0, pLeaves.leaf(li), tLeaves.leaf(li), tn1, pending);
+                        planeLeaf(b, go, z0, pl, o, tn1, pending);
                         continue;
                     }
                     if (heatOnly[q]) {
-                        float* pv = pLeaves.leaf(li).buffer().data();
-                        float* tv = tLeaves.leaf(li).buffer().data();
                         forActiveVoxels(b, go, z0, *present[q], [&](openvdb::Index n, size_t i, const openvdb::Coord& c) {
                             float pn, tn;
                             kobayashiEulerHeatOnly(b.T.data(), i, st, k, pn, tn);
                             if (failure && !std::isfinite(tn)) failure->report(c, "T (temperature)", tn);
-                            pv[n] = pn;
-                            tv[n] = tn;
+                            o.atP(n) = pn;
+                            o.atT(n) = tn;
                         });
                         continue;
                     }
-                    FloatLeaf& pl = pLeaves.leaf(li);
-                    FloatLeaf& tl = tLeaves.leaf(li);
-                    float* pv = pl.buffer().data();
-                    float* tv = tl.buffer().data();
                     FloatLeaf* gl = acc && acc->growth ? acc->growth->probeLeaf(pl.origin()) : nullptr;
                     FloatLeaf* fl = acc && acc->freeze ? acc->freeze->probeLeaf(pl.origin()) : nullptr;
                     forActiveVoxels(b, go, z0, pl, [&](openvdb::Index n, size_t i, const openvdb::Coord& c) {
@@ -500,8 +560,8 @@ struct LeafKernel {
                             if (!std::isfinite(pn) || pn < -0.05f || pn > 1.05f) failure->report(c, "p (ice)", pn);
                             if (!std::isfinite(tn)) failure->report(c, "T (temperature)", tn);
                         }
-                        pv[n] = pn;
-                        tv[n] = tn;
+                        o.atP(n) = pn;
+                        o.atT(n) = tn;
                         if (acc) acc->record(gl, fl, n, c, dp, pn, tn1, pending);
                     });
                 }
@@ -642,8 +702,26 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
         }
         if (stats) stats->rebuilds += 1;
     }
-    auto pNew = outputGrid(mSpareP, mSpareGeneration, *p);
-    auto tNew = outputGrid(mSpareT, mSpareGeneration, *T);
+    // Forward Euler updates p and T in place (its new values staged until the kernel is done),
+    // so the fields exist once; the second-order scheme writes new grids (it keeps the start
+    // values as history anyway).
+    const bool inPlace = mParams.scheme == PhaseFieldScheme::Euler;
+    openvdb::FloatGrid::Ptr pNew, tNew;
+    if (inPlace) {
+        ownTree(*p);
+        ownTree(*T);
+        if (inputGeneration != mGeneration) {
+            matchTopology(*p, *mRegionMask, ours);
+            matchTopology(*T, *mRegionMask, ours);
+        }
+        pNew = p;
+        tNew = T;
+        mSpareP.reset();
+        mSpareT.reset();
+    } else {
+        pNew = outputGrid(mSpareP, mSpareGeneration, *p);
+        tNew = outputGrid(mSpareT, mSpareGeneration, *T);
+    }
 
     openvdb::tree::LeafManager<openvdb::FloatTree> pLeaves(pNew->tree());
     openvdb::tree::LeafManager<openvdb::FloatTree> tLeaves(tNew->tree());
@@ -663,8 +741,10 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
     const KobayashiParams& k = mParams;
     const double tNext = time + k.dt;
     Failure failure;
+    std::unique_ptr<StagedValues> staged;
     if (k.scheme == PhaseFieldScheme::Euler) {
-        LeafKernel kernel{k, mDomain, *p, *T, mMelt, stepIndex, tNext, seed, &acc, &failure};
+        staged = std::make_unique<StagedValues>(mStageP, mStageT, pLeaves.leafCount(), mDomain.flat());
+        LeafKernel kernel{k, mDomain, *p, *T, mMelt, stepIndex, tNext, seed, &acc, &failure, staged.get()};
         kernel.run(pLeaves, tLeaves, *mGroups);
     } else {
         stepSecondOrder(*p, *T, pLeaves, tLeaves, acc, stepIndex, tNext, seed, failure, stats);
@@ -678,6 +758,11 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
            << ", stability limit " << k.stabilityLimit(mDomain.stencil(), !mDomain.flat())
            << ". Lower phase_field.dt or the anisotropy/latent heat; nothing of this step was written.";
         throw SimulationError(os.str());
+    }
+    if (staged) {
+        t0 = Clock::now();
+        commitStaged(pLeaves, tLeaves, *staged);
+        if (stats) stats->kernelSeconds += since(t0);
     }
 
     t0 = Clock::now();
@@ -696,11 +781,13 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
         mPrintT = gridFingerprint(*tNew);
     }
     mOutGeneration = truncated ? 0 : mGeneration;
-    // The inputs become the next step's output buffers (same topology while the region stands).
-    mSpareP = p;
-    mSpareT = T;
-    mSpareGeneration = inputGeneration;
-    mSpareOurs = ours;
+    if (!inPlace) {
+        // The inputs become the next step's output buffers (same topology while the region stands).
+        mSpareP = p;
+        mSpareT = T;
+        mSpareGeneration = inputGeneration;
+        mSpareOurs = ours;
+    }
     if (stats) stats->truncateSeconds += since(t0);
     p = pNew;
     T = tNew;

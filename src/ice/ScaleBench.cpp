@@ -103,6 +103,13 @@ int runOne(int n, int rebuildEvery, const BenchArgs& args, const std::string& re
                     (unsigned long long)dla->stats().released, (unsigned long long)dla->stats().stuck,
                     dla->stats().released ? double(dla->stats().jumps) / double(dla->stats().released) : 0.0,
                     dla->engine()->memoryBytes() / 1048576.0, dla->engine()->brickCount());
+    // Where the memory is: each field's tree at the end of the run (leaf count and bytes), so a
+    // change in the storage layout shows up by name.
+    std::printf("\nfield memory at the end (MiB, leaves):");
+    for (const auto& name : sim.world().fields.names())
+        if (auto g = sim.world().fields.grid(name))
+            std::printf(" %s %.1f (%llu)", name.c_str(), g->memUsage() / 1048576.0,
+                        (unsigned long long)g->baseTree().leafCount());
     std::printf("\nactive voxels over time (step: voxels):");
     for (auto& [step, v] : sum.activeVoxels) std::printf(" %lld: %llu", (long long)step, (unsigned long long)v);
     std::printf("\nfiles:");

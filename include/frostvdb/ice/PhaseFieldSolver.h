@@ -4,12 +4,15 @@
 ///
 /// Each step: when due (every k steps, see RegionCadence in ActiveRegion.h) or when another
 /// effect changed p or T, rebuild the active region (|p| or |T - T_inf| above the tolerance,
-/// dilated by k (stencil reach 2 + front travel), whole leaves); give the output grids (the last
-/// step's inputs, reused) that topology; then update the region's leaves in parallel in blocks of
-/// up to 4x4 leaves (plane): the values and a halo of 2 are gathered into a padded dense block,
-/// pass 1 computes the anisotropy coefficients where the block's leaves need them, pass 2 the
-/// Euler update of the active voxels. When the region is retired, values back within the
-/// tolerance of the far field are switched off and pruned, so memory and cost follow the ice.
+/// dilated by k (stencil reach 2 + front travel), whole leaves); give p and T that topology;
+/// then update the region's leaves in parallel in blocks of up to 4x4 leaves (plane): the values
+/// and a halo of 2 are gathered into a padded dense block, pass 1 computes the anisotropy
+/// coefficients where the block's leaves need them, pass 2 the Euler update of the active voxels
+/// into a staging area of 64 floats per plane leaf, copied into p and T once every block is done
+/// (in place: a second pair of region-sized grids would cost 2 KiB per leaf each, 8x the plane's
+/// voxels). The second-order scheme writes new grids (the last step's inputs, reused). When the
+/// region is retired, values back within the tolerance of the far field are switched off and
+/// pruned, so memory and cost follow the ice.
 /// In dense mode the region is the whole domain: the same code is the dense reference.
 #include <frostvdb/core/ActiveRegion.h>
 #include <frostvdb/core/Domain.h>
@@ -148,7 +151,8 @@ private:
     /// Adds the leaves around the reported cells to the standing region and clears the lists;
     /// true when the region gained leaves.
     bool growRegionAroundEdits();
-    openvdb::FloatGrid::Ptr mSpareP, mSpareT; ///< last step's inputs: this step's output buffers
+    openvdb::FloatGrid::Ptr mSpareP, mSpareT; ///< second order: last step's inputs, this step's output buffers
+    std::vector<float> mStageP, mStageT;      ///< forward Euler: the new values until the kernel is done
     uint64_t mSpareGeneration = 0;
     bool mSpareOurs = false; ///< the spares were this solver's outputs (their off voxels hold the background)
     std::unique_ptr<LeafGroups> mGroups;      ///< the region's leaves in kernel blocks
