@@ -79,6 +79,50 @@ TEST_CASE("Non-finite values are never written", "[fast][io]")
     CHECK(!std::filesystem::exists(path));
 }
 
+TEST_CASE("Streamed frames: the bytes of the one-shot writer and a failure part way leaves the old file", "[fast][io]")
+{
+    const std::string dir = tempDir("streamed");
+    openvdb::GridPtrVec grids;
+    for (int i = 0; i < 3; ++i) {
+        auto g = openvdb::FloatGrid::create(0.5f * float(i));
+        g->setName("grid" + std::to_string(i));
+        for (int x = 0; x < 40; x += 3) g->tree().setValue(openvdb::Coord(x, i, -x), float(x * (i + 1)));
+        grids.push_back(g);
+    }
+    openvdb::MetaMap meta;
+    meta.insertMeta("scene", openvdb::StringMetadata("streamed"));
+    const std::string whole = dir + "/whole.vdb", streamed = dir + "/streamed.vdb";
+    writeVdbAtomic(whole, grids, meta);
+    std::vector<int> asked;
+    writeVdbStreamed(streamed, grids.size(), [&](size_t i) {
+        asked.push_back(int(i));
+        return grids[i]->deepCopyGrid();
+    }, meta);
+    CHECK(asked == std::vector<int>{0, 1, 2}); // one at a time, in order
+    // Equal bytes but for the header's random UUID (36 characters after the 21-byte prefix).
+    std::string a = readFile(whole), b = readFile(streamed);
+    REQUIRE(a.size() == b.size());
+    for (size_t i = 21; i < 21 + 36; ++i) a[i] = b[i] = '-';
+    CHECK(a == b);
+    CHECK(sameVdbContent(whole, streamed));
+
+    // A grid that fails part way (a NaN in the second, a throwing producer for the third):
+    // the complete file written before stays as it was, and no temporary is left.
+    const std::string before = readFile(streamed);
+    auto nan = openvdb::FloatGrid::create(0.f);
+    nan->setName("nan");
+    nan->tree().setValue(openvdb::Coord(7, 8, 9), std::numeric_limits<float>::quiet_NaN());
+    CHECK_THROWS_WITH(writeVdbStreamed(streamed, 2, [&](size_t i) -> openvdb::GridBase::Ptr { return i == 0 ? grids[0] : openvdb::GridBase::Ptr(nan); }, meta),
+                      Catch::Contains("[7, 8, 9]"));
+    CHECK_THROWS_WITH(writeVdbStreamed(streamed, 3, [&](size_t i) -> openvdb::GridBase::Ptr {
+        if (i == 2) throw std::runtime_error("export failed");
+        return grids[i];
+    }, meta), Catch::Contains("export failed"));
+    CHECK_THROWS_AS(writeVdbStreamed(streamed, 2, [&](size_t) { return grids[0]; }, meta), std::logic_error);
+    CHECK(readFile(streamed) == before);
+    for (auto& e : std::filesystem::directory_iterator(dir)) CHECK(e.path().filename().string()[0] != '.');
+}
+
 TEST_CASE("16-bit greyscale PNG round trip", "[fast][io]")
 {
     const std::string path = tempDir("png") + "/g.png";

@@ -377,27 +377,24 @@ std::string Simulation::writeFrame(Frame&& frame, const std::string& dir)
     meta.insertMeta("step", openvdb::Int64Metadata(frame.step));
     meta.insertMeta("time", openvdb::DoubleMetadata(frame.time));
     meta.insertMeta("voxel_size_m", openvdb::DoubleMetadata(mWorld.domain.voxelSize()));
-    openvdb::GridPtrVec grids;
-    for (auto& g : frame.grids) { // one at a time, each source dropped once exported
-        grids.push_back(exportGrid(g, mWorld.domain, mOutput.keepLattice));
-        g.reset();
-    }
     const double worldScale = mWorld.worldScale;
-    if (worldScale != 1.0) { // shallow copies: the frame's own grids keep their transforms
-        meta.insertMeta("world_scale", openvdb::DoubleMetadata(worldScale));
-        for (auto& g : grids) {
+    if (worldScale != 1.0) meta.insertMeta("world_scale", openvdb::DoubleMetadata(worldScale));
+    // One grid at a time: each is exported (resampled from a hexagonal lattice), written and
+    // dropped, and its source with it, so a large frame never holds all its output grids.
+    const std::string path = framePath(dir, mWorld.sceneName, frame.frame);
+    writeVdbStreamed(path, frame.grids.size(), [&](size_t i) {
+        openvdb::GridBase::Ptr g = exportGrid(frame.grids[i], mWorld.domain, mOutput.keepLattice);
+        frame.grids[i].reset();
+        if (worldScale != 1.0) { // a shallow copy: the frame's own grid keeps its transform
             auto x = g->transform().copy();
             x->postScale(worldScale);
             g = g->copyGrid();
             g->setTransform(x);
         }
-    }
-    for (auto& g : grids) {
         g->insertMeta("frostvdb_step", openvdb::Int64Metadata(frame.step));
         g->insertMeta("frostvdb_time", openvdb::DoubleMetadata(frame.time));
-    }
-    const std::string path = framePath(dir, mWorld.sceneName, frame.frame);
-    writeVdbAtomic(path, grids, meta, mOutput.halfFloat);
+        return g;
+    }, meta, mOutput.halfFloat);
     return path;
 }
 

@@ -376,11 +376,40 @@ void DlaEffect::step(World& world, const StepInfo& info)
         std::sort(touched.begin(), touched.end());
         touched.erase(std::unique(touched.begin(), touched.end()), touched.end());
         auto hAcc = hitsGrid->getAccessor();
+        std::vector<openvdb::Coord> emptied; // leaves where a count went back to 0 (the cell froze)
         for (int64_t cell : touched) {
             const int32_t* found = mHitCount.find(uint64_t(cell));
             const int32_t n = found ? *found : 0;
-            if (n > 0) hAcc.setValue(mEngine->coord(cell), n);
-            else hAcc.setValueOff(mEngine->coord(cell), 0);
+            const openvdb::Coord c = mEngine->coord(cell);
+            if (n > 0) hAcc.setValue(c, n);
+            else {
+                hAcc.setValueOff(c, 0);
+                emptied.push_back(c & ~openvdb::Coord::ValueType(openvdb::Int32Tree::LeafNodeType::DIM - 1));
+            }
+        }
+        // Counts live at the front only. A count under ice (p > 1/2, frozen by the walkers or
+        // grown over by the phase field) is dead: walkers stick beside the ice, never on it, and
+        // a cell that melts again starts from zero. Leaves left without counts are deleted, so
+        // the field follows the front, not the ice (it held a leaf wherever ice grew: 150 MB on
+        // the 16384^2 pane).
+        {
+            auto pAcc = p->getConstAccessor();
+            std::vector<openvdb::Coord> underIce;
+            for (auto it = hitsGrid->cbeginValueOn(); it; ++it)
+                if (pAcc.getValue(it.getCoord()) > 0.5f) underIce.push_back(it.getCoord());
+            for (const auto& c : underIce) {
+                hAcc.setValueOff(c, 0);
+                if (int32_t* n = mHitCount.find(uint64_t(mEngine->index(c)))) *n = 0;
+                emptied.push_back(c & ~(openvdb::Int32Tree::LeafNodeType::DIM - 1));
+            }
+        }
+        std::sort(emptied.begin(), emptied.end());
+        emptied.erase(std::unique(emptied.begin(), emptied.end()), emptied.end());
+        hAcc.clear(); // leaves are deleted below
+        for (const auto& o : emptied) {
+            using HitLeaf = openvdb::Int32Tree::LeafNodeType;
+            const HitLeaf* leaf = hitsGrid->tree().probeConstLeaf(o);
+            if (leaf && leaf->isEmpty()) delete hitsGrid->tree().stealNode<HitLeaf>(o, 0, false);
         }
         mStats.applySeconds += since(t0);
     }

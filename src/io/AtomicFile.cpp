@@ -126,6 +126,25 @@ void AtomicFile::write(const void* data, size_t bytes)
     }
 }
 
+void AtomicFile::writeAt(size_t offset, const void* data, size_t bytes)
+{
+    if (mFd < 0) throw WriteError(mPath, "file already closed");
+    if (offset + bytes > mWritten) throw WriteError(mPath, "rewrite past the end of what was written");
+    const char* p = static_cast<const char*>(data);
+    while (bytes > 0) {
+        if (int err = injectedFault(mPath, offset)) fail("", err);
+        const ssize_t n = ::pwrite(mFd, p, std::min<size_t>(bytes, size_t(1) << 30), off_t(offset));
+        if (n < 0) {
+            if (errno == EINTR) continue;
+            fail("", errno);
+        }
+        if (n == 0) fail("", EIO);
+        p += n;
+        bytes -= size_t(n);
+        offset += size_t(n);
+    }
+}
+
 void AtomicFile::commit()
 {
     if (mFd < 0) throw WriteError(mPath, "file already closed");

@@ -309,7 +309,7 @@ std::vector<std::pair<int, int>> touchedBlocks(const openvdb::FloatGrid& g, cons
 /// [ia, ia + W) x [ib, ib + H) (raster offsets; image row 0 at the top) into @a values.
 void sampleBlocks(const openvdb::FloatGrid& growth, const SquareRaster& r, double z,
                   const std::vector<std::pair<int, int>>& blocks, int ia, int ib, int W, int H,
-                  std::vector<float>& values)
+                  std::vector<uint16_t>& values)
 {
     tbb::parallel_for(tbb::blocked_range<size_t>(0, blocks.size(), 16), [&](const tbb::blocked_range<size_t>& rg) {
         auto acc = growth.getConstAccessor();
@@ -322,7 +322,7 @@ void sampleBlocks(const openvdb::FloatGrid& growth, const SquareRaster& r, doubl
                     if (a < 0 || b < 0 || a >= W || b >= H) continue;
                     const int ra = r.a0 + ia + a, rb = r.b0 + ib + b;
                     if (ra > r.a1 || rb > r.b1) continue;
-                    values[size_t(H - 1 - b) * W + a] = s.wsSample(openvdb::Vec3d(ra * r.h, rb * r.h, z));
+                    values[size_t(H - 1 - b) * W + a] = toSample16(float(s.wsSample(openvdb::Vec3d(ra * r.h, rb * r.h, z))));
                 }
         }
     });
@@ -341,9 +341,9 @@ std::vector<std::string> writeDisplacementMaps(const openvdb::FloatGrid& growth,
     const float bg = growth.background();
     const auto blocks = touchedBlocks(growth, r, z);
     if (W <= tileSize && H <= tileSize) { // one image, as large as the raster
-        std::vector<float> values(size_t(W) * H, bg);
+        std::vector<uint16_t> values(size_t(W) * H, toSample16(bg));
         sampleBlocks(growth, r, z, blocks, 0, 0, W, H, values);
-        writePngGray(stem + ".png", W, H, values, 16);
+        writePngGray16(stem + ".png", W, H, values);
         return {stem + ".png"};
     }
     // UDIM tiles: tile (u, v) holds raster offsets [u T, (u+1) T) x [v T, (v+1) T), u along +x
@@ -370,17 +370,17 @@ std::vector<std::string> writeDisplacementMaps(const openvdb::FloatGrid& growth,
         for (int u = 0; u < nu; ++u)
             if (!perTile[size_t(v) * nu + u].empty()) udims.push_back(1001 + u + 10 * v);
     std::vector<std::string> files(udims.size());
-    // two tiles at a time at most: each holds tileSize^2 floats while it is encoded
+    // two tiles at a time at most: each holds tileSize^2 16-bit samples while it is encoded
     tbb::parallel_for(tbb::blocked_range<size_t>(0, udims.size(), 1), [&](const tbb::blocked_range<size_t>& rg) {
         for (size_t i = rg.begin(); i != rg.end(); ++i) {
             const int u = (udims[i] - 1001) % 10, v = (udims[i] - 1001) / 10;
             auto& t = perTile[size_t(v) * nu + u];
             std::sort(t.begin(), t.end());
             t.erase(std::unique(t.begin(), t.end()), t.end());
-            std::vector<float> values(size_t(tileSize) * tileSize, bg);
+            std::vector<uint16_t> values(size_t(tileSize) * tileSize, toSample16(bg)); // 32 MiB at 4096^2
             sampleBlocks(growth, r, z, t, u * tileSize, v * tileSize, tileSize, tileSize, values);
             files[i] = stem + "." + std::to_string(udims[i]) + ".png";
-            writePngGray(files[i], tileSize, tileSize, values, 16);
+            writePngGray16(files[i], tileSize, tileSize, values);
         }
     });
     return files;

@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cstdio>
 #include <stdexcept>
+#include <functional>
 #include <string>
 
 namespace frostvdb {
@@ -31,9 +32,11 @@ extern "C" void appendToString(png_structp png, png_bytep data, png_size_t n)
 }
 extern "C" void noFlush(png_structp) {}
 
-/// Encodes in memory, then writes through AtomicFile (every return checked).
+/// Encodes in memory, then writes through AtomicFile (every return checked). @a row(y) gives
+/// image row y's bytes (valid until the next call), so a caller need not hold a second copy of
+/// a large image in PNG sample format.
 void writePng(const std::string& path, int w, int h, int colorType, int bitDepth,
-              const std::vector<uint8_t>& rows, size_t rowBytes)
+              const std::function<const uint8_t*(int)>& row)
 {
     std::string bytes;
     {
@@ -47,8 +50,7 @@ void writePng(const std::string& path, int w, int h, int colorType, int bitDepth
         png_set_IHDR(pw.png, pw.info, w, h, bitDepth, colorType, PNG_INTERLACE_NONE,
                      PNG_COMPRESSION_TYPE_DEFAULT, PNG_FILTER_TYPE_DEFAULT);
         png_write_info(pw.png, pw.info);
-        for (int y = 0; y < h; ++y)
-            png_write_row(pw.png, const_cast<png_bytep>(rows.data() + size_t(y) * rowBytes));
+        for (int y = 0; y < h; ++y) png_write_row(pw.png, const_cast<png_bytep>(row(y)));
         png_write_end(pw.png, nullptr);
     }
     writeFileAtomic(path, bytes);
@@ -67,26 +69,44 @@ void ImageRGB::set(int x, int y, float r, float g, float b)
 
 void writePngRGB(const std::string& path, const ImageRGB& image)
 {
-    writePng(path, image.width, image.height, PNG_COLOR_TYPE_RGB, 8, image.rgb, size_t(image.width) * 3);
+    const size_t rowBytes = size_t(image.width) * 3;
+    writePng(path, image.width, image.height, PNG_COLOR_TYPE_RGB, 8,
+             [&](int y) { return image.rgb.data() + size_t(y) * rowBytes; });
 }
 
 void writePngGray(const std::string& path, int width, int height, const std::vector<float>& values,
                   int bitDepth)
 {
     if (bitDepth != 8 && bitDepth != 16) throw std::invalid_argument("bit depth must be 8 or 16");
-    const size_t rowBytes = size_t(width) * (bitDepth / 8);
-    std::vector<uint8_t> rows(rowBytes * height);
-    for (size_t i = 0; i < size_t(width) * height; ++i) {
-        const float v = std::clamp(values[i], 0.0f, 1.0f);
-        if (bitDepth == 8) {
-            rows[i] = uint8_t(v * 255.0f + 0.5f);
-        } else { // PNG stores 16-bit samples big-endian
-            const uint16_t s = uint16_t(v * 65535.0f + 0.5f);
-            rows[2 * i] = uint8_t(s >> 8);
-            rows[2 * i + 1] = uint8_t(s & 0xff);
+    // One row at a time: a 4096^2 displacement tile would need 32 MiB more as a whole.
+    std::vector<uint8_t> bytes(size_t(width) * (bitDepth / 8));
+    writePng(path, width, height, PNG_COLOR_TYPE_GRAY, bitDepth, [&](int y) {
+        const float* in = values.data() + size_t(y) * width;
+        for (int x = 0; x < width; ++x) {
+            const float v = std::clamp(in[x], 0.0f, 1.0f);
+            if (bitDepth == 8) {
+                bytes[size_t(x)] = uint8_t(v * 255.0f + 0.5f);
+            } else { // PNG stores 16-bit samples big-endian
+                const uint16_t s = toSample16(v);
+                bytes[2 * size_t(x)] = uint8_t(s >> 8);
+                bytes[2 * size_t(x) + 1] = uint8_t(s & 0xff);
+            }
         }
-    }
-    writePng(path, width, height, PNG_COLOR_TYPE_GRAY, bitDepth, rows, rowBytes);
+        return bytes.data();
+    });
+}
+
+void writePngGray16(const std::string& path, int width, int height, const std::vector<uint16_t>& samples)
+{
+    std::vector<uint8_t> bytes(size_t(width) * 2);
+    writePng(path, width, height, PNG_COLOR_TYPE_GRAY, 16, [&](int y) {
+        const uint16_t* in = samples.data() + size_t(y) * width;
+        for (int x = 0; x < width; ++x) { // big-endian
+            bytes[2 * size_t(x)] = uint8_t(in[x] >> 8);
+            bytes[2 * size_t(x) + 1] = uint8_t(in[x] & 0xff);
+        }
+        return bytes.data();
+    });
 }
 
 std::vector<float> readPngGray(const std::string& path, int& width, int& height, int* bitDepth)

@@ -16,6 +16,8 @@
 #include <cerrno>
 #include <cstring>
 #include <fstream>
+#include <functional>
+#include <set>
 
 #include <csignal>
 #include <sys/mman.h>
@@ -260,24 +262,141 @@ public:
     {
         Archive::write(os, grids, /*seekable=*/true, meta);
     }
+
+    /// What Archive::write does for grids with distinct names and trees (header, file metadata,
+    /// grid count, then each grid with its descriptor and offsets), but asking @a next for one
+    /// grid at a time: a frame's grids need not all exist at once.
+    void writeStreamed(std::ostream& os, size_t count, const std::function<openvdb::GridBase::ConstPtr(size_t)>& next,
+                       const openvdb::MetaMap& meta) const
+    {
+        openvdb::io::setVersion(os, openvdb::VersionId(openvdb::OPENVDB_LIBRARY_MAJOR_VERSION, openvdb::OPENVDB_LIBRARY_MINOR_VERSION),
+                                openvdb::OPENVDB_FILE_VERSION);
+        openvdb::io::setDataCompression(os, compression());
+        openvdb::io::setWriteGridStatsMetadata(os, isGridStatsMetadataEnabled());
+        writeHeader(os, /*seekable=*/true);
+        meta.writeMeta(os);
+        const int32_t n = int32_t(count);
+        os.write(reinterpret_cast<const char*>(&n), sizeof(n));
+        std::set<std::string> names;
+        for (size_t i = 0; i < count; ++i) {
+            const openvdb::GridBase::ConstPtr grid = next(i);
+            if (grid->getName().empty() || !names.insert(grid->getName()).second)
+                throw std::logic_error("writeVdbStreamed: grid names must be distinct and not empty ('" +
+                                       grid->getName() + "')");
+            openvdb::io::GridDescriptor gd(grid->getName(), grid->type(), grid->saveFloatAsHalf());
+            writeGrid(gd, grid, os, /*seekable=*/true);
+            openvdb::io::setDataCompression(os, compression()); // per-grid options reset, as Archive::write does
+        }
+    }
+};
+
+/// An output stream buffer over an AtomicFile, seekable within what was written (a seekable
+/// VDB writes each grid's offsets back after the grid). OpenVDB's writer does not look at
+/// stream errors, so the first failure is kept here (the stream turns bad and writes nothing
+/// more) and rethrown once the writer returns.
+class AtomicFileBuf : public std::streambuf {
+public:
+    explicit AtomicFileBuf(AtomicFile& file) : mFile(file), mBuffer(size_t(4) << 20)
+    {
+        setp(mBuffer.data(), mBuffer.data() + mBuffer.size());
+    }
+    /// Writes what is buffered; rethrows the first failure.
+    void finish()
+    {
+        flushBuffer();
+        if (mError) std::rethrow_exception(mError);
+    }
+
+protected:
+    int_type overflow(int_type c) override
+    {
+        if (!flushBuffer()) return traits_type::eof();
+        if (!traits_type::eq_int_type(c, traits_type::eof())) {
+            *pptr() = traits_type::to_char_type(c);
+            pbump(1);
+        }
+        return traits_type::not_eof(c);
+    }
+    int sync() override { return flushBuffer() ? 0 : -1; }
+    pos_type seekoff(off_type off, std::ios_base::seekdir dir, std::ios_base::openmode which) override
+    {
+        if (!(which & std::ios_base::out)) return pos_type(off_type(-1));
+        const off_type here = off_type(mAt + size_t(pptr() - pbase()));
+        if (dir == std::ios_base::cur && off == 0) return pos_type(here); // tellp
+        if (!flushBuffer()) return pos_type(off_type(-1));
+        const off_type target = dir == std::ios_base::beg ? off
+                              : dir == std::ios_base::cur ? here + off
+                                                          : off_type(mFile.size()) + off;
+        if (target < 0 || size_t(target) > mFile.size()) return pos_type(off_type(-1));
+        mAt = size_t(target);
+        return pos_type(target);
+    }
+    pos_type seekpos(pos_type pos, std::ios_base::openmode which) override
+    {
+        return seekoff(off_type(pos), std::ios_base::beg, which);
+    }
+
+private:
+    /// Writes the buffer at mAt: appended at the end, or over bytes already written after a
+    /// seek back (any part past the end is appended).
+    bool flushBuffer()
+    {
+        if (mError) return false;
+        try {
+            const char* p = pbase();
+            size_t n = size_t(pptr() - pbase());
+            if (mAt < mFile.size()) {
+                const size_t over = std::min(n, mFile.size() - mAt);
+                mFile.writeAt(mAt, p, over);
+                p += over;
+                n -= over;
+                mAt += over;
+            }
+            if (n) {
+                mFile.write(p, n);
+                mAt += n;
+            }
+        } catch (...) {
+            mError = std::current_exception();
+            return false;
+        }
+        setp(mBuffer.data(), mBuffer.data() + mBuffer.size());
+        return true;
+    }
+    AtomicFile& mFile;
+    size_t mAt = 0; ///< file offset of the buffer's first byte
+    std::vector<char> mBuffer;
+    std::exception_ptr mError;
 };
 
 } // namespace
 
+void writeVdbStreamed(const std::string& path, size_t count,
+                      const std::function<openvdb::GridBase::Ptr(size_t)>& next, const openvdb::MetaMap& fileMeta,
+                      bool halfFloat)
+{
+    AtomicFile file(path); // the final name is untouched until commit
+    AtomicFileBuf buf(file);
+    std::ostream os(&buf);
+    MemoryArchive().writeStreamed(os, count, [&](size_t i) -> openvdb::GridBase::ConstPtr {
+        openvdb::GridBase::Ptr g = next(i);
+        checkFinite(*g);
+        g->setSaveFloatAsHalf(halfFloat);
+        return g;
+    }, fileMeta);
+    os.flush();
+    buf.finish();
+    if (!os) throw WriteError(path, "could not serialise the grids");
+    file.commit();
+}
+
 void writeVdbAtomic(const std::string& path, const openvdb::GridPtrVec& grids,
                     const openvdb::MetaMap& fileMeta, bool halfFloat)
 {
-    for (auto& g : grids) {
-        checkFinite(*g);
-        g->setSaveFloatAsHalf(halfFloat);
-    }
-    // Serialise in memory (OpenVDB does not check its stream writes), then write with every
-    // return checked.
-    std::ostringstream os(std::ios::binary);
-    MemoryArchive().writeTo(os, grids, fileMeta);
-    if (!os) throw WriteError(path, "could not serialise the grids");
-    const std::string bytes = std::move(os).str();
-    writeFileAtomic(path, bytes);
+    // Every grid is checked before any byte is written (writeVdbStreamed checks each as it
+    // comes; the final name is untouched either way).
+    for (auto& g : grids) checkFinite(*g);
+    writeVdbStreamed(path, grids.size(), [&](size_t i) { return grids[i]; }, fileMeta, halfFloat);
 }
 
 namespace {

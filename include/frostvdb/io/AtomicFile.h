@@ -41,6 +41,11 @@ public:
     /// Appends bytes (retrying partial writes and EINTR). Throws WriteError.
     void write(const void* data, size_t bytes);
     void write(std::string_view s) { write(s.data(), s.size()); }
+    /// Overwrites bytes already written, at @a offset (a seekable VDB writes its grid offsets
+    /// back). Throws WriteError, also when the range passes the end.
+    void writeAt(size_t offset, const void* data, size_t bytes);
+    /// Bytes appended so far.
+    size_t size() const { return mWritten; }
     /// fsync, close, rename onto the final name, fsync the folder. Throws WriteError.
     void commit();
 

@@ -9,6 +9,8 @@
 /// parsed from memory by a stream that stops at the first read past the end.
 #include <openvdb/openvdb.h>
 
+#include <functional>
+
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -52,6 +54,15 @@ void checkFinite(const openvdb::GridBase& grid);
 /// Writes grids and file metadata atomically. Each grid is checked finite first.
 void writeVdbAtomic(const std::string& path, const openvdb::GridPtrVec& grids,
                     const openvdb::MetaMap& fileMeta, bool halfFloat = false);
+
+/// Writes @a count grids atomically, asking @a next for them one at a time (index order), so
+/// that only the grid being written need exist: a frame of a large domain is exported grid by
+/// grid, each dropped once written. Same bytes as writeVdbAtomic (the header's random UUID
+/// aside). Each grid is checked finite before it is written; any failure (a non-finite value,
+/// a throwing @a next, a failed write) leaves the final name untouched. Names must be distinct.
+void writeVdbStreamed(const std::string& path, size_t count,
+                      const std::function<openvdb::GridBase::Ptr(size_t)>& next, const openvdb::MetaMap& fileMeta,
+                      bool halfFloat = false);
 
 /// Reads every grid of a file (and its file metadata, if @a fileMeta is given) after
 /// validateVdb. @a requireGrids: a file without grids is an error. Throws VdbFileError.
