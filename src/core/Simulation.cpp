@@ -14,6 +14,9 @@
 #include <chrono>
 #include <filesystem>
 #include <fstream>
+#ifdef __GLIBC__
+#include <malloc.h>
+#endif
 #include <iomanip>
 #include <iostream>
 #include <regex>
@@ -632,6 +635,16 @@ std::string Simulation::writeFramePreview(const Frame& frame, int64_t f, const s
     return png;
 }
 
+/// Hands the heap's free pages back to the system. Region rebuilds free small mask leaves
+/// between the fields' 2 KiB leaf buffers, and glibc keeps such pages: at 16384^2 about 8 % of
+/// the resident memory before a frame is written (measured with mallinfo2 and malloc_trim).
+void Simulation::returnFreePages()
+{
+#ifdef __GLIBC__
+    malloc_trim(0);
+#endif
+}
+
 /// Writes frame @a f's files; each is listed in the summary only once it is complete.
 void Simulation::writeFrameOutputs(int64_t f, int64_t last, const std::string& dir, RunSummary& sum)
 {
@@ -672,7 +685,9 @@ void Simulation::simulateFrames(int64_t first, int64_t last, const RunOptions& o
         sum.activeVoxels.emplace_back(mStep, mWorld.fields.activeVoxels());
         if (f < first || !opt.writeFiles) continue;
         const auto t0 = Clock::now();
+        returnFreePages(); // the output's copies then start from what the fields hold
         writeFrameOutputs(f, last, dir, sum);
+        returnFreePages();
         sum.outputSeconds += seconds(t0, Clock::now());
     }
     checkpointIfDue(opt, dir, checkpointClock, true, sum); // the next chained task starts here

@@ -268,6 +268,8 @@ void DlaEffect::step(World& world, const StepInfo& info)
         }
     }
 
+    ownTree(*growth); // written in place: a frame may share the trees
+    ownTree(*freeze);
     auto pAcc = p->getAccessor();
     auto gAcc = growth->getAccessor();
     auto fAcc = freeze->getAccessor();

@@ -79,7 +79,7 @@ void addIceOutputs(World& world, Frame& frame)
 
     if (auto T = world.fields.get<openvdb::FloatGrid>(kTemperature)) {
         // Shares T's tree (the largest grid: the heat's halo): the frame is written before the
-        // next step, and an in-place writer copies a shared tree first (DlaEffect::step).
+        // next step, and an in-place writer copies a shared tree first (ownTree, DlaEffect::step).
         auto temperature = openvdb::gridPtrCast<openvdb::FloatGrid>(T->copyGrid());
         temperature->setName(out::kIceTemperature.name); // dimensionless: not the gas's Kelvin
         temperature->setGridClass(openvdb::GRID_UNKNOWN);
@@ -96,7 +96,8 @@ void addIceOutputs(World& world, Frame& frame)
         frame.add(growth);
     }
     if (auto f = world.fields.get<openvdb::FloatGrid>(kFreezeTime)) {
-        auto freeze = f->deepCopy();
+        // Shares the field's tree, as T does: its writers copy a shared tree first (ownTree).
+        auto freeze = openvdb::gridPtrCast<openvdb::FloatGrid>(f->copyGrid());
         freeze->setName("freeze_time");
         frame.add(freeze);
     }

@@ -1,4 +1,5 @@
 #include <frostvdb/ice/PhaseFieldSolver.h>
+#include <frostvdb/core/Fields.h>
 #include <frostvdb/core/Error.h>
 #include <frostvdb/core/Random.h>
 #include <frostvdb/ice/EulerRows.h>
@@ -345,12 +346,6 @@ void commitStaged(openvdb::tree::LeafManager<openvdb::FloatTree>& pLeaves,
     });
 }
 
-/// Gives @a grid a tree of its own before it is written in place: a frame may share it
-/// (addIceOutputs shares T's tree with the frame it writes).
-void ownTree(openvdb::FloatGrid& grid)
-{
-    if (grid.treePtr().use_count() > 2) grid.setTree(std::make_shared<openvdb::FloatTree>(grid.tree()));
-}
 
 /// The kernel over every leaf of the new grids (whose topology is the region), group by group:
 /// gather, pass 1, pass 2. Accumulators and the failure report are optional (benchmarks pass none).
@@ -730,6 +725,8 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
         mGroupsGeneration = mGeneration;
     }
     Accumulators acc;
+    if (growth) ownTree(*growth); // written in place below; a frame may share the trees
+    if (freezeTime) ownTree(*freezeTime);
     acc.growth = growth ? &growth->tree() : nullptr;
     acc.freeze = freezeTime ? &freezeTime->tree() : nullptr;
     if (stats) {

@@ -6,10 +6,21 @@
 #include <openvdb/openvdb.h>
 
 #include <map>
+#include <memory>
 #include <string>
 #include <vector>
 
 namespace frostvdb {
+
+/// Call before writing a field's grid in place: gives it a tree of its own when another grid
+/// shares it (a frame shares the trees of T and freeze_time instead of copying them; it is
+/// written before the next step, but a caller may keep it longer).
+template <typename GridT>
+void ownTree(GridT& grid)
+{
+    if (grid.treePtr().use_count() > 2) // the grid's own reference and this call's copy
+        grid.setTree(std::make_shared<typename GridT::TreeType>(grid.tree()));
+}
 
 class FieldSet {
 public:

@@ -132,6 +132,7 @@ private:
     void prepareOutputFolder(const std::string& dir, const RunOptions& opt, RunSummary& sum) const;
     void simulateFrames(int64_t first, int64_t last, const RunOptions& opt, const std::string& dir,
                         RunSummary& sum);
+    static void returnFreePages();
     void writeFrameOutputs(int64_t f, int64_t last, const std::string& dir, RunSummary& sum);
     std::string writeFramePreview(const Frame& frame, int64_t f, const std::string& dir);
     void finishSummary(RunSummary& sum) const;
