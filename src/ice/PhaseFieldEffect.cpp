@@ -268,6 +268,9 @@ void PhaseFieldEffect::step(World& world, const StepInfo& info)
 
 void PhaseFieldEffect::addToFrame(World& world, Frame& frame)
 {
+    // A frame is about to be written: the solver's per-step scratch is given back for the
+    // output's copies (remade at the next step; once per frame, not per step).
+    if (mSolver) mSolver->releaseScratch();
     ice::addIceOutputs(world, frame);
     if (!mShell) return;
     // On a shell, `ice` is the frost layer grown outward along the normal (not p on the band).

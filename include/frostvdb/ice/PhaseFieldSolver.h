@@ -82,6 +82,13 @@ public:
         mEditsT = T;
     }
 
+    /// Frees the per-step scratch (the Euler staging area); the next step makes it again.
+    void releaseScratch()
+    {
+        std::vector<float>().swap(mStageP);
+        std::vector<float>().swap(mStageT);
+    }
+
     /// The melt map (field `melt`, values in [0,1]); null for none. Not owned.
     void setMeltMap(const openvdb::FloatGrid* melt) { mMelt = melt; }
 
