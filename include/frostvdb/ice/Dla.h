@@ -156,7 +156,7 @@ public:
     /// distances: flush before walking.
     void freezeDeferred(int64_t cell);
     void flushDistances();
-    bool distancesPending() const { return !mQueue.empty(); }
+    bool distancesPending() const;
     bool isIce(int64_t cell) const;
     /// Lattice distance to the nearest ice: exact below distanceCap(), a lower bound above.
     int iceDistance(const openvdb::Coord& c) const;
@@ -216,6 +216,8 @@ public:
 private:
     void rebuild(const openvdb::FloatGrid& p);
     void relaxQueue();
+    /// Brings the block distances in line with the blocks that gained or lost their ice.
+    void flushCoarse();
     /// Takes melted cells out of the ice and repairs the distances around them.
     void repairMelted(const std::vector<int64_t>& melted);
     int64_t release(int64_t step, uint64_t walker, WalkerRng& rng, const Inputs& in) const;
