@@ -230,7 +230,7 @@ private:
     int64_t mNx, mNy, mNz;
     int mDim;
     std::vector<openvdb::Coord> mNbr;
-    int mCap = 32;              ///< exact distances below this (32 on a plane, 10 in a box)
+    int mCap = 16;              ///< exact distances below this (16 on a plane, 10 in a box)
     double mSphereScale = 1.0;  ///< index Chebyshev reach of a unit plane displacement
     double mGraphScale = 1.0;   ///< lattice (graph) distance reach of a unit plane displacement
     uint64_t mIceCount = 0;
