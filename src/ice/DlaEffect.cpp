@@ -16,6 +16,8 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
+#include <cstdlib>
 #include <sstream>
 
 namespace frostvdb {
@@ -29,6 +31,8 @@ namespace {
 using Clock = std::chrono::steady_clock;
 double since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
 constexpr uint64_t kResumeSalt = 0x5E5D3E11ull;
+double dbgFlush = 0, dbgResume = 0;
+struct DbgPrint { ~DbgPrint() { if (getenv("DLA_DBG")) fprintf(stderr, "DBG flush %.2f resume %.2f\n", dbgFlush, dbgResume); } } dbgPrint;
 } // namespace
 
 std::unique_ptr<Effect> DlaEffect::create(ParamDict& d, const World& world)
@@ -359,14 +363,14 @@ void DlaEffect::step(World& world, const StepInfo& info)
                     }
                 }
                 if (start < 0) continue;
-                mEngine->flushDistances();
-                e = mEngine->walk(info.step, first + w, kResumeSalt, start, in);
+                { auto tq = Clock::now(); mEngine->flushDistances(); dbgFlush += since(tq); tq = Clock::now();
+                e = mEngine->walk(info.step, first + w, kResumeSalt, start, in); dbgResume += since(tq); }
                 account(e);
                 if (e.kind != WalkEnd::Stuck) continue;
             }
             hit(e.cell);
         }
-        mEngine->flushDistances();
+        { auto tq = Clock::now(); mEngine->flushDistances(); dbgFlush += since(tq); }
         mStats.applySeconds += since(t0);
         if (progress) progress->update(int64_t(first + count));
     }
@@ -435,6 +439,9 @@ std::vector<std::pair<std::string, double>> DlaEffect::timings() const
 
 std::vector<std::pair<std::string, double>> DlaEffect::counters() const
 {
+    if (getenv("DLA_DBG")) fprintf(stderr, "DBG released %llu stuck %llu frozen %llu killed %llu conflicts %llu moves %llu jumps %llu steps %.3g\n",
+        (unsigned long long)mStats.released, (unsigned long long)mStats.stuck, (unsigned long long)mStats.frozen, (unsigned long long)mStats.killed,
+        (unsigned long long)mStats.conflicts, (unsigned long long)mStats.moves, (unsigned long long)mStats.jumps, mStats.latticeSteps);
     return {{"distance_rebuilds", mEngine ? double(mEngine->rebuildCount()) : 0.0}};
 }
 

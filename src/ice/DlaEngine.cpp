@@ -369,86 +369,91 @@ void relaxFrom(ByteBricks& S, std::vector<int64_t>& queue, int cap, const std::v
     }
 }
 
-/// After the sources at the cells @a removed were taken out (their values no longer 0): the
-/// values that can grow lie within Chebyshev distance cap - 1 of a removed cell (a lattice step
-/// moves each index by at most 1). Resets the bricks that cover those boxes to the cap (sources
-/// stay 0), then relaxes from every value below the cap in those bricks and the ring of bricks
-/// around them (their values are still right; outside the reset they cannot change): a
-/// breadth-first pass by distance levels gives the unique capped minimum, the values a rebuild
-/// from the remaining sources gives.
-void repairAround(ByteBricks& S, const std::vector<int64_t>& removed, int cap, int dim,
+/// After the sources at the cells @a removed were taken out (their values were 0): the values
+/// that depended on them only, and the new ones there, by the decremental breadth-first update.
+///  1. By levels from the removed cells: a cell at distance L loses its support when none of its
+///     neighbours at L - 1 kept theirs (it is marked with kLost); only such cells can change.
+///  2. Each lost cell starts from its best neighbour that kept its value (plus one), and the lost
+///     cells are relaxed among themselves by distance levels.
+/// The cells that kept their value are right (a neighbour one step closer that kept its own), so
+/// the result is the unique capped BFS minimum from the remaining sources, the values a rebuild
+/// gives, at the cost of the cells that change and their neighbours.
+void repairAround(ByteBricks& S, const std::vector<int64_t>& removed, int cap, int /*dim*/,
                   const std::vector<openvdb::Coord>& nbr, int64_t nx, int64_t ny, int64_t nz)
 {
-    constexpr int kLog = DlaEngine::kBrickLog2;
+    constexpr uint8_t kLost = 255;
     const int64_t m = (int64_t(1) << 21) - 1;
-    const int zr = dim == 3 ? 1 : 0;
-    std::vector<uint64_t> reset;
-    for (int64_t cell : removed) {
-        const int x = int(cell & m), y = int((cell >> 21) & m), z = int(cell >> 42);
-        const int reach = cap - 1;
-        auto bricks = [&](int v, int64_t n) {
-            return std::make_pair(std::max(0, v - reach) >> kLog, int(std::min<int64_t>(n - 1, v + reach)) >> kLog);
-        };
-        const auto bx = bricks(x, nx), by = bricks(y, ny), bz = bricks(z, nz);
-        for (int k = bz.first; k <= bz.second; ++k)
-            for (int j = by.first; j <= by.second; ++j)
-                for (int i = bx.first; i <= bx.second; ++i) reset.push_back(packKey(i, j, k));
-    }
-    std::sort(reset.begin(), reset.end());
-    reset.erase(std::unique(reset.begin(), reset.end()), reset.end());
-    auto unpack = [m](uint64_t key, int& i, int& j, int& k) {
-        i = int(key & uint64_t(m));
-        j = int((key >> 21) & uint64_t(m));
-        k = int(key >> 42);
-    };
-    for (uint64_t key : reset) {
-        int i, j, k;
-        unpack(key, i, j, k);
-        if (uint8_t* b = const_cast<uint8_t*>(S.brick(i, j, k)))
-            for (int c = 0; c < S.brickVolume; ++c)
-                if (b[c] != 0) b[c] = uint8_t(cap);
-    }
-    std::vector<uint64_t> sources;
-    for (uint64_t key : reset) {
-        int i, j, k;
-        unpack(key, i, j, k);
-        for (int dz = -zr; dz <= zr; ++dz)
-            for (int dy = -1; dy <= 1; ++dy)
-                for (int dx = -1; dx <= 1; ++dx)
-                    if (i + dx >= 0 && j + dy >= 0 && k + dz >= 0) sources.push_back(packKey(i + dx, j + dy, k + dz));
-    }
-    std::sort(sources.begin(), sources.end());
-    sources.erase(std::unique(sources.begin(), sources.end()), sources.end());
-    std::vector<std::vector<int64_t>> level(static_cast<size_t>(cap));
-    for (uint64_t key : sources) {
-        int i, j, k;
-        unpack(key, i, j, k);
-        const uint8_t* b = S.brick(i, j, k);
-        if (!b) continue;
-        for (int c = 0; c < S.brickVolume; ++c)
-            if (b[c] < cap) {
-                const int x = (i << kLog) | (c & kBMask), y = (j << kLog) | ((c >> 3) & kBMask), z = (k << kLog) | (c >> 6);
-                level[b[c]].push_back(int64_t(packKey(x, y, z)));
-            }
-    }
     BrickCursor here(S), there(S);
-    for (int d = 0; d + 1 < cap; ++d) {
-        auto& list = level[size_t(d)];
-        for (size_t q = 0; q < list.size(); ++q) {
-            const int64_t u = list[q];
-            const int x = int(u & m), y = int((u >> 21) & m), z = int(u >> 42);
-            if (here.get(x, y, z) != d) continue;
-            for (const auto& o : nbr) {
-                const int i = x + o.x(), j = y + o.y(), k = z + o.z();
-                if (i < 0 || j < 0 || k < 0 || i >= nx || j >= ny || k >= nz) continue;
-                if (there.get(i, j, k) > d + 1) {
-                    there.set(i, j, k, d + 1);
-                    level[size_t(d) + 1].push_back(int64_t(packKey(i, j, k)));
-                }
-            }
+    auto forNeighbours = [&](int64_t u, auto&& f) {
+        const int x = int(u & m), y = int((u >> 21) & m), z = int(u >> 42);
+        for (const auto& o : nbr) {
+            const int i = x + o.x(), j = y + o.y(), k = z + o.z();
+            if (i < 0 || j < 0 || k < 0 || i >= nx || j >= ny || k >= nz) continue;
+            f(i, j, k);
         }
-        list.clear();
-        list.shrink_to_fit();
+    };
+    auto unpackTo = [m](int64_t u, int& x, int& y, int& z) {
+        x = int(u & m);
+        y = int((u >> 21) & m);
+        z = int(u >> 42);
+    };
+    // 1. the cells that lose their support, level by level
+    std::vector<int64_t> lost, level, next;
+    for (int64_t u : removed) {
+        int x, y, z;
+        unpackTo(u, x, y, z);
+        if (here.get(x, y, z) == kLost) continue; // listed twice
+        here.set(x, y, z, kLost);
+        level.push_back(u);
+    }
+    lost = level;
+    for (int d = 1; d < cap && !level.empty(); ++d) {
+        next.clear();
+        for (int64_t u : level)
+            forNeighbours(u, [&](int i, int j, int k) {
+                if (there.get(i, j, k) != d) return;
+                // still supported by a neighbour at d - 1 that kept its value?
+                bool supported = false;
+                forNeighbours(int64_t(packKey(i, j, k)), [&](int a, int b, int c) {
+                    supported = supported || here.get(a, b, c) == d - 1;
+                });
+                if (supported) return;
+                there.set(i, j, k, kLost);
+                next.push_back(int64_t(packKey(i, j, k)));
+            });
+        lost.insert(lost.end(), next.begin(), next.end());
+        level.swap(next);
+    }
+    // 2. new values: from the neighbours that kept theirs, then among the lost cells
+    std::vector<std::vector<int64_t>> bucket(static_cast<size_t>(cap));
+    std::vector<uint8_t> start(lost.size());
+    for (size_t q = 0; q < lost.size(); ++q) {
+        int best = cap;
+        forNeighbours(lost[q], [&](int i, int j, int k) {
+            const int v = there.get(i, j, k);
+            if (v != kLost) best = std::min(best, v + 1);
+        });
+        start[q] = uint8_t(best);
+    }
+    for (size_t q = 0; q < lost.size(); ++q) {
+        int x, y, z;
+        unpackTo(lost[q], x, y, z);
+        here.set(x, y, z, cap);
+        if (start[q] < cap) bucket[start[q]].push_back(lost[q]);
+    }
+    for (int d = 1; d < cap; ++d) {
+        auto& list = bucket[size_t(d)];
+        for (size_t q = 0; q < list.size(); ++q) {
+            int x, y, z;
+            unpackTo(list[q], x, y, z);
+            if (here.get(x, y, z) <= d) continue;
+            here.set(x, y, z, d);
+            if (d + 1 < cap)
+                forNeighbours(list[q], [&](int i, int j, int k) {
+                    if (there.get(i, j, k) > d + 1) bucket[size_t(d) + 1].push_back(int64_t(packKey(i, j, k)));
+                });
+        }
+        std::vector<int64_t>().swap(list);
     }
 }
 } // namespace
