@@ -140,7 +140,8 @@ void DlaEffect::initialize(World& world)
         mHitCount.clear();
         if (auto g = world.fields.get<openvdb::Int32Grid>(kDlaHits))
             for (auto it = g->cbeginValueOn(); it; ++it)
-                if (world.domain.contains(it.getCoord())) *mHitCount.insert(uint64_t(mEngine->index(it.getCoord()))).first = *it;
+                if (world.domain.contains(it.getCoord()))
+                    mHitCount.insert(uint64_t(mEngine->index(it.getCoord()))).first->n = *it;
     }
     mStats.tableSeconds += since(t0);
     mEngine->sync(*world.fields.get<openvdb::FloatGrid>(kPhase));
@@ -278,6 +279,7 @@ void DlaEffect::step(World& world, const StepInfo& info)
     std::unique_ptr<openvdb::FloatGrid::Accessor> tAcc;
     if (T && sh.temperatureEvolves && mHeat != 0) tAcc = std::make_unique<openvdb::FloatGrid::Accessor>(T->getAccessor());
     const bool counting = hitsGrid && mParams.hits > 1;
+    const int32_t stepStamp = int32_t(info.step);
     std::vector<int64_t> touched;
     // the cells written in p (and T at the same cell) for whoever keeps state about them
     std::vector<openvdb::Coord>* editsP = world.state<FieldEdits>().sink(kPhase.name);
@@ -304,10 +306,13 @@ void DlaEffect::step(World& world, const StepInfo& info)
             freezeCell(cell);
             return;
         }
-        int32_t& n = *mHitCount.insert(uint64_t(cell), 0).first;
-        touched.push_back(cell);
-        if (++n >= mParams.hits) {
-            n = 0;
+        HitCount& h = *mHitCount.insert(uint64_t(cell)).first;
+        if (h.step != stepStamp) { // first stick at this cell in this step
+            h.step = stepStamp;
+            touched.push_back(cell);
+        }
+        if (++h.n >= mParams.hits) {
+            h.n = 0;
             freezeCell(cell);
         }
     };
@@ -377,12 +382,12 @@ void DlaEffect::step(World& world, const StepInfo& info)
     if (progress) progress->finish();
     if (counting) {
         t0 = Clock::now();
-        std::sort(touched.begin(), touched.end());
-        touched.erase(std::unique(touched.begin(), touched.end()), touched.end());
+        // each cell once (listed at its first stick of the step); the grid does not depend on
+        // the order of the writes
         auto hAcc = hitsGrid->getAccessor();
         for (int64_t cell : touched) {
-            const int32_t* found = mHitCount.find(uint64_t(cell));
-            const int32_t n = found ? *found : 0;
+            const HitCount* found = mHitCount.find(uint64_t(cell));
+            const int32_t n = found ? found->n : 0;
             if (n > 0) hAcc.setValue(mEngine->coord(cell), n);
             else hAcc.setValueOff(mEngine->coord(cell), 0);
         }
@@ -423,7 +428,7 @@ void DlaEffect::loadState(World& world, const StateReader& in)
         if (auto g = world.fields.get<openvdb::Int32Grid>(kDlaHits))
             for (auto it = g->cbeginValueOn(); it; ++it)
                 if (world.domain.contains(it.getCoord()))
-                    *mHitCount.insert(uint64_t(mEngine->index(it.getCoord()))).first = *it;
+                    mHitCount.insert(uint64_t(mEngine->index(it.getCoord()))).first->n = *it;
     }
     mSteamSource.reset(); // rebuilt from the restored density at the next step
 }
