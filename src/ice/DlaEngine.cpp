@@ -839,7 +839,11 @@ WalkEnd DlaEngine::walkFrom(WalkerRng& rng, int64_t idx, const Inputs& in, Probe
     auto key = [&](int i, int j, int k) { return int64_t(packKey(i, j, k)); };
 
     for (;;) {
-        const int f = W.fine(x, y, z);
+        // The block distance first: where it puts the ice beyond the cap, the cell distance is
+        // the cap without a probe of the (many, mostly uncached) cell bricks; the block bricks
+        // are 16 times fewer and cover 32x32 cells each.
+        const int db = coarse ? W.block(x, y) : 0;
+        const int f = coarse && kCoarse * db - coarseSlack >= cap ? cap : W.fine(x, y, z);
         if (f == 1) { // next to ice: the sticking roll
             double s = 1.0;
             if (meltAcc) s = double(meltAcc->getValue(abs(x, y, z)));
@@ -868,7 +872,6 @@ WalkEnd DlaEngine::walkFrom(WalkerRng& rng, int64_t idx, const Inputs& in, Probe
                 dIce = f;
             } else if (coarse) {
                 // the block distance; beyond its cap the pyramid's Chebyshev bound as well
-                const int db = W.block(x, y);
                 dIce = std::max(cap, kCoarse * db - coarseSlack);
                 rhoIce = double(dIce - 3) / mGraphScale;
                 if (db >= kCoarseCap) {
