@@ -382,8 +382,9 @@ void DlaEffect::step(World& world, const StepInfo& info)
     if (progress) progress->finish();
     if (counting) {
         t0 = Clock::now();
-        // each cell once (listed at its first stick of the step); the grid does not depend on
-        // the order of the writes
+        // each cell once (listed at its first stick of the step), sorted so that the accessor
+        // writes row by row (the grid does not depend on the order of the writes)
+        std::sort(touched.begin(), touched.end());
         auto hAcc = hitsGrid->getAccessor();
         for (int64_t cell : touched) {
             const HitCount* found = mHitCount.find(uint64_t(cell));

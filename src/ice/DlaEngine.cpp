@@ -866,18 +866,16 @@ WalkEnd DlaEngine::walkFrom(WalkerRng& rng, int64_t idx, const Inputs& in, Probe
         if ((maxR > 0 || spheres) && f >= P.jumpMinRadius + 2) {
             // exact lattice (graph) distance below the cap, else the pyramid's Chebyshev bound
             const bool exact = f < cap;
-            int dIce;          // a lower bound of the lattice (graph) distance to the ice
-            double rhoIce = 0; // and of the plane distance, less the margins below
+            int dIce;      // a lower bound of the lattice (graph) distance to the ice
+            int cheb = -1; // a Chebyshev bound from the pyramid, when one was read
             if (exact) {
                 dIce = f;
             } else if (coarse) {
                 // the block distance; beyond its cap the pyramid's Chebyshev bound as well
                 dIce = std::max(cap, kCoarse * db - coarseSlack);
-                rhoIce = double(dIce - 3) / mGraphScale;
                 if (db >= kCoarseCap) {
-                    const int b = std::max(cap, mSparse->bound(x, y, z, anyIce, levelHint));
-                    dIce = std::max(dIce, b);
-                    rhoIce = std::max(rhoIce, double(b - 3) / mSphereScale);
+                    cheb = std::max(cap, mSparse->bound(x, y, z, anyIce, levelHint));
+                    dIce = std::max(dIce, cheb);
                 }
             } else {
                 dIce = std::max(cap, mSparse->bound(x, y, z, anyIce, levelHint));
@@ -901,8 +899,18 @@ WalkEnd DlaEngine::walkFrom(WalkerRng& rng, int64_t idx, const Inputs& in, Probe
             // beyond the largest table: a circle (sphere) of plane radius rho whose cells, with a
             // cell of rounding, stay 2 away from the ice and inside the domain. A graph distance
             // covers a disc of radius d / mGraphScale, a Chebyshev bound one of d / mSphereScale.
-            if (exact || !coarse) rhoIce = double(dIce - 3) / (exact ? mGraphScale : mSphereScale);
-            const double rho = std::min(std::min(rhoMax, rhoIce), double(dOut - 1) / mSphereScale);
+            // Both scales are >= 1, so no circle is larger than dIce - 3: the divisions only
+            // where a circle can beat the tables.
+            double rho = 0;
+            if (spheres && dIce - 3 > sphereMin) {
+                double rhoIce;
+                if (exact || !coarse) rhoIce = double(dIce - 3) / (exact ? mGraphScale : mSphereScale);
+                else {
+                    rhoIce = double(std::max(cap, kCoarse * db - coarseSlack) - 3) / mGraphScale;
+                    if (cheb >= 0) rhoIce = std::max(rhoIce, double(cheb - 3) / mSphereScale);
+                }
+                rho = std::min(std::min(rhoMax, rhoIce), double(dOut - 1) / mSphereScale);
+            }
             double jumpSteps = 0;
             if (spheres && rho > double(sphereMin)) {
                 const double u = rng.uniform(), w = rng.uniform();
