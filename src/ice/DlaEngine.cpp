@@ -705,6 +705,12 @@ int64_t DlaEngine::release(int64_t step, uint64_t walker, WalkerRng& rng, const 
             }
             cell = int64_t(packKey(x, y, z));
         }
+        // a block at block distance >= 1 holds no ice (the block bricks are few and cached)
+        if (mSparse->coarseOn) {
+            const int64_t m = (int64_t(1) << 21) - 1;
+            if (mSparse->coarse.fine(int(cell & m) >> kCoarseLog2, int((cell >> 21) & m) >> kCoarseLog2, 0) > 0)
+                return cell;
+        }
         if (!isIce(cell)) return cell;
     }
     return -1;
