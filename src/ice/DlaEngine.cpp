@@ -945,12 +945,11 @@ WalkEnd DlaEngine::walkFrom(WalkerRng& rng, int64_t idx, const Inputs& in, Probe
                 const int ti = r >= P.jumpMinRadius ? mTableForRadius[size_t(r)] : -1;
                 if (ti >= 0) {
                     const ShellTable& t = *mTables[size_t(ti)];
-                    uint32_t k = t.sample(rng.next());
+                    openvdb::Coord o = t.sampleExit(rng.next());
                     if (P.testJumpBias > 0 && rng.uniform() < P.testJumpBias) {
-                        const uint32_t k2 = t.sample(rng.next());
-                        if (t.exits[k2].x() > t.exits[k].x()) k = k2;
+                        const openvdb::Coord o2 = t.sampleExit(rng.next());
+                        if (o2.x() > o.x()) o = o2;
                     }
-                    const openvdb::Coord& o = t.exits[k];
                     x += o.x();
                     y += o.y();
                     z += o.z();

@@ -103,6 +103,20 @@ struct ShellTable {
         const uint32_t i = uint32_t(((a >> 32) * uint64_t(exits.size())) >> 32);
         return uint32_t(a) < aliasThreshold[i] ? i : alias[i];
     }
+    /// The alias table with both candidate exits of each slot beside its threshold: a draw reads
+    /// one 16-byte slot, not three arrays at three places (the walkers' jumps are cache misses).
+    struct Slot {
+        uint32_t threshold;
+        int16_t keep[3], other[3]; ///< exits[i] and exits[alias[i]]
+    };
+    std::vector<Slot> slots;
+    /// exits[sample(a)], from the packed slots.
+    openvdb::Coord sampleExit(uint64_t a) const
+    {
+        const Slot& s = slots[size_t(((a >> 32) * uint64_t(slots.size())) >> 32)];
+        const int16_t* o = uint32_t(a) < s.threshold ? s.keep : s.other;
+        return openvdb::Coord(o[0], o[1], o[2]);
+    }
 };
 
 /// The table for a neighbour set and radius, computed once per process and cached.
