@@ -960,6 +960,10 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
             float* dtv = dtLeaves.leaf(li).buffer().data();
             FloatLeaf* gl = acc.growth ? acc.growth->probeLeaf(pl.origin()) : nullptr;
             FloatLeaf* fl = acc.freeze ? acc.freeze->probeLeaf(pl.origin()) : nullptr;
+            // The accumulator leaves' buffers and masks directly (what Accumulators::record does
+            // through the leaf's per-voxel accessors, whose buffer checks cost more than the add).
+            float* gv = gl ? gl->buffer().data() : nullptr;
+            float* fv = fl ? fl->buffer().data() : nullptr;
             // word by word over the value mask (the value iterator and its coordinates cost
             // more than the writes); coordinates only where they are needed
             const auto& mask = pl.getValueMask();
@@ -975,7 +979,20 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
                 const double dp = ps.x[s] - p0[s];
                 dpv[n] = float(p0[s]);
                 dtv[n] = float(T0[s]);
-                acc.record(gl, fl, n, pl.offsetToGlobalCoord(n), dp, pn, tn1, pending);
+                if (acc.growth && dp > 0) {
+                    if (gv) {
+                        gv[n] = gv[n] + float(dp);
+                        gl->getValueMask().setOn(n);
+                    } else acc.queue(pending).push_back({pl.offsetToGlobalCoord(n), float(dp), true});
+                }
+                if (acc.freeze && pn > 0.5f) {
+                    if (fv) {
+                        if (!fl->getValueMask().isOn(n)) {
+                            fv[n] = tn1;
+                            fl->getValueMask().setOn(n);
+                        }
+                    } else acc.queue(pending).push_back({pl.offsetToGlobalCoord(n), tn1, false});
+                }
               }
             }
         }
