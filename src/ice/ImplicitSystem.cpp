@@ -60,8 +60,7 @@ SlotLayout::SlotLayout(openvdb::tree::LeafManager<openvdb::FloatTree>& topology,
         colourStart[size_t(colours)] = row;
     }
     const size_t n = colourStart[size_t(colours)];
-    rowCoord.resize(n);
-    colour.resize(n);
+    rows = n;
     slotRow.assign(nLeaves * size_t(slots), -1);
     neighbours.resize(n * size_t(taps));
 
@@ -95,8 +94,6 @@ SlotLayout::SlotLayout(openvdb::tree::LeafManager<openvdb::FloatTree>& topology,
                 const uint8_t k = colourOf(c);
                 const size_t row = next[k]++;
                 slot[off >> slotShift] = int32_t(row);
-                rowCoord[row] = c;
-                colour[row] = k;
             });
         }
     });

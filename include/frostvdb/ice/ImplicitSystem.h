@@ -58,7 +58,7 @@ class SlotLayout {
 public:
     SlotLayout(openvdb::tree::LeafManager<openvdb::FloatTree>& topology, const Stencil& stencil, bool plane);
 
-    size_t rowCount() const { return rowCoord.size(); }
+    size_t rowCount() const { return rows; }
     /// Row of active voxel @a c of leaf @a leaf.
     int32_t row(size_t leaf, const openvdb::Coord& c) const
     {
@@ -77,9 +77,10 @@ public:
     int taps = 0;
     std::vector<double> weights;          ///< Laplacian weight of each tap
     std::vector<int32_t> slotRow;         ///< per leaf slot: its row, or -1
-    std::vector<openvdb::Coord> rowCoord; ///< per row
+    size_t rows = 0;                      ///< active voxels (no per-row coordinates or colours are
+                                          ///< kept: rebuilt every step where walkers write p, and
+                                          ///< nothing reads them)
     std::vector<int32_t> neighbours;      ///< taps per row: neighbour row, or rowCount() outside
-    std::vector<uint8_t> colour;          ///< per row
     std::vector<size_t> colourStart;      ///< colour c owns rows [colourStart[c], colourStart[c+1])
 };
 
