@@ -16,8 +16,6 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
-#include <cstdio>
-#include <cstdlib>
 #include <sstream>
 
 namespace frostvdb {
@@ -31,8 +29,6 @@ namespace {
 using Clock = std::chrono::steady_clock;
 double since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
 constexpr uint64_t kResumeSalt = 0x5E5D3E11ull;
-double dbgFlush = 0, dbgResume = 0;
-struct DbgPrint { ~DbgPrint() { if (getenv("DLA_DBG")) fprintf(stderr, "DBG flush %.2f resume %.2f\n", dbgFlush, dbgResume); } } dbgPrint;
 } // namespace
 
 std::unique_ptr<Effect> DlaEffect::create(ParamDict& d, const World& world)
@@ -140,8 +136,7 @@ void DlaEffect::initialize(World& world)
         mHitCount.clear();
         if (auto g = world.fields.get<openvdb::Int32Grid>(kDlaHits))
             for (auto it = g->cbeginValueOn(); it; ++it)
-                if (world.domain.contains(it.getCoord()))
-                    mHitCount.insert(uint64_t(mEngine->index(it.getCoord()))).first->n = *it;
+                if (world.domain.contains(it.getCoord())) *mHitCount.insert(uint64_t(mEngine->index(it.getCoord()))).first = *it;
     }
     mStats.tableSeconds += since(t0);
     mEngine->sync(*world.fields.get<openvdb::FloatGrid>(kPhase));
@@ -279,7 +274,6 @@ void DlaEffect::step(World& world, const StepInfo& info)
     std::unique_ptr<openvdb::FloatGrid::Accessor> tAcc;
     if (T && sh.temperatureEvolves && mHeat != 0) tAcc = std::make_unique<openvdb::FloatGrid::Accessor>(T->getAccessor());
     const bool counting = hitsGrid && mParams.hits > 1;
-    const int32_t stepStamp = int32_t(info.step);
     std::vector<int64_t> touched;
     // the cells written in p (and T at the same cell) for whoever keeps state about them
     std::vector<openvdb::Coord>* editsP = world.state<FieldEdits>().sink(kPhase.name);
@@ -306,13 +300,10 @@ void DlaEffect::step(World& world, const StepInfo& info)
             freezeCell(cell);
             return;
         }
-        HitCount& h = *mHitCount.insert(uint64_t(cell)).first;
-        if (h.step != stepStamp) { // first stick at this cell in this step
-            h.step = stepStamp;
-            touched.push_back(cell);
-        }
-        if (++h.n >= mParams.hits) {
-            h.n = 0;
+        int32_t& n = *mHitCount.insert(uint64_t(cell), 0).first;
+        touched.push_back(cell);
+        if (++n >= mParams.hits) {
+            n = 0;
             freezeCell(cell);
         }
     };
@@ -368,27 +359,26 @@ void DlaEffect::step(World& world, const StepInfo& info)
                     }
                 }
                 if (start < 0) continue;
-                { auto tq = Clock::now(); mEngine->flushDistances(); dbgFlush += since(tq); tq = Clock::now();
-                e = mEngine->walk(info.step, first + w, kResumeSalt, start, in); dbgResume += since(tq); }
+                mEngine->flushDistances();
+                e = mEngine->walk(info.step, first + w, kResumeSalt, start, in);
                 account(e);
                 if (e.kind != WalkEnd::Stuck) continue;
             }
             hit(e.cell);
         }
-        { auto tq = Clock::now(); mEngine->flushDistances(); dbgFlush += since(tq); }
+        mEngine->flushDistances();
         mStats.applySeconds += since(t0);
         if (progress) progress->update(int64_t(first + count));
     }
     if (progress) progress->finish();
     if (counting) {
         t0 = Clock::now();
-        // each cell once (listed at its first stick of the step), sorted so that the accessor
-        // writes row by row (the grid does not depend on the order of the writes)
         std::sort(touched.begin(), touched.end());
+        touched.erase(std::unique(touched.begin(), touched.end()), touched.end());
         auto hAcc = hitsGrid->getAccessor();
         for (int64_t cell : touched) {
-            const HitCount* found = mHitCount.find(uint64_t(cell));
-            const int32_t n = found ? found->n : 0;
+            const int32_t* found = mHitCount.find(uint64_t(cell));
+            const int32_t n = found ? *found : 0;
             if (n > 0) hAcc.setValue(mEngine->coord(cell), n);
             else hAcc.setValueOff(mEngine->coord(cell), 0);
         }
@@ -429,7 +419,7 @@ void DlaEffect::loadState(World& world, const StateReader& in)
         if (auto g = world.fields.get<openvdb::Int32Grid>(kDlaHits))
             for (auto it = g->cbeginValueOn(); it; ++it)
                 if (world.domain.contains(it.getCoord()))
-                    mHitCount.insert(uint64_t(mEngine->index(it.getCoord()))).first->n = *it;
+                    *mHitCount.insert(uint64_t(mEngine->index(it.getCoord()))).first = *it;
     }
     mSteamSource.reset(); // rebuilt from the restored density at the next step
 }
@@ -445,9 +435,6 @@ std::vector<std::pair<std::string, double>> DlaEffect::timings() const
 
 std::vector<std::pair<std::string, double>> DlaEffect::counters() const
 {
-    if (getenv("DLA_DBG")) fprintf(stderr, "DBG released %llu stuck %llu frozen %llu killed %llu conflicts %llu moves %llu jumps %llu steps %.3g\n",
-        (unsigned long long)mStats.released, (unsigned long long)mStats.stuck, (unsigned long long)mStats.frozen, (unsigned long long)mStats.killed,
-        (unsigned long long)mStats.conflicts, (unsigned long long)mStats.moves, (unsigned long long)mStats.jumps, mStats.latticeSteps);
     return {{"distance_rebuilds", mEngine ? double(mEngine->rebuildCount()) : 0.0}};
 }
 

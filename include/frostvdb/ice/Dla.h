@@ -290,13 +290,7 @@ private:
     std::unique_ptr<DlaEngine> mEngine;
     DlaStats mStats;
     openvdb::GridBase::ConstPtr mSteamSource; ///< the density grid the steam map was built from
-    /// dla_hits by cell while stepping (hits > 1), sparse, with the last step that touched it
-    /// (so each step lists the cells it touched once, without sorting its sticks)
-    struct HitCount {
-        int32_t n = 0;
-        int32_t step = -1;
-    };
-    KeyMap<HitCount> mHitCount;
+    KeyMap<int32_t> mHitCount; ///< dla_hits by cell while stepping (hits > 1), sparse
     std::vector<double> mSteamCdf;
     std::vector<int64_t> mSteamCells;
     double mSteamSum = 0;
