@@ -150,6 +150,7 @@ ImplicitSystem::ImplicitSystem(const SlotLayout& layout, ImplicitSystem& recycle
     scale.swap(recycle.scale);
     rhs.swap(recycle.rhs);
     coef.swap(recycle.coef); // kept in use when it was: useCoefficients() sizes it
+    mNext.swap(recycle.mNext);
     mUniform = recycle.mUniform;
     mUniformDiag = recycle.mUniformDiag;
     mUniformScale = recycle.mUniformScale;
@@ -185,8 +186,8 @@ SolveReport ImplicitSystem::gaussSeidel(double tolerance, int maxIterations)
     // their rows are adjacent, one range.
     const bool pairLast = mL.colours == 3;
     const auto& cs = mL.colourStart;
-    std::vector<double> next;
-    if (pairLast) next.resize(cs[3] - cs[1]);
+    std::vector<double>& next = mNext; // every entry is written before it is read
+    if (pairLast && next.size() < cs[3] - cs[1]) next.resize(cs[3] - cs[1]);
     // The update of row i from the current x; returns its residual before the update.
     auto relaxRows = [&](size_t begin, size_t end, double* out, double mx) {
         if (mUniform) {

@@ -154,6 +154,9 @@ private:
     SolveReport bicgstab(double tolerance, int maxIterations);
 
     const SlotLayout& mL;
+    /// Gauss-Seidel scratch for the hexagonal colours 1 and 2 (kept between steps with the
+    /// other arrays: sized and zero-filled once, not every solve)
+    std::vector<double> mNext;
     bool mUniform = false, mRecycled = false;
     double mUniformDiag = 1.0, mUniformScale = 0.0;
 };
