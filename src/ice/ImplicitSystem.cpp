@@ -17,9 +17,13 @@ inline int nbIndex(int dx, int dy, int dz) { return (dz + 1) * 9 + (dy + 1) * 3 
 } // namespace
 
 SlotLayout::SlotLayout(openvdb::tree::LeafManager<openvdb::FloatTree>& topology, const Stencil& stencil,
-                       bool flat)
+                       bool flat, SlotLayout* recycle)
     : plane(flat), slots(flat ? 64 : 512)
 {
+    if (recycle) {
+        slotRow.swap(recycle->slotRow);
+        neighbours.swap(recycle->neighbours);
+    }
     const size_t nLeaves = topology.leafCount();
     colours = stencil.hexagonal ? 3 : 2;
     taps = int(stencil.taps.size());
@@ -61,7 +65,9 @@ SlotLayout::SlotLayout(openvdb::tree::LeafManager<openvdb::FloatTree>& topology,
     }
     const size_t n = colourStart[size_t(colours)];
     rows = n;
-    slotRow.assign(nLeaves * size_t(slots), -1);
+    // sized only: each leaf's slots are set to -1 by the leaf's own task below, and every
+    // neighbour entry is written
+    slotRow.resize(nLeaves * size_t(slots));
     neighbours.resize(n * size_t(taps));
 
     // Leaf origin -> index through a dense table over the leaves' bounding box (in leaf units):
@@ -90,6 +96,7 @@ SlotLayout::SlotLayout(openvdb::tree::LeafManager<openvdb::FloatTree>& topology,
             size_t next[3];
             for (int c = 0; c < colours; ++c) next[c] = firstRow[li * colours + c];
             int32_t* slot = &slotRow[li * size_t(slots)];
+            std::fill(slot, slot + slots, -1);
             forActive(li, [&](openvdb::Index off, const openvdb::Coord& c) {
                 const uint8_t k = colourOf(c);
                 const size_t row = next[k]++;

@@ -780,7 +780,8 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
     const Stencil stencil = mDomain.stencil();
     // The layout depends only on the region's topology: built once per region.
     if (!mLayout || mLayoutGeneration != mGeneration) {
-        mLayout = std::make_unique<SlotLayout>(pLeaves, stencil, plane);
+        // last step's layout lends its arrays (the systems that refer to it only lend theirs below)
+        mLayout = std::make_unique<SlotLayout>(pLeaves, stencil, plane, mLayout.get());
         mLayoutGeneration = mGeneration;
     }
     const SlotLayout& layout = *mLayout;

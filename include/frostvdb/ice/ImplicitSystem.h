@@ -56,7 +56,10 @@ struct SolveReport {
 /// per region topology, shared by the p and T systems.
 class SlotLayout {
 public:
-    SlotLayout(openvdb::tree::LeafManager<openvdb::FloatTree>& topology, const Stencil& stencil, bool plane);
+    /// @a recycle: last step's layout, whose arrays are taken over (the neighbour table is
+    /// then not zero-filled and its pages not faulted in again; every entry is written).
+    SlotLayout(openvdb::tree::LeafManager<openvdb::FloatTree>& topology, const Stencil& stencil, bool plane,
+               SlotLayout* recycle = nullptr);
 
     size_t rowCount() const { return rows; }
     /// Row of active voxel @a c of leaf @a leaf.
