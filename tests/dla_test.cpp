@@ -421,6 +421,69 @@ TEST_CASE("Melted ice repairs the walker distances to those of a rebuild from th
     }
 }
 
+TEST_CASE("Walker distances beyond the cap are lower bounds within two blocks of the lattice distance", "[fast][dla][jumps]")
+{
+    // Random short segments of ice (and a few melts) in a 200^2 plane; the true lattice distance
+    // of every cell by a plain BFS over the whole plane. Jumps are exact only while the engine's
+    // distance never exceeds it; beyond the exact cap (16) the block distances keep it within
+    // twice the blocks' diameter (the pyramid alone was within a factor 2).
+    for (auto kind : {LatticeKind::Hexagonal, LatticeKind::Square}) {
+        const int n = 200;
+        Domain dom = makePlaneDomain(Lattice(kind), openvdb::Coord(n, n, 1), 1e-4);
+        const auto nbr = ice::walkerNeighbours(dom);
+        auto p = openvdb::FloatGrid::create(0.f);
+        ice::DlaParams prm;
+        ice::DlaEngine eng(dom, prm, 5);
+        uint64_t h = 777;
+        auto draw = [&](int m) { h = h * 6364136223846793005ull + 1442695040888963407ull; return int((h >> 33) % uint64_t(m)); };
+        std::vector<openvdb::Coord> ice;
+        int checked = 0, far = 0, worstGap = 0;
+        bool below = true;
+        for (int round = 0; round < 3; ++round) {
+            for (int a = 0; a < 4; ++a) {
+                openvdb::Coord c(draw(n), draw(n), 0);
+                for (int l = 0; l < 6; ++l, c.y() = std::min(c.y() + 1, n - 1)) {
+                    p->tree().setValue(c, 1.f);
+                    ice.push_back(c);
+                }
+            }
+            if (round > 0) // a melt that empties a block: the block distances are repaired
+                for (int l = 0; l < 6; ++l) p->tree().setValue(ice[size_t(l)], 0.2f);
+            eng.sync(*p);
+            std::vector<int> truth(size_t(n) * n, -1);
+            std::vector<openvdb::Coord> queue;
+            for (auto it = p->cbeginValueOn(); it; ++it)
+                if (*it > 0.5f) {
+                    truth[size_t(it.getCoord().x() + n * it.getCoord().y())] = 0;
+                    queue.push_back(it.getCoord());
+                }
+            for (size_t q = 0; q < queue.size(); ++q)
+                for (const auto& o : nbr) {
+                    const openvdb::Coord v = queue[q] + o;
+                    if (v.x() < 0 || v.y() < 0 || v.x() >= n || v.y() >= n) continue;
+                    int& t = truth[size_t(v.x() + n * v.y())];
+                    if (t >= 0) continue;
+                    t = truth[size_t(queue[q].x() + n * queue[q].y())] + 1;
+                    queue.push_back(v);
+                }
+            for (int y = 0; y < n; ++y)
+                for (int x = 0; x < n; ++x) {
+                    const int t = truth[size_t(x + n * y)], d = eng.iceDistance(openvdb::Coord(x, y, 0));
+                    below = below && d <= t;
+                    ++checked;
+                    if (t >= 16 && t <= 150) {
+                        ++far;
+                        worstGap = std::max(worstGap, t - d);
+                    }
+                }
+        }
+        INFO(Lattice::kindName(kind) << ": " << far << " cells 16..150 from the ice, largest gap " << worstGap);
+        CHECK(below);
+        CHECK(far > 1000);
+        CHECK(worstGap <= 2 * 6); // twice the largest distance within a block (6 steps on both lattices)
+    }
+}
+
 TEST_CASE("Shell tables are normalised and lattice symmetric", "[fast][dla][jumps]")
 {
     for (auto kind : {LatticeKind::Hexagonal, LatticeKind::Square}) {

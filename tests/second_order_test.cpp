@@ -78,8 +78,16 @@ TEST_CASE("Hexagonal colouring never gives neighbours the same colour", "[fast][
         openvdb::tree::LeafManager<openvdb::FloatTree> leaves(topo->tree());
         const SlotLayout layout(leaves, st, !withZ);
         REQUIRE(layout.colours == 3);
+        // each voxel's colour: the colour range its row lies in
         openvdb::Int32Grid colours(-1);
-        for (size_t r = 0; r < layout.rowCount(); ++r) colours.tree().setValue(layout.rowCoord[r], layout.colour[r]);
+        for (size_t li = 0; li < leaves.leafCount(); ++li)
+            for (auto it = leaves.leaf(li).cbeginValueOn(); it; ++it) {
+                const size_t r = size_t(layout.rowAt(li, it.pos()));
+                int c = 0;
+                while (r >= layout.colourStart[size_t(c) + 1]) ++c;
+                colours.tree().setValue(it.getCoord(), c);
+            }
+        REQUIRE(colours.activeVoxelCount() == openvdb::Index64(layout.rowCount()));
         int clashes = 0;
         for (auto it = colours.cbeginValueOn(); it; ++it)
             for (const auto& t : st.taps) {

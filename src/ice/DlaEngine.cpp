@@ -45,11 +45,17 @@ constexpr int kNoBound = 1 << 30;
 
 inline uint64_t packKey(int64_t x, int64_t y, int64_t z) { return uint64_t(x) | uint64_t(y) << 21 | uint64_t(z) << 42; }
 inline int cellInBrick(int x, int y, int z) { return (x & kBMask) | (y & kBMask) << 3 | (z & kBMask) << 6; }
+/// Blocks of the block distances: 4x4 cells, distances below 48 block steps (186 cells on the
+/// hexagonal and square lattices: beyond the largest jump table, where walk-on-spheres jumps
+/// take over and the pyramid's bound is used as well).
+constexpr int kCoarseLog2 = 2;
+constexpr int kCoarse = 1 << kCoarseLog2;
+constexpr int kCoarseCap = 48;
 } // namespace
 
-/// The sparse state: distance bricks and the occupancy pyramid, in cell offsets from the origin.
-struct DlaEngine::Sparse {
-    int dim = 2;
+/// Byte values in 8-cell bricks (8x8 on a plane, 8^3 in a box) kept in a flat hash map, only
+/// where some value is below the cap (a missing brick reads as the cap everywhere).
+struct ByteBricks {
     int brickVolume = 64;
     uint8_t cap = 16;
     KeyMap<uint8_t*> brickOf;                     ///< brick key -> its cells (stable storage)
@@ -62,21 +68,14 @@ struct DlaEngine::Sparse {
     };
     std::vector<std::unique_ptr<uint8_t, Aligned>> pool;
     size_t bricks = 0; ///< bricks handed out
-    /// Level k: blocks of 8 * 2^k cells. occupied[k]: per block, its ice cells (k = 0) or its
-    /// occupied child blocks (k > 0); near[k]: per block, the occupied blocks in its 3^d
-    /// neighbourhood (the blocks with none are where a Chebyshev bound holds). Counts, so that a
-    /// melt takes its cell out again: the pyramid is always that of the current ice.
-    std::vector<KeyMap<uint32_t>> occupied;
-    std::vector<KeyMap<uint8_t>> near;
 
-    void clear()
+    void clearBricks()
     {
         brickOf.clear();
         pool.clear();
         bricks = 0;
-        for (auto& m : occupied) m.clear();
-        for (auto& m : near) m.clear();
     }
+    size_t brickBytes() const { return brickOf.bytes() + pool.size() * kChunk * size_t(brickVolume); }
     const uint8_t* brick(int bx, int by, int bz) const
     {
         uint8_t* const* b = brickOf.find(packKey(bx, by, bz));
@@ -100,17 +99,60 @@ struct DlaEngine::Sparse {
     }
     int fine(int x, int y, int z) const
     {
-        const uint8_t* b = brick(x >> kBrickLog2, y >> kBrickLog2, z >> kBrickLog2);
+        const uint8_t* b = brick(x >> DlaEngine::kBrickLog2, y >> DlaEngine::kBrickLog2, z >> DlaEngine::kBrickLog2);
         return b ? b[cellInBrick(x, y, z)] : cap;
     }
     void setFine(int x, int y, int z, int d)
     {
-        brickForWrite(x >> kBrickLog2, y >> kBrickLog2, z >> kBrickLog2)[cellInBrick(x, y, z)] = uint8_t(d);
+        brickForWrite(x >> DlaEngine::kBrickLog2, y >> DlaEngine::kBrickLog2, z >> DlaEngine::kBrickLog2)[cellInBrick(x, y, z)] =
+            uint8_t(d);
+    }
+};
+
+/// The sparse state: distance bricks and the occupancy pyramid, in cell offsets from the origin;
+/// on a plane also the block distances (see Coarse below).
+struct DlaEngine::Sparse : ByteBricks {
+    int dim = 2;
+    /// Block distances (planes): for each block of kCoarse x kCoarse cells, the lattice distance
+    /// in block steps to the nearest block that holds ice, below coarse.cap (a BFS on the block
+    /// lattice, the same unique capped minimum as the cell distances). A cell of a block at block
+    /// distance D is at least kCoarse * D - coarseSlack lattice steps from any ice (the lattice
+    /// distance is a norm; coarseSlack is the largest distance between two cells of one block).
+    /// Beyond the exact cell cap this bound is within a block or two of the true distance, where
+    /// the pyramid's is within a factor 2, so the walkers' jumps there are about twice as large.
+    bool coarseOn = false;
+    ByteBricks coarse;
+    int coarseSlack = 0;
+    KeyMap<uint32_t> coarseCount;      ///< ice cells per block
+    std::vector<int64_t> coarseGained; ///< blocks whose count left 0 since the last flush
+    std::vector<int64_t> coarseLost;   ///< blocks whose count fell to 0 since the last flush
+    /// Level k: blocks of 8 * 2^k cells. occupied[k]: per block, its ice cells (k = 0) or its
+    /// occupied child blocks (k > 0); near[k]: per block, the occupied blocks in its 3^d
+    /// neighbourhood (the blocks with none are where a Chebyshev bound holds). Counts, so that a
+    /// melt takes its cell out again: the pyramid is always that of the current ice.
+    std::vector<KeyMap<uint32_t>> occupied;
+    std::vector<KeyMap<uint8_t>> near;
+
+    void clear()
+    {
+        clearBricks();
+        for (auto& m : occupied) m.clear();
+        for (auto& m : near) m.clear();
+        coarse.clearBricks();
+        coarseCount.clear();
+        coarseGained.clear();
+        coarseLost.clear();
     }
     /// Adds (+1) or removes (-1) an ice cell: a block's count changes level by level while a
     /// block becomes occupied (or empty), and then its neighbourhood's near counts.
     void changeIce(int x, int y, int z, int sign)
     {
+        if (coarseOn) {
+            const uint64_t key = packKey(x >> kCoarseLog2, y >> kCoarseLog2, z >> kCoarseLog2);
+            uint32_t& n = *coarseCount.insert(key, 0).first;
+            if (sign > 0 && n++ == 0) coarseGained.push_back(int64_t(key));
+            if (sign < 0 && --n == 0) coarseLost.push_back(int64_t(key));
+        }
         const int zr = dim == 3 ? 1 : 0;
         for (size_t k = 0; k < occupied.size(); ++k) {
             const int sh = kBrickLog2 + int(k);
@@ -161,10 +203,10 @@ struct DlaEngine::Sparse {
 
 /// Cached brick access for a sequence of nearby cells (one hash probe per brick change).
 struct BrickCursor {
-    DlaEngine::Sparse& S;
+    ByteBricks& S;
     int bx = -1, by = -1, bz = -1;
     uint8_t* brick = nullptr;
-    explicit BrickCursor(DlaEngine::Sparse& s) : S(s) {}
+    explicit BrickCursor(ByteBricks& s) : S(s) {}
     int get(int x, int y, int z)
     {
         at(x, y, z, false);
@@ -202,7 +244,7 @@ DlaEngine::~DlaEngine() = default;
 
 size_t DlaEngine::memoryBytes() const
 {
-    size_t b = mSparse->brickOf.bytes() + mSparse->pool.size() * DlaEngine::Sparse::kChunk * size_t(mSparse->brickVolume);
+    size_t b = mSparse->brickBytes() + mSparse->coarse.brickBytes() + mSparse->coarseCount.bytes();
     for (auto& m : mSparse->occupied) b += m.bytes();
     for (auto& m : mSparse->near) b += m.bytes();
     return b;
@@ -222,10 +264,35 @@ DlaEngine::DlaEngine(const Domain& domain, const DlaParams& params, uint64_t see
     if (std::max(std::max(mNx, mNy), mNz) >= (int64_t(1) << 21))
         throw std::invalid_argument("DlaEngine: at most 2^21 cells per axis");
     mDim = domain.dimension();
-    mCap = mDim == 3 ? 10 : 32;
+    // 16 on a plane: beyond it the block distances are within 12 steps of the true distance, and
+    // every freeze's BFS, and every melt's repair, costs the cap squared (32 was the cap before
+    // the block distances: Figure 7 made 4 % more moves at 16, and spent half the time relaxing)
+    mCap = mDim == 3 ? 10 : 16;
     mSparse->dim = mDim;
     mSparse->brickVolume = mDim == 3 ? kB * kB * kB : kB * kB;
     mSparse->cap = uint8_t(mCap);
+    // Block distances on planes (in a box the blocks of a reach of 48 would hold too many).
+    if (mDim == 2) {
+        mSparse->coarseOn = true;
+        mSparse->coarse.cap = uint8_t(kCoarseCap);
+        mSparse->coarse.brickVolume = kB * kB;
+        // the largest lattice distance between two cells of one block: a BFS over the offsets
+        // [-(kCoarse-1), kCoarse-1]^2 from 0 (shortest paths between them stay in that box)
+        constexpr int w = 2 * kCoarse - 1, c0 = kCoarse - 1;
+        std::vector<int> dist(size_t(w * w), -1);
+        std::vector<int> queue{c0 + w * c0};
+        dist[size_t(c0 + w * c0)] = 0;
+        for (size_t q = 0; q < queue.size(); ++q) {
+            const int u = queue[q], ux = u % w, uy = u / w;
+            for (const auto& o : mNbr) {
+                const int vx = ux + o.x(), vy = uy + o.y();
+                if (o.z() != 0 || vx < 0 || vy < 0 || vx >= w || vy >= w || dist[size_t(vx + w * vy)] >= 0) continue;
+                dist[size_t(vx + w * vy)] = dist[size_t(u)] + 1;
+                queue.push_back(vx + w * vy);
+            }
+        }
+        mSparse->coarseSlack = *std::max_element(dist.begin(), dist.end());
+    }
     int levels = 1;
     const int64_t extent = std::max(std::max(mNx, mNy), mNz);
     while ((int64_t(kB) << (levels - 1)) < extent) ++levels;
@@ -272,27 +339,151 @@ int DlaEngine::iceDistance(const openvdb::Coord& c) const
     const int f = mSparse->fine(r.x(), r.y(), r.z());
     if (f < mCap) return f;
     int hint = -1;
-    return std::max(mCap, mSparse->bound(r.x(), r.y(), r.z(), mIceCount > 0, hint));
+    const int pyramid = std::max(mCap, mSparse->bound(r.x(), r.y(), r.z(), mIceCount > 0, hint));
+    if (!mSparse->coarseOn) return pyramid;
+    const int d = mSparse->coarse.fine(r.x() >> kCoarseLog2, r.y() >> kCoarseLog2, r.z() >> kCoarseLog2);
+    return std::max(pyramid, kCoarse * d - mSparse->coarseSlack);
 }
 
-void DlaEngine::relaxQueue()
+namespace {
+/// Multi-source breadth-first relaxation of capped lattice distances from the cells in @a queue
+/// (already set; first in, first out is breadth-first while they share one distance).
+void relaxFrom(ByteBricks& S, std::vector<int64_t>& queue, int cap, const std::vector<openvdb::Coord>& nbr, int64_t nx,
+               int64_t ny, int64_t nz)
 {
-    BrickCursor here(*mSparse), there(*mSparse);
+    BrickCursor here(S), there(S);
     const int64_t m = (int64_t(1) << 21) - 1;
-    for (size_t q = 0; q < mQueue.size(); ++q) {
-        const int64_t u = mQueue[q];
+    for (size_t q = 0; q < queue.size(); ++q) {
+        const int64_t u = queue[q];
         const int x = int(u & m), y = int((u >> 21) & m), z = int(u >> 42);
         const int d = here.get(x, y, z) + 1;
-        if (d >= mCap) continue;
-        for (const auto& o : mNbr) {
+        if (d >= cap) continue;
+        for (const auto& o : nbr) {
             const int i = x + o.x(), j = y + o.y(), k = z + o.z();
-            if (i < 0 || j < 0 || k < 0 || i >= mNx || j >= mNy || k >= mNz) continue;
+            if (i < 0 || j < 0 || k < 0 || i >= nx || j >= ny || k >= nz) continue;
             if (there.get(i, j, k) > d) {
                 there.set(i, j, k, d);
-                mQueue.push_back(int64_t(packKey(i, j, k)));
+                queue.push_back(int64_t(packKey(i, j, k)));
             }
         }
     }
+}
+
+/// After the sources at the cells @a removed were taken out (their values were 0): the values
+/// that depended on them only, and the new ones there, by the decremental breadth-first update.
+///  1. By levels from the removed cells: a cell at distance L loses its support when none of its
+///     neighbours at L - 1 kept theirs (it is marked with kLost); only such cells can change.
+///  2. Each lost cell starts from its best neighbour that kept its value (plus one), and the lost
+///     cells are relaxed among themselves by distance levels.
+/// The cells that kept their value are right (a neighbour one step closer that kept its own), so
+/// the result is the unique capped BFS minimum from the remaining sources, the values a rebuild
+/// gives, at the cost of the cells that change and their neighbours.
+void repairAround(ByteBricks& S, const std::vector<int64_t>& removed, int cap, int /*dim*/,
+                  const std::vector<openvdb::Coord>& nbr, int64_t nx, int64_t ny, int64_t nz)
+{
+    constexpr uint8_t kLost = 255;
+    const int64_t m = (int64_t(1) << 21) - 1;
+    BrickCursor here(S), there(S);
+    auto forNeighbours = [&](int64_t u, auto&& f) {
+        const int x = int(u & m), y = int((u >> 21) & m), z = int(u >> 42);
+        for (const auto& o : nbr) {
+            const int i = x + o.x(), j = y + o.y(), k = z + o.z();
+            if (i < 0 || j < 0 || k < 0 || i >= nx || j >= ny || k >= nz) continue;
+            f(i, j, k);
+        }
+    };
+    auto unpackTo = [m](int64_t u, int& x, int& y, int& z) {
+        x = int(u & m);
+        y = int((u >> 21) & m);
+        z = int(u >> 42);
+    };
+    // 1. the cells that lose their support, level by level
+    std::vector<int64_t> lost, level, next;
+    for (int64_t u : removed) {
+        int x, y, z;
+        unpackTo(u, x, y, z);
+        if (here.get(x, y, z) == kLost) continue; // listed twice
+        here.set(x, y, z, kLost);
+        level.push_back(u);
+    }
+    lost = level;
+    for (int d = 1; d < cap && !level.empty(); ++d) {
+        next.clear();
+        for (int64_t u : level)
+            forNeighbours(u, [&](int i, int j, int k) {
+                if (there.get(i, j, k) != d) return;
+                // still supported by a neighbour at d - 1 that kept its value?
+                bool supported = false;
+                forNeighbours(int64_t(packKey(i, j, k)), [&](int a, int b, int c) {
+                    supported = supported || here.get(a, b, c) == d - 1;
+                });
+                if (supported) return;
+                there.set(i, j, k, kLost);
+                next.push_back(int64_t(packKey(i, j, k)));
+            });
+        lost.insert(lost.end(), next.begin(), next.end());
+        level.swap(next);
+    }
+    // 2. new values: from the neighbours that kept theirs, then among the lost cells
+    std::vector<std::vector<int64_t>> bucket(static_cast<size_t>(cap));
+    std::vector<uint8_t> start(lost.size());
+    for (size_t q = 0; q < lost.size(); ++q) {
+        int best = cap;
+        forNeighbours(lost[q], [&](int i, int j, int k) {
+            const int v = there.get(i, j, k);
+            if (v != kLost) best = std::min(best, v + 1);
+        });
+        start[q] = uint8_t(best);
+    }
+    for (size_t q = 0; q < lost.size(); ++q) {
+        int x, y, z;
+        unpackTo(lost[q], x, y, z);
+        here.set(x, y, z, cap);
+        if (start[q] < cap) bucket[start[q]].push_back(lost[q]);
+    }
+    for (int d = 1; d < cap; ++d) {
+        auto& list = bucket[size_t(d)];
+        for (size_t q = 0; q < list.size(); ++q) {
+            int x, y, z;
+            unpackTo(list[q], x, y, z);
+            if (here.get(x, y, z) <= d) continue;
+            here.set(x, y, z, d);
+            if (d + 1 < cap)
+                forNeighbours(list[q], [&](int i, int j, int k) {
+                    if (there.get(i, j, k) > d + 1) bucket[size_t(d) + 1].push_back(int64_t(packKey(i, j, k)));
+                });
+        }
+        std::vector<int64_t>().swap(list);
+    }
+}
+} // namespace
+
+void DlaEngine::relaxQueue() { relaxFrom(*mSparse, mQueue, mCap, mNbr, mNx, mNy, mNz); }
+
+void DlaEngine::flushCoarse()
+{
+    Sparse& S = *mSparse;
+    if (!S.coarseOn) return;
+    const int64_t bx = (mNx + kCoarse - 1) >> kCoarseLog2, by = (mNy + kCoarse - 1) >> kCoarseLog2,
+                  bz = (mNz + kCoarse - 1) >> kCoarseLog2;
+    const int64_t m = (int64_t(1) << 21) - 1;
+    auto count = [&](int64_t key) { const uint32_t* n = S.coarseCount.find(uint64_t(key)); return n ? *n : 0u; };
+    std::vector<int64_t> lost;
+    for (int64_t key : S.coarseLost)
+        if (count(key) == 0) {
+            S.coarse.setFine(int(key & m), int((key >> 21) & m), int(key >> 42), S.coarse.cap);
+            lost.push_back(key);
+        }
+    S.coarseLost.clear();
+    if (!lost.empty()) repairAround(S.coarse, lost, S.coarse.cap, mDim, mNbr, bx, by, bz);
+    std::vector<int64_t> gained;
+    for (int64_t key : S.coarseGained)
+        if (count(key) != 0) {
+            S.coarse.setFine(int(key & m), int((key >> 21) & m), int(key >> 42), 0);
+            gained.push_back(key);
+        }
+    S.coarseGained.clear();
+    relaxFrom(S.coarse, gained, S.coarse.cap, mNbr, bx, by, bz);
 }
 
 void DlaEngine::freeze(int64_t cell)
@@ -316,9 +507,16 @@ void DlaEngine::flushDistances()
     // One multi-source BFS from every cell frozen since the last flush (all at distance 0, so
     // first-in first-out is breadth-first): each cell is lowered once, not once per new ice
     // cell near it, and the capped distances are the same unique minimum as one-by-one relaxing.
-    if (mQueue.empty()) return;
-    relaxQueue();
-    mQueue.clear();
+    if (!mQueue.empty()) {
+        relaxQueue();
+        mQueue.clear();
+    }
+    flushCoarse();
+}
+
+bool DlaEngine::distancesPending() const
+{
+    return !mQueue.empty() || !mSparse->coarseGained.empty() || !mSparse->coarseLost.empty();
 }
 
 void DlaEngine::rebuild(const openvdb::FloatGrid& p)
@@ -341,6 +539,7 @@ void DlaEngine::rebuild(const openvdb::FloatGrid& p)
     }
     relaxQueue(); // multi-source BFS
     mQueue.clear();
+    flushCoarse();
 }
 
 void DlaEngine::sync(const openvdb::FloatGrid& p)
@@ -449,87 +648,15 @@ void DlaEngine::sync(const openvdb::FloatGrid& p)
 
 void DlaEngine::repairMelted(const std::vector<int64_t>& melted)
 {
-    // The cells whose capped distance can grow lie within Chebyshev distance cap - 1 of a melted
-    // cell (a lattice step moves each index by at most 1). Reset the bricks that cover those
-    // boxes to the cap (ice stays 0), then relax from every cell below the cap in those bricks
-    // and the ring of bricks around them (their values are still right; outside the reset they
-    // cannot change): a breadth-first pass by distance levels gives the unique capped minimum,
-    // the same distances as a rebuild from all the ice.
     Sparse& S = *mSparse;
     const int64_t m = (int64_t(1) << 21) - 1;
-    const int zr = mDim == 3 ? 1 : 0;
-    std::vector<uint64_t> reset;
     for (int64_t cell : melted) {
         const int x = int(cell & m), y = int((cell >> 21) & m), z = int(cell >> 42);
         S.setFine(x, y, z, mCap);
         S.changeIce(x, y, z, -1);
         --mIceCount;
-        const int reach = mCap - 1;
-        auto bricks = [&](int v, int n) {
-            return std::make_pair(std::max(0, v - reach) >> kBrickLog2, std::min(n - 1, v + reach) >> kBrickLog2);
-        };
-        const auto bx = bricks(x, int(mNx)), by = bricks(y, int(mNy)), bz = bricks(z, int(mNz));
-        for (int k = bz.first; k <= bz.second; ++k)
-            for (int j = by.first; j <= by.second; ++j)
-                for (int i = bx.first; i <= bx.second; ++i) reset.push_back(packKey(i, j, k));
     }
-    std::sort(reset.begin(), reset.end());
-    reset.erase(std::unique(reset.begin(), reset.end()), reset.end());
-    auto unpack = [m](uint64_t key, int& i, int& j, int& k) {
-        i = int(key & uint64_t(m));
-        j = int((key >> 21) & uint64_t(m));
-        k = int(key >> 42);
-    };
-    for (uint64_t key : reset) {
-        int i, j, k;
-        unpack(key, i, j, k);
-        if (uint8_t* b = const_cast<uint8_t*>(S.brick(i, j, k)))
-            for (int c = 0; c < S.brickVolume; ++c)
-                if (b[c] != 0) b[c] = uint8_t(mCap);
-    }
-    std::vector<uint64_t> sources;
-    for (uint64_t key : reset) {
-        int i, j, k;
-        unpack(key, i, j, k);
-        for (int dz = -zr; dz <= zr; ++dz)
-            for (int dy = -1; dy <= 1; ++dy)
-                for (int dx = -1; dx <= 1; ++dx)
-                    if (i + dx >= 0 && j + dy >= 0 && k + dz >= 0) sources.push_back(packKey(i + dx, j + dy, k + dz));
-    }
-    std::sort(sources.begin(), sources.end());
-    sources.erase(std::unique(sources.begin(), sources.end()), sources.end());
-    std::vector<std::vector<int64_t>> level(static_cast<size_t>(mCap));
-    for (uint64_t key : sources) {
-        int i, j, k;
-        unpack(key, i, j, k);
-        const uint8_t* b = S.brick(i, j, k);
-        if (!b) continue;
-        for (int c = 0; c < S.brickVolume; ++c)
-            if (b[c] < mCap) {
-                const int x = (i << kBrickLog2) | (c & kBMask), y = (j << kBrickLog2) | ((c >> 3) & kBMask),
-                          z = (k << kBrickLog2) | (c >> 6);
-                level[b[c]].push_back(int64_t(packKey(x, y, z)));
-            }
-    }
-    BrickCursor here(S), there(S);
-    for (int d = 0; d + 1 < mCap; ++d) {
-        auto& list = level[size_t(d)];
-        for (size_t q = 0; q < list.size(); ++q) {
-            const int64_t u = list[q];
-            const int x = int(u & m), y = int((u >> 21) & m), z = int(u >> 42);
-            if (here.get(x, y, z) != d) continue;
-            for (const auto& o : mNbr) {
-                const int i = x + o.x(), j = y + o.y(), k = z + o.z();
-                if (i < 0 || j < 0 || k < 0 || i >= mNx || j >= mNy || k >= mNz) continue;
-                if (there.get(i, j, k) > d + 1) {
-                    there.set(i, j, k, d + 1);
-                    level[size_t(d) + 1].push_back(int64_t(packKey(i, j, k)));
-                }
-            }
-        }
-        list.clear();
-        list.shrink_to_fit();
-    }
+    repairAround(S, melted, mCap, mDim, mNbr, mNx, mNy, mNz);
 }
 
 double DlaEngine::stickingProbability(const Inputs& in, int64_t cell) const
@@ -578,6 +705,12 @@ int64_t DlaEngine::release(int64_t step, uint64_t walker, WalkerRng& rng, const 
             }
             cell = int64_t(packKey(x, y, z));
         }
+        // a block at block distance >= 1 holds no ice (the block bricks are few and cached)
+        if (mSparse->coarseOn) {
+            const int64_t m = (int64_t(1) << 21) - 1;
+            if (mSparse->coarse.fine(int(cell & m) >> kCoarseLog2, int((cell >> 21) & m) >> kCoarseLog2, 0) > 0)
+                return cell;
+        }
         if (!isIce(cell)) return cell;
     }
     return -1;
@@ -600,6 +733,20 @@ struct DlaEngine::Walker {
             brick = S.brick(ci, cj, ck);
         }
         return brick ? brick[cellInBrick(i, j, k)] : S.cap;
+    }
+    /// The block distance of the block holding cell (i, j) (planes).
+    int cbx = -1, cby = -1;
+    const uint8_t* cbrick = nullptr;
+    int block(int i, int j)
+    {
+        const int bi = i >> kCoarseLog2, bj = j >> kCoarseLog2;
+        const int ci = bi >> kBrickLog2, cj = bj >> kBrickLog2;
+        if (ci != cbx || cj != cby) {
+            cbx = ci;
+            cby = cj;
+            cbrick = S.coarse.brick(ci, cj, 0);
+        }
+        return cbrick ? cbrick[cellInBrick(bi, bj, 0)] : S.coarse.cap;
     }
 };
 
@@ -670,8 +817,13 @@ WalkEnd DlaEngine::walkFrom(WalkerRng& rng, int64_t idx, const Inputs& in, Probe
     const bool spheres = P.jumps && P.sphereJumps && !(dim == 3 && mDomain.lattice().kind() == LatticeKind::Hexagonal);
     const int sphereMin = std::max(maxR, P.jumpMinRadius);
     const bool hex = mDomain.lattice().kind() == LatticeKind::Hexagonal;
-    const auto xform = mDomain.transform();
+    // the transform only when a velocity needs it (a shared_ptr copy per walk is two atomic
+    // operations on one cache line that both threads write)
+    openvdb::math::Transform::Ptr xform;
+    if (drift && !in.velOnDomainTransform) xform = mDomain.transform();
     const bool anyIce = mIceCount > 0;
+    const bool coarse = mSparse->coarseOn;
+    const int coarseSlack = mSparse->coarseSlack;
     int levelHint = -1; // the pyramid level of the last bound
 
     auto abs = [&](int i, int j, int k) { return openvdb::Coord(i + o0.x(), j + o0.y(), k + o0.z()); };
@@ -693,7 +845,11 @@ WalkEnd DlaEngine::walkFrom(WalkerRng& rng, int64_t idx, const Inputs& in, Probe
     auto key = [&](int i, int j, int k) { return int64_t(packKey(i, j, k)); };
 
     for (;;) {
-        const int f = W.fine(x, y, z);
+        // The block distance first: where it puts the ice beyond the cap, the cell distance is
+        // the cap without a probe of the (many, mostly uncached) cell bricks; the block bricks
+        // are 16 times fewer and cover 32x32 cells each.
+        const int db = coarse ? W.block(x, y) : 0;
+        const int f = coarse && kCoarse * db - coarseSlack >= cap ? cap : W.fine(x, y, z);
         if (f == 1) { // next to ice: the sticking roll
             double s = 1.0;
             if (meltAcc) s = double(meltAcc->getValue(abs(x, y, z)));
@@ -716,7 +872,20 @@ WalkEnd DlaEngine::walkFrom(WalkerRng& rng, int64_t idx, const Inputs& in, Probe
         if ((maxR > 0 || spheres) && f >= P.jumpMinRadius + 2) {
             // exact lattice (graph) distance below the cap, else the pyramid's Chebyshev bound
             const bool exact = f < cap;
-            const int dIce = exact ? f : std::max(cap, mSparse->bound(x, y, z, anyIce, levelHint));
+            int dIce;      // a lower bound of the lattice (graph) distance to the ice
+            int cheb = -1; // a Chebyshev bound from the pyramid, when one was read
+            if (exact) {
+                dIce = f;
+            } else if (coarse) {
+                // the block distance; beyond its cap the pyramid's Chebyshev bound as well
+                dIce = std::max(cap, kCoarse * db - coarseSlack);
+                if (db >= kCoarseCap) {
+                    cheb = std::max(cap, mSparse->bound(x, y, z, anyIce, levelHint));
+                    dIce = std::max(dIce, cheb);
+                }
+            } else {
+                dIce = std::max(cap, mSparse->bound(x, y, z, anyIce, levelHint));
+            }
             int dOut = 1 + std::min(std::min(x, nx - 1 - x), std::min(y, ny - 1 - y));
             if (dim == 3) dOut = std::min(dOut, 1 + std::min(z, nz - 1 - z));
             // interior of the ball inside the domain (r <= dOut), no cell of it next to ice and the
@@ -736,8 +905,18 @@ WalkEnd DlaEngine::walkFrom(WalkerRng& rng, int64_t idx, const Inputs& in, Probe
             // beyond the largest table: a circle (sphere) of plane radius rho whose cells, with a
             // cell of rounding, stay 2 away from the ice and inside the domain. A graph distance
             // covers a disc of radius d / mGraphScale, a Chebyshev bound one of d / mSphereScale.
-            const double rhoIce = double(dIce - 3) / (exact ? mGraphScale : mSphereScale);
-            const double rho = std::min(std::min(rhoMax, rhoIce), double(dOut - 1) / mSphereScale);
+            // Both scales are >= 1, so no circle is larger than dIce - 3: the divisions only
+            // where a circle can beat the tables.
+            double rho = 0;
+            if (spheres && dIce - 3 > sphereMin) {
+                double rhoIce;
+                if (exact || !coarse) rhoIce = double(dIce - 3) / (exact ? mGraphScale : mSphereScale);
+                else {
+                    rhoIce = double(std::max(cap, kCoarse * db - coarseSlack) - 3) / mGraphScale;
+                    if (cheb >= 0) rhoIce = std::max(rhoIce, double(cheb - 3) / mSphereScale);
+                }
+                rho = std::min(std::min(rhoMax, rhoIce), double(dOut - 1) / mSphereScale);
+            }
             double jumpSteps = 0;
             if (spheres && rho > double(sphereMin)) {
                 const double u = rng.uniform(), w = rng.uniform();
@@ -766,12 +945,11 @@ WalkEnd DlaEngine::walkFrom(WalkerRng& rng, int64_t idx, const Inputs& in, Probe
                 const int ti = r >= P.jumpMinRadius ? mTableForRadius[size_t(r)] : -1;
                 if (ti >= 0) {
                     const ShellTable& t = *mTables[size_t(ti)];
-                    uint32_t k = t.sample(rng.next());
+                    openvdb::Coord o = t.sampleExit(rng.next());
                     if (P.testJumpBias > 0 && rng.uniform() < P.testJumpBias) {
-                        const uint32_t k2 = t.sample(rng.next());
-                        if (t.exits[k2].x() > t.exits[k].x()) k = k2;
+                        const openvdb::Coord o2 = t.sampleExit(rng.next());
+                        if (o2.x() > o.x()) o = o2;
                     }
-                    const openvdb::Coord& o = t.exits[k];
                     x += o.x();
                     y += o.y();
                     z += o.z();

@@ -148,6 +148,17 @@ std::shared_ptr<ShellTable> computeShell(const std::vector<openvdb::Coord>& nbr,
     t->aliasThreshold.resize(m);
     for (size_t i = 0; i < m; ++i)
         t->aliasThreshold[i] = aliasProb[i] >= 1.0 ? 0xFFFFFFFFu : uint32_t(std::ldexp(aliasProb[i], 32));
+    t->slots.resize(m);
+    for (size_t i = 0; i < m; ++i) {
+        ShellTable::Slot& s = t->slots[i];
+        s.threshold = t->aliasThreshold[i];
+        const openvdb::Coord& a = t->exits[i];
+        const openvdb::Coord& b = t->exits[t->alias[i]];
+        for (int c = 0; c < 3; ++c) {
+            s.keep[c] = int16_t(a[c]);
+            s.other[c] = int16_t(b[c]);
+        }
+    }
     return t;
 }
 

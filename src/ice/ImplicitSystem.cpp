@@ -17,9 +17,13 @@ inline int nbIndex(int dx, int dy, int dz) { return (dz + 1) * 9 + (dy + 1) * 3 
 } // namespace
 
 SlotLayout::SlotLayout(openvdb::tree::LeafManager<openvdb::FloatTree>& topology, const Stencil& stencil,
-                       bool flat)
+                       bool flat, SlotLayout* recycle)
     : plane(flat), slots(flat ? 64 : 512)
 {
+    if (recycle) {
+        slotRow.swap(recycle->slotRow);
+        neighbours.swap(recycle->neighbours);
+    }
     const size_t nLeaves = topology.leafCount();
     colours = stencil.hexagonal ? 3 : 2;
     taps = int(stencil.taps.size());
@@ -60,9 +64,10 @@ SlotLayout::SlotLayout(openvdb::tree::LeafManager<openvdb::FloatTree>& topology,
         colourStart[size_t(colours)] = row;
     }
     const size_t n = colourStart[size_t(colours)];
-    rowCoord.resize(n);
-    colour.resize(n);
-    slotRow.assign(nLeaves * size_t(slots), -1);
+    rows = n;
+    // sized only: each leaf's slots are set to -1 by the leaf's own task below, and every
+    // neighbour entry is written
+    slotRow.resize(nLeaves * size_t(slots));
     neighbours.resize(n * size_t(taps));
 
     // Leaf origin -> index through a dense table over the leaves' bounding box (in leaf units):
@@ -91,12 +96,11 @@ SlotLayout::SlotLayout(openvdb::tree::LeafManager<openvdb::FloatTree>& topology,
             size_t next[3];
             for (int c = 0; c < colours; ++c) next[c] = firstRow[li * colours + c];
             int32_t* slot = &slotRow[li * size_t(slots)];
+            std::fill(slot, slot + slots, -1);
             forActive(li, [&](openvdb::Index off, const openvdb::Coord& c) {
                 const uint8_t k = colourOf(c);
                 const size_t row = next[k]++;
                 slot[off >> slotShift] = int32_t(row);
-                rowCoord[row] = c;
-                colour[row] = k;
             });
         }
     });
@@ -153,6 +157,7 @@ ImplicitSystem::ImplicitSystem(const SlotLayout& layout, ImplicitSystem& recycle
     scale.swap(recycle.scale);
     rhs.swap(recycle.rhs);
     coef.swap(recycle.coef); // kept in use when it was: useCoefficients() sizes it
+    mNext.swap(recycle.mNext);
     mUniform = recycle.mUniform;
     mUniformDiag = recycle.mUniformDiag;
     mUniformScale = recycle.mUniformScale;
@@ -188,8 +193,8 @@ SolveReport ImplicitSystem::gaussSeidel(double tolerance, int maxIterations)
     // their rows are adjacent, one range.
     const bool pairLast = mL.colours == 3;
     const auto& cs = mL.colourStart;
-    std::vector<double> next;
-    if (pairLast) next.resize(cs[3] - cs[1]);
+    std::vector<double>& next = mNext; // every entry is written before it is read
+    if (pairLast && next.size() < cs[3] - cs[1]) next.resize(cs[3] - cs[1]);
     // The update of row i from the current x; returns its residual before the update.
     auto relaxRows = [&](size_t begin, size_t end, double* out, double mx) {
         if (mUniform) {

@@ -790,6 +790,68 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
     T = tNew;
 }
 
+namespace {
+
+/// The part of a plane block that the second-order rows of a group read: the box of the
+/// group's present leaves and kHalo cells around it, in block cells [x0, x1) x [y0, y1) (the
+/// whole block in a box). A group at the region's edge often holds one or two of its 16 leaves;
+/// gathering and extrapolating only this part gives the same values wherever they are read.
+struct BlockRect {
+    int x0 = 0, x1 = 0, y0 = 0, y1 = 0;
+};
+
+BlockRect presentRect(const Block& b, const openvdb::Coord& groupOrigin, const FloatLeaf* const* leaves, size_t count)
+{
+    BlockRect r{0, b.bx, 0, b.by};
+    if (!b.plane || count == 0) return r;
+    const openvdb::Coord bo = b.origin(groupOrigin);
+    r = {b.bx, 0, b.by, 0};
+    for (size_t q = 0; q < count; ++q) {
+        const openvdb::Coord o = leaves[q]->origin() - bo; // kHalo + 8 * leaf index in the group
+        r.x0 = std::min(r.x0, o.x() - kHalo);
+        r.x1 = std::max(r.x1, o.x() + kDim + kHalo);
+        r.y0 = std::min(r.y0, o.y() - kHalo);
+        r.y1 = std::max(r.y1, o.y() + kDim + kHalo);
+    }
+    return r;
+}
+
+/// gather() on the cells of @a rect only (planes; boxes take the whole block).
+void gatherRect(const ConstAcc& acc, const Block& b, const openvdb::Coord& groupOrigin, int z0, const BlockRect& rect,
+                std::vector<float>& out)
+{
+    if (!b.plane) {
+        gather(acc, b, groupOrigin, z0, out);
+        return;
+    }
+    const openvdb::Coord bo = b.origin(groupOrigin);
+    auto floor8 = [](int v) { return v & ~(kDim - 1); };
+    const int zLeaf = floor8(z0);
+    const int gx0 = bo.x() + rect.x0, gx1 = bo.x() + rect.x1, gy0 = bo.y() + rect.y0, gy1 = bo.y() + rect.y1;
+    for (int lyo = floor8(gy0); lyo < gy1; lyo += kDim)
+        for (int lxo = floor8(gx0); lxo < gx1; lxo += kDim) {
+            const openvdb::Coord lo(lxo, lyo, zLeaf);
+            const int x0 = std::max(lxo, gx0), x1 = std::min(lxo + kDim, gx1);
+            const int y0 = std::max(lyo, gy0), y1 = std::min(lyo + kDim, gy1);
+            if (const FloatLeaf* leaf = acc.probeConstLeaf(lo)) {
+                const float* buf = leaf->buffer().data();
+                for (int y = y0; y < y1; ++y) {
+                    float* dst = &out[b.index(x0 - bo.x(), y - bo.y(), 0)];
+                    const float* src = buf + ((((x0 & 7) << 6) | ((y & 7) << 3) | (z0 & 7)));
+                    for (int x = x0; x < x1; ++x, src += 64) *dst++ = *src;
+                }
+            } else {
+                const float v = acc.getValue(lo);
+                for (int y = y0; y < y1; ++y) {
+                    float* dst = &out[b.index(x0 - bo.x(), y - bo.y(), 0)];
+                    for (int x = x0; x < x1; ++x) *dst++ = v;
+                }
+            }
+        }
+}
+
+} // namespace
+
 void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvdb::FloatGrid& T,
                                        openvdb::tree::LeafManager<openvdb::FloatTree>& pLeaves,
                                        openvdb::tree::LeafManager<openvdb::FloatTree>& tLeaves,
@@ -802,7 +864,8 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
     const Stencil stencil = mDomain.stencil();
     // The layout depends only on the region's topology: built once per region.
     if (!mLayout || mLayoutGeneration != mGeneration) {
-        mLayout = std::make_unique<SlotLayout>(pLeaves, stencil, plane);
+        // last step's layout lends its arrays (the systems that refer to it only lend theirs below)
+        mLayout = std::make_unique<SlotLayout>(pLeaves, stencil, plane, mLayout.get());
         mLayoutGeneration = mGeneration;
     }
     const SlotLayout& layout = *mLayout;
@@ -849,28 +912,39 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
                 const size_t first = groups.start[g], count = groups.start[g + 1] - first;
                 for (size_t q = 0; q < count; ++q) present[q] = &pLeaves.leaf(groups.leaves[first + q]);
                 markNeeded(b, origin, present, count);
-                gather(pAcc, b, origin, z0, b.p);
-                gather(tAcc, b, origin, z0, b.T);
-                if (mAcc) gather(*mAcc, b, origin, z0, b.melt);
+                const BlockRect rect = presentRect(b, origin, present, count);
+                gatherRect(pAcc, b, origin, z0, rect, b.p);
+                gatherRect(tAcc, b, origin, z0, rect, b.T);
+                if (mAcc) gatherRect(*mAcc, b, origin, z0, rect, b.melt);
+                // the block loops below: the rows of the rectangle (all of the block in a box)
+                auto forRect = [&](auto&& f) {
+                    for (int z = 0; z < b.bz; ++z)
+                        for (int y = rect.y0; y < rect.y1; ++y) {
+                            const size_t row = b.index(0, y, z);
+                            f(row + size_t(rect.x0), row + size_t(rect.x1));
+                        }
+                };
                 // cx, cy are free in this scheme and hold the increments since the last step's
                 // start, p - p^{n-1}: the last step's own change plus whatever other effects did
                 // since (a walker froze the cell, the flow carried heat), so the extrapolation
                 // starts from the p the step really sees (the last step's dp alone, after a walker
                 // set p = 1, put the reaction's tangent at the old p and pushed p to 1.013).
                 if (dpAcc) {
-                    gather(*dpAcc, b, origin, z0, incP);
-                    for (size_t i = 0; i < incP.size(); ++i) incP[i] = b.p[i] - incP[i];
+                    gatherRect(*dpAcc, b, origin, z0, rect, incP);
+                    forRect([&](size_t i0, size_t i1) { for (size_t i = i0; i < i1; ++i) incP[i] = b.p[i] - incP[i]; });
                 } else std::fill(incP.begin(), incP.end(), 0.f);
                 if (dtAcc) {
-                    gather(*dtAcc, b, origin, z0, incT);
-                    for (size_t i = 0; i < incT.size(); ++i) incT[i] = b.T[i] - incT[i];
+                    gatherRect(*dtAcc, b, origin, z0, rect, incT);
+                    forRect([&](size_t i0, size_t i1) { for (size_t i = i0; i < i1; ++i) incT[i] = b.T[i] - incT[i]; });
                 } else std::fill(incT.begin(), incT.end(), 0.f);
                 // pf (in gz, free in this scheme): p extrapolated to the end of the step.
-                for (size_t i = 0; i < b.p.size(); ++i) {
-                    b.pe[i] = std::min(1.f, std::max(0.f, b.p[i] + extrapolate * incP[i]));
-                    b.te[i] = b.T[i] + extrapolate * incT[i];
-                    b.gz[i] = std::min(1.f, std::max(0.f, b.p[i] + extrapolate / float(theta) * incP[i]));
-                }
+                forRect([&](size_t i0, size_t i1) {
+                    for (size_t i = i0; i < i1; ++i) {
+                        b.pe[i] = std::min(1.f, std::max(0.f, b.p[i] + extrapolate * incP[i]));
+                        b.te[i] = b.T[i] + extrapolate * incT[i];
+                        b.gz[i] = std::min(1.f, std::max(0.f, b.p[i] + extrapolate / float(theta) * incP[i]));
+                    }
+                });
                 // eps^2 of the extrapolated phase on the cells the rows read (the voxels and their
                 // ring, for its gradient).
                 {
@@ -885,7 +959,11 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
                         meltTemperatureAt(k, b, i, mMelt != nullptr), chi, theta);
                     const size_t s = size_t(layout.rowAt(li, n));
                     ps.diag[s] = row.diag;
-                    std::copy(row.coef, row.coef + taps, &ps.coef[s * size_t(taps)]);
+                    // fixed-length copies: a memcpy call per row cost 3 % of the run
+                    double* coefOut = &ps.coef[s * size_t(taps)];
+                    if (taps == 6) for (int q = 0; q < 6; ++q) coefOut[q] = row.coef[q];
+                    else if (taps == 4) for (int q = 0; q < 4; ++q) coefOut[q] = row.coef[q];
+                    else std::copy(row.coef, row.coef + taps, coefOut);
                     ps.rhs[s] = row.rhs;
                     ps.x[s] = row.predictor;
                     p0[s] = b.p[i];
@@ -967,6 +1045,10 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
             float* dtv = dtLeaves.leaf(li).buffer().data();
             FloatLeaf* gl = acc.growth ? acc.growth->probeLeaf(pl.origin()) : nullptr;
             FloatLeaf* fl = acc.freeze ? acc.freeze->probeLeaf(pl.origin()) : nullptr;
+            // The accumulator leaves' buffers and masks directly (what Accumulators::record does
+            // through the leaf's per-voxel accessors, whose buffer checks cost more than the add).
+            float* gv = gl ? gl->buffer().data() : nullptr;
+            float* fv = fl ? fl->buffer().data() : nullptr;
             // word by word over the value mask (the value iterator and its coordinates cost
             // more than the writes); coordinates only where they are needed
             const auto& mask = pl.getValueMask();
@@ -982,7 +1064,20 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
                 const double dp = ps.x[s] - p0[s];
                 dpv[n] = float(p0[s]);
                 dtv[n] = float(T0[s]);
-                acc.record(gl, fl, n, pl.offsetToGlobalCoord(n), dp, pn, tn1, pending);
+                if (acc.growth && dp > 0) {
+                    if (gv) {
+                        gv[n] = gv[n] + float(dp);
+                        gl->getValueMask().setOn(n);
+                    } else acc.queue(pending).push_back({pl.offsetToGlobalCoord(n), float(dp), true});
+                }
+                if (acc.freeze && pn > 0.5f) {
+                    if (fv) {
+                        if (!fl->getValueMask().isOn(n)) {
+                            fv[n] = tn1;
+                            fl->getValueMask().setOn(n);
+                        }
+                    } else acc.queue(pending).push_back({pl.offsetToGlobalCoord(n), tn1, false});
+                }
               }
             }
         }

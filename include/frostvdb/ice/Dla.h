@@ -103,6 +103,20 @@ struct ShellTable {
         const uint32_t i = uint32_t(((a >> 32) * uint64_t(exits.size())) >> 32);
         return uint32_t(a) < aliasThreshold[i] ? i : alias[i];
     }
+    /// The alias table with both candidate exits of each slot beside its threshold: a draw reads
+    /// one 16-byte slot, not three arrays at three places (the walkers' jumps are cache misses).
+    struct Slot {
+        uint32_t threshold;
+        int16_t keep[3], other[3]; ///< exits[i] and exits[alias[i]]
+    };
+    std::vector<Slot> slots;
+    /// exits[sample(a)], from the packed slots.
+    openvdb::Coord sampleExit(uint64_t a) const
+    {
+        const Slot& s = slots[size_t(((a >> 32) * uint64_t(slots.size())) >> 32)];
+        const int16_t* o = uint32_t(a) < s.threshold ? s.keep : s.other;
+        return openvdb::Coord(o[0], o[1], o[2]);
+    }
 };
 
 /// The table for a neighbour set and radius, computed once per process and cached.
@@ -156,7 +170,7 @@ public:
     /// distances: flush before walking.
     void freezeDeferred(int64_t cell);
     void flushDistances();
-    bool distancesPending() const { return !mQueue.empty(); }
+    bool distancesPending() const;
     bool isIce(int64_t cell) const;
     /// Lattice distance to the nearest ice: exact below distanceCap(), a lower bound above.
     int iceDistance(const openvdb::Coord& c) const;
@@ -216,6 +230,8 @@ public:
 private:
     void rebuild(const openvdb::FloatGrid& p);
     void relaxQueue();
+    /// Brings the block distances in line with the blocks that gained or lost their ice.
+    void flushCoarse();
     /// Takes melted cells out of the ice and repairs the distances around them.
     void repairMelted(const std::vector<int64_t>& melted);
     int64_t release(int64_t step, uint64_t walker, WalkerRng& rng, const Inputs& in) const;
@@ -228,7 +244,7 @@ private:
     int64_t mNx, mNy, mNz;
     int mDim;
     std::vector<openvdb::Coord> mNbr;
-    int mCap = 32;              ///< exact distances below this (32 on a plane, 10 in a box)
+    int mCap = 16;              ///< exact distances below this (16 on a plane, 10 in a box)
     double mSphereScale = 1.0;  ///< index Chebyshev reach of a unit plane displacement
     double mGraphScale = 1.0;   ///< lattice (graph) distance reach of a unit plane displacement
     uint64_t mIceCount = 0;

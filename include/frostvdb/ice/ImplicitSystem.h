@@ -56,9 +56,12 @@ struct SolveReport {
 /// per region topology, shared by the p and T systems.
 class SlotLayout {
 public:
-    SlotLayout(openvdb::tree::LeafManager<openvdb::FloatTree>& topology, const Stencil& stencil, bool plane);
+    /// @a recycle: last step's layout, whose arrays are taken over (the neighbour table is
+    /// then not zero-filled and its pages not faulted in again; every entry is written).
+    SlotLayout(openvdb::tree::LeafManager<openvdb::FloatTree>& topology, const Stencil& stencil, bool plane,
+               SlotLayout* recycle = nullptr);
 
-    size_t rowCount() const { return rowCoord.size(); }
+    size_t rowCount() const { return rows; }
     /// Row of active voxel @a c of leaf @a leaf.
     int32_t row(size_t leaf, const openvdb::Coord& c) const
     {
@@ -77,9 +80,10 @@ public:
     int taps = 0;
     std::vector<double> weights;          ///< Laplacian weight of each tap
     std::vector<int32_t> slotRow;         ///< per leaf slot: its row, or -1
-    std::vector<openvdb::Coord> rowCoord; ///< per row
+    size_t rows = 0;                      ///< active voxels (no per-row coordinates or colours are
+                                          ///< kept: rebuilt every step where walkers write p, and
+                                          ///< nothing reads them)
     std::vector<int32_t> neighbours;      ///< taps per row: neighbour row, or rowCount() outside
-    std::vector<uint8_t> colour;          ///< per row
     std::vector<size_t> colourStart;      ///< colour c owns rows [colourStart[c], colourStart[c+1])
 };
 
@@ -153,6 +157,9 @@ private:
     SolveReport bicgstab(double tolerance, int maxIterations);
 
     const SlotLayout& mL;
+    /// Gauss-Seidel scratch for the hexagonal colours 1 and 2 (kept between steps with the
+    /// other arrays: sized and zero-filled once, not every solve)
+    std::vector<double> mNext;
     bool mUniform = false, mRecycled = false;
     double mUniformDiag = 1.0, mUniformScale = 0.0;
 };
