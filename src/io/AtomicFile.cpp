@@ -111,29 +111,22 @@ void AtomicFile::fail(const std::string& what, int err)
 void AtomicFile::write(const void* data, size_t bytes)
 {
     if (mFd < 0) throw WriteError(mPath, "file already closed");
-    const char* p = static_cast<const char*>(data);
-    while (bytes > 0) {
-        if (int err = injectedFault(mPath, mWritten)) fail("", err);
-        const ssize_t n = ::write(mFd, p, std::min<size_t>(bytes, size_t(1) << 30));
-        if (n < 0) {
-            if (errno == EINTR) continue;
-            fail("", errno);
-        }
-        if (n == 0) fail("", EIO);
-        p += n;
-        bytes -= size_t(n);
-        mWritten += size_t(n);
-    }
+    writeRange(static_cast<const char*>(data), bytes, nullptr);
 }
 
 void AtomicFile::writeAt(size_t offset, const void* data, size_t bytes)
 {
     if (mFd < 0) throw WriteError(mPath, "file already closed");
     if (offset + bytes > mWritten) throw WriteError(mPath, "rewrite past the end of what was written");
-    const char* p = static_cast<const char*>(data);
+    writeRange(static_cast<const char*>(data), bytes, &offset);
+}
+
+void AtomicFile::writeRange(const char* p, size_t bytes, size_t* offset)
+{
     while (bytes > 0) {
-        if (int err = injectedFault(mPath, offset)) fail("", err);
-        const ssize_t n = ::pwrite(mFd, p, std::min<size_t>(bytes, size_t(1) << 30), off_t(offset));
+        if (int err = injectedFault(mPath, offset ? *offset : mWritten)) fail("", err);
+        const size_t chunk = std::min<size_t>(bytes, size_t(1) << 30);
+        const ssize_t n = offset ? ::pwrite(mFd, p, chunk, off_t(*offset)) : ::write(mFd, p, chunk);
         if (n < 0) {
             if (errno == EINTR) continue;
             fail("", errno);
@@ -141,7 +134,8 @@ void AtomicFile::writeAt(size_t offset, const void* data, size_t bytes)
         if (n == 0) fail("", EIO);
         p += n;
         bytes -= size_t(n);
-        offset += size_t(n);
+        if (offset) *offset += size_t(n);
+        else mWritten += size_t(n);
     }
 }
 

@@ -54,6 +54,8 @@ public:
 
 private:
     void fail(const std::string& what, int err);
+    /// Writes with every return checked: appended (@a offset null) or at *@a offset (advanced).
+    void writeRange(const char* p, size_t bytes, size_t* offset);
     std::string mPath, mTmp;
     int mFd = -1;
     int mSlot = -1;
