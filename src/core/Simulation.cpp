@@ -386,7 +386,7 @@ std::string Simulation::writeFrame(Frame&& frame, const std::string& dir)
     // dropped, and its source with it, so a large frame never holds all its output grids.
     const std::string path = framePath(dir, mWorld.sceneName, frame.frame);
     writeVdbStreamed(path, frame.grids.size(), [&](size_t i) {
-        openvdb::GridBase::Ptr g = exportGrid(frame.grids[i], mWorld.domain, mOutput.keepLattice);
+        openvdb::GridBase::Ptr g = exportGrid(frame.grid(i), mWorld.domain, mOutput.keepLattice);
         frame.grids[i].reset();
         if (worldScale != 1.0) { // a shallow copy: the frame's own grid keeps its transform
             auto x = g->transform().copy();
@@ -654,6 +654,7 @@ void Simulation::writeFrameOutputs(int64_t f, int64_t last, const std::string& d
     const std::vector<std::string> displacement = writeDisplacement(frame, dir);
     std::string preview;
     if (mOutput.preview && (mOutput.previewEvery || f == last)) preview = writeFramePreview(frame, f, dir);
+    frame.dropCopies(); // made again one at a time as the VDB is written
     if (mOutput.vdb) sum.files.push_back(writeFrame(std::move(frame), dir));
     for (const auto& png : displacement) sum.files.push_back(png);
     ++sum.framesWritten;

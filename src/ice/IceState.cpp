@@ -50,14 +50,13 @@ void recordPhaseChange(openvdb::FloatGrid::Accessor& growth, openvdb::FloatGrid:
     if (before <= 0.5f && after > 0.5f && freeze.getValue(c) == 0.f) freeze.setValue(c, float(time));
 }
 
-void addIceOutputs(World& world, Frame& frame)
+namespace {
+
+/// The frame's `ice`: p as a fog volume (values in [0,1], background 0, nothing stored where
+/// there is no ice).
+openvdb::GridBase::Ptr iceFog(const openvdb::FloatGrid& p)
 {
-    for (const auto& g : frame.grids)
-        if (g->getName() == out::kIce.name) return;
-    auto p = world.fields.get<openvdb::FloatGrid>(kPhase);
-    if (!p) return;
-    auto ice = p->deepCopy();
-    // Fog volume: values in [0,1], background 0, nothing stored where there is no ice.
+    auto ice = p.deepCopy();
     // Per leaf: switching voxels off writes the leaf's mask words, which a voxel-parallel
     // foreach raced on (the frame's topology then varied from run to run).
     auto clampToFog = [](auto& it) {
@@ -75,7 +74,33 @@ void addIceOutputs(World& world, Frame& frame)
     openvdb::tools::pruneInactive(ice->tree());
     ice->setName("ice");
     ice->setGridClass(openvdb::GRID_FOG_VOLUME);
-    frame.add(ice);
+    return ice;
+}
+
+/// The frame's `growth`: growth_acc normalised to [0,1] (the paper's displacement map).
+openvdb::GridBase::Ptr normalisedGrowth(const openvdb::FloatGrid& acc)
+{
+    auto growth = acc.deepCopy();
+    const float mx = growth->activeVoxelCount() > 0 ? openvdb::tools::minMax(growth->tree()).max() : 0.f;
+    const float scale = mx > 0 ? 1.f / mx : 0.f;
+    openvdb::tools::foreach(growth->beginValueOn(), [scale](const openvdb::FloatGrid::ValueOnIter& it) {
+        it.setValue(std::min(1.f, *it * scale));
+    });
+    growth->setName("growth");
+    return growth;
+}
+
+} // namespace
+
+void addIceOutputs(World& world, Frame& frame)
+{
+    for (const auto& g : frame.grids)
+        if (g->getName() == out::kIce.name) return;
+    auto p = world.fields.get<openvdb::FloatGrid>(kPhase);
+    if (!p) return;
+    // Copies of live fields: the writer may drop them and make them again when it writes them
+    // (the fields do not change in between), so a frame being written holds one at a time.
+    frame.addCopy(iceFog(*p), [p] { return iceFog(*p); });
 
     if (auto T = world.fields.get<openvdb::FloatGrid>(kTemperature)) {
         // Shares T's tree (the largest grid: the heat's halo): the frame is written before the
@@ -85,16 +110,8 @@ void addIceOutputs(World& world, Frame& frame)
         temperature->setGridClass(openvdb::GRID_UNKNOWN);
         frame.add(temperature);
     }
-    if (auto acc = world.fields.get<openvdb::FloatGrid>(kGrowth)) {
-        auto growth = acc->deepCopy();
-        const float mx = growth->activeVoxelCount() > 0 ? openvdb::tools::minMax(growth->tree()).max() : 0.f;
-        const float scale = mx > 0 ? 1.f / mx : 0.f;
-        openvdb::tools::foreach(growth->beginValueOn(), [scale](const openvdb::FloatGrid::ValueOnIter& it) {
-            it.setValue(std::min(1.f, *it * scale));
-        });
-        growth->setName("growth");
-        frame.add(growth);
-    }
+    if (auto acc = world.fields.get<openvdb::FloatGrid>(kGrowth))
+        frame.addCopy(normalisedGrowth(*acc), [acc] { return normalisedGrowth(*acc); });
     if (auto f = world.fields.get<openvdb::FloatGrid>(kFreezeTime)) {
         // Shares the field's tree, as T does: its writers copy a shared tree first (ownTree).
         auto freeze = openvdb::gridPtrCast<openvdb::FloatGrid>(f->copyGrid());

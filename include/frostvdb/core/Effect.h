@@ -92,6 +92,34 @@ struct Frame {
     double time = 0.0;  ///< simulation time of the first effect with a clock
     openvdb::GridPtrVec grids;
     void add(openvdb::GridBase::Ptr g) { grids.push_back(std::move(g)); }
+    /// Adds @a g, a copy of a live field that @a again makes anew. The frame writer drops such a
+    /// grid once the PNGs are drawn and makes it again just before writing it into the VDB, so a
+    /// frame of a large domain holds one such copy at a time. A grid another effect replaced in
+    /// `grids` is not the one made here and is kept as it is.
+    void addCopy(openvdb::GridBase::Ptr g, std::function<openvdb::GridBase::Ptr()> again)
+    {
+        remake.resize(grids.size());
+        made.resize(grids.size(), nullptr);
+        made.push_back(g.get());
+        remake.push_back(std::move(again));
+        grids.push_back(std::move(g));
+    }
+    /// Drops the grids addCopy made that can be made again (still the grids it made).
+    void dropCopies()
+    {
+        for (size_t i = 0; i < remake.size(); ++i)
+            if (remake[i] && grids[i] && grids[i].get() == made[i]) grids[i].reset();
+    }
+    /// Grid @a i, made again if dropCopies dropped it.
+    openvdb::GridBase::Ptr grid(size_t i)
+    {
+        if (!grids[i] && i < remake.size() && remake[i]) grids[i] = remake[i]();
+        return grids[i];
+    }
+
+private:
+    std::vector<std::function<openvdb::GridBase::Ptr()>> remake; ///< per grid; empty: not remakeable
+    std::vector<const openvdb::GridBase*> made;                  ///< the grid addCopy made
 };
 
 /// Where an effect runs in a step: the ice paper's order (section 4), after the sources whose
