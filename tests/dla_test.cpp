@@ -106,6 +106,26 @@ std::string modesText(const std::vector<double>& m)
     return os.str();
 }
 
+/// A reproducible stream of integers in [0, n) for the random-ice tests (a 64-bit LCG).
+struct Draw {
+    uint64_t h;
+    int operator()(int n)
+    {
+        h = h * 6364136223846793005ull + 1442695040888963407ull;
+        return int((h >> 33) % uint64_t(n));
+    }
+};
+
+/// Sets p = 1 on @a length cells from @a c along @a axis (clamped at n - 1: the last cell may
+/// repeat) and records each cell set in @a ice.
+void iceSegment(openvdb::FloatGrid& p, openvdb::Coord c, int axis, int length, int n, std::vector<openvdb::Coord>& ice)
+{
+    for (int l = 0; l < length; ++l, c[axis] = std::min(c[axis] + 1, n - 1)) {
+        p.tree().setValue(c, 1.f);
+        ice.push_back(c);
+    }
+}
+
 } // namespace
 
 TEST_CASE("Hexagonal DLA grows 6 arms and square DLA 4 arms", "[fast][dla]")
@@ -395,16 +415,12 @@ TEST_CASE("Melted ice repairs the walker distances to those of a rebuild from th
         auto p = openvdb::FloatGrid::create(0.f);
         ice::DlaParams prm;
         ice::DlaEngine eng(dom, prm, 5);
-        uint64_t h = 12345;
-        auto draw = [&](int n) { h = h * 6364136223846793005ull + 1442695040888963407ull; return int((h >> 33) % uint64_t(n)); };
+        Draw draw{12345};
         std::vector<openvdb::Coord> ice;
         for (int round = 0; round < 6; ++round) {
             for (int a = 0; a < 60; ++a) { // new ice: short random segments
-                openvdb::Coord c(draw(cs.n), draw(cs.n), cs.box ? draw(cs.n) : 0);
-                for (int l = 0; l < 5; ++l, c.x() = std::min(c.x() + 1, cs.n - 1)) {
-                    p->tree().setValue(c, 1.f);
-                    ice.push_back(c);
-                }
+                const int x = draw(cs.n), y = draw(cs.n);
+                iceSegment(*p, openvdb::Coord(x, y, cs.box ? draw(cs.n) : 0), 0, 5, cs.n, ice);
             }
             for (int a = 0; a < 8 && round > 0; ++a) // melts: p falls to 0.3 (still active)
                 p->tree().setValue(ice[size_t(draw(int(ice.size())))], 0.3f);
@@ -434,18 +450,14 @@ TEST_CASE("Walker distances beyond the cap are lower bounds within two blocks of
         auto p = openvdb::FloatGrid::create(0.f);
         ice::DlaParams prm;
         ice::DlaEngine eng(dom, prm, 5);
-        uint64_t h = 777;
-        auto draw = [&](int m) { h = h * 6364136223846793005ull + 1442695040888963407ull; return int((h >> 33) % uint64_t(m)); };
+        Draw draw{777};
         std::vector<openvdb::Coord> ice;
         int checked = 0, far = 0, worstGap = 0;
         bool below = true;
         for (int round = 0; round < 3; ++round) {
             for (int a = 0; a < 4; ++a) {
-                openvdb::Coord c(draw(n), draw(n), 0);
-                for (int l = 0; l < 6; ++l, c.y() = std::min(c.y() + 1, n - 1)) {
-                    p->tree().setValue(c, 1.f);
-                    ice.push_back(c);
-                }
+                const int x = draw(n), y = draw(n);
+                iceSegment(*p, openvdb::Coord(x, y, 0), 1, 6, n, ice);
             }
             if (round > 0) // a melt that empties a block: the block distances are repaired
                 for (int l = 0; l < 6; ++l) p->tree().setValue(ice[size_t(l)], 0.2f);

@@ -16,6 +16,7 @@
 #include <atomic>
 #include <chrono>
 #include <memory>
+#include <optional>
 #include <cmath>
 #include <mutex>
 #include <sstream>
@@ -738,10 +739,10 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
     const KobayashiParams& k = mParams;
     const double tNext = time + k.dt;
     Failure failure;
-    std::unique_ptr<StagedValues> staged;
+    std::optional<StagedValues> staged;
     if (k.scheme == PhaseFieldScheme::Euler) {
-        staged = std::make_unique<StagedValues>(mStageP, mStageT, pLeaves.leafCount(), mDomain.flat());
-        LeafKernel kernel{k, mDomain, *p, *T, mMelt, stepIndex, tNext, seed, &acc, &failure, staged.get()};
+        staged.emplace(mStageP, mStageT, pLeaves.leafCount(), mDomain.flat());
+        LeafKernel kernel{k, mDomain, *p, *T, mMelt, stepIndex, tNext, seed, &acc, &failure, &*staged};
         kernel.run(pLeaves, tLeaves, *mGroups);
     } else {
         stepSecondOrder(*p, *T, pLeaves, tLeaves, acc, stepIndex, tNext, seed, failure, stats);

@@ -393,9 +393,7 @@ void writeVdbStreamed(const std::string& path, size_t count,
 void writeVdbAtomic(const std::string& path, const openvdb::GridPtrVec& grids,
                     const openvdb::MetaMap& fileMeta, bool halfFloat)
 {
-    // Every grid is checked before any byte is written (writeVdbStreamed checks each as it
-    // comes; the final name is untouched either way).
-    for (auto& g : grids) checkFinite(*g);
+    // writeVdbStreamed checks each grid before writing it; a failure leaves the final name untouched.
     writeVdbStreamed(path, grids.size(), [&](size_t i) { return grids[i]; }, fileMeta, halfFloat);
 }
 
