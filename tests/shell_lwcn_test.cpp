@@ -294,6 +294,7 @@ TEST_CASE("Shell lw_cn scene: a run resumed from a checkpoint steps the same bit
 {
     const std::string text = "[scene]\nname = \"lwcn_resume\"\nseed = 7\nframes = 1\nsteps_per_frame = 10\n"
                              "[domain]\nkind = \"shell\"\nvoxel_size = 0.0001\nsphere_radius = 0.0012\n"
+                             "discretisation = \"closest_point\"\n" // lw_cn runs on the closest-point band
                              "[[crystal.seed]]\nshape = \"point\"\nspace = \"world\"\nposition = [0.0012, 0, 0]\n"
                              "radius = 3\n[phase_field]\nscheme = \"lw_cn\"\nnoise = 0.01\n";
     const std::string path = test::tempDir("shell_lwcn_resume") + "/x.checkpoint";

@@ -77,8 +77,12 @@ KobayashiParams plateParams()
     return k;
 }
 
+using Discretisation = shell::BandSettings::Discretisation;
+const char* nameOf(Discretisation d) { return d == Discretisation::SurfaceNodes ? "surface nodes" : "closest point"; }
+
 PlateRun runPlate(double L, double rx, double ry, int steps, double seedOffset = 0.0,
-                  const Vec3d& plateWind = Vec3d(0.0), const KobayashiParams& params = plateParams())
+                  const Vec3d& plateWind = Vec3d(0.0), const KobayashiParams& params = plateParams(),
+                  Discretisation disc = Discretisation::ClosestPoint)
 {
     MeshPlacement m;
     m.rotateDegrees = Vec3d(rx, ry, 0);
@@ -90,6 +94,7 @@ PlateRun runPlate(double L, double rx, double ry, int steps, double seedOffset =
     bs.voxelSize = 1.0;
     bs.crystalAxis = run.placement.transform3x3(Vec3d(1, 0, 0));
     bs.secondaryAxis = run.placement.transform3x3(Vec3d(0, 1, 0));
+    bs.discretisation = disc;
     run.band = shell::ShellBand::build(mesh, bs);
     run.pf = std::make_unique<shell::ShellPhaseField>(run.band, params, 3.0 / 64.0);
     run.pf->setWind(run.placement.transform3x3(plateWind) + Vec3d(0, 0, 0));
@@ -102,7 +107,8 @@ PlateRun runPlate(double L, double rx, double ry, int steps, double seedOffset =
     return run;
 }
 
-/// p at plate coordinates (u, v) (voxels from the centre), trilinear at the surface point.
+/// p at plate coordinates (u, v) (voxels from the centre): trilinear at the surface point on a
+/// closest-point band; on surface nodes, the value of the node whose closest point is nearest.
 struct PlateSampler {
     const PlateRun& run;
     openvdb::FloatGrid::Ptr grid;
@@ -110,7 +116,18 @@ struct PlateSampler {
     double operator()(double u, double v) const
     {
         const Vec3d w = run.placement.transform(Vec3d(u, v, 0));
-        return openvdb::tools::BoxSampler::sample(grid->tree(), w);
+        if (!run.band->surfaceNodes()) return openvdb::tools::BoxSampler::sample(grid->tree(), w);
+        const openvdb::Coord c = openvdb::Coord::round(w);
+        double best = 1e9, value = 0;
+        for (int dz = -1; dz <= 1; ++dz)
+            for (int dy = -1; dy <= 1; ++dy)
+                for (int dx = -1; dx <= 1; ++dx) {
+                    const int32_t id = run.band->indexOf(c + openvdb::Coord(dx, dy, dz));
+                    if (id < 0) continue;
+                    const double d = (run.band->closestPoint(size_t(id)) - w).lengthSqr();
+                    if (d < best) { best = d; value = run.pf->p()[size_t(id)]; }
+                }
+        return value;
     }
 };
 
@@ -145,12 +162,66 @@ TEST_CASE("Shell band: memory follows the surface, closest points lie on it", "[
     CHECK(worst < 0.02 * R); // the icosphere's facets sag by R (1 - cos(edge/2R)) < 0.2 %
 }
 
+TEST_CASE("Surface nodes: one node per surface cell on the surface, stencils exact for quadratics", "[fast][shell]")
+{
+    // a sphere (curved) and a plate tilted 30/30 degrees (an irregular layer)
+    MeshPlacement m;
+    m.rotateDegrees = Vec3d(30, 30, 0);
+    TriangleMesh plate = makePlate(48, 24);
+    plate.transform(m);
+    const double R = 16.0;
+    for (int which = 0; which < 2; ++which) {
+        shell::BandSettings bs;
+        bs.voxelSize = 1.0;
+        bs.discretisation = Discretisation::SurfaceNodes;
+        auto band = shell::ShellBand::build(which == 0 ? makeIcosphere(R, 5) : plate, bs);
+        // the plate's nodes reach half a voxel past its border (as far as a plane's cells do)
+        const double area = which == 0 ? 4 * M_PI * R * R : 49.0 * 49.0;
+        INFO((which == 0 ? "sphere" : "plate") << ": " << band->size() << " nodes for " << area << " cells");
+        CHECK(std::fabs(double(band->size()) / area - 1.0) < 0.05); // the plane's density
+        // every node within half a voxel of the surface along its normal; the stencils reproduce
+        // the tangent-plane derivatives of a quadratic in the world coordinates at interior nodes
+        // of the plate (exactly: a quadratic restricted to a plane is a quadratic in (s, t))
+        size_t checked = 0;
+        double worstLap = 0, worstGrad = 0;
+        for (size_t i = 0; i < band->size(); ++i) {
+            REQUIRE(std::fabs(band->normalOffset(i)) <= 0.5f + 1e-5f);
+            REQUIRE(band->tapsEnd(i) - band->tapsBegin(i) >= 5);
+            if (which == 0) continue;
+            const Vec3d q = band->closestPoint(i);
+            if (m.matrix().inverse().transform(q).length() > 20) continue; // away from the border
+            const Vec3d g0(0.3, -0.2, 0.1);
+            auto f = [&](const Vec3d& x) { return g0.dot(x) + 0.01 * (x.x() * x.x() - 2 * x.y() * x.z() + 0.5 * x.z() * x.z()); };
+            double lap = 0, du = 0, dv = 0;
+            for (auto* t = band->tapsBegin(i); t != band->tapsEnd(i); ++t) {
+                const double d = f(band->closestPoint(size_t(t->node))) - f(q);
+                lap += t->lap * d;
+                du += t->du * d;
+                dv += t->dv * d;
+            }
+            // exact: grad f . t and trace of the Hessian on the tangent plane
+            const auto& fr = band->frame(i);
+            const Vec3d grad = g0 + 0.01 * Vec3d(2 * q.x(), -2 * q.z(), -2 * q.y() + q.z());
+            auto hess = [&](const Vec3d& a) { return 0.01 * (2 * a.x() * a.x() - 4 * a.y() * a.z() + a.z() * a.z()); };
+            worstLap = std::max(worstLap, std::fabs(lap - hess(fr.tangent) - hess(fr.bitangent)));
+            worstGrad = std::max({worstGrad, std::fabs(du - grad.dot(fr.tangent)), std::fabs(dv - grad.dot(fr.bitangent))});
+            ++checked;
+        }
+        INFO("worst Laplacian error " << worstLap << ", gradient " << worstGrad << " over " << checked << " nodes");
+        CHECK(worstLap < 1e-4);
+        CHECK(worstGrad < 1e-4);
+    }
+}
+
 TEST_CASE("Shell heat: a zonal harmonic on a sphere decays at l(l+1)/R^2 within 2 %", "[fast][shell]")
 {
     // R = 20 voxels, dt = 0.1 h^2 (the phase field's ratio); measured -0.06 %, +0.50 %, +0.61 % (docs/shells.md)
     const double R = 20.0;
+    const auto disc = GENERATE(Discretisation::ClosestPoint, Discretisation::SurfaceNodes);
+    INFO(nameOf(disc));
     shell::BandSettings bs;
     bs.voxelSize = 1.0;
+    bs.discretisation = disc;
     auto band = shell::ShellBand::build(makeIcosphere(R, 5), bs);
     for (int l : {1, 2, 3}) {
         const double expected = l * (l + 1) / (R * R);
@@ -183,6 +254,8 @@ TEST_CASE("Shell phase field: a plate at 0, 30 and 45 degrees grows the same cry
     // tilted plates grow 8.6 % more ice ([shellexp] "interface width" measures both)
     KobayashiParams k = plateParams();
     k.epsBar = 0.015;
+    const auto disc = GENERATE(Discretisation::ClosestPoint, Discretisation::SurfaceNodes);
+    INFO(nameOf(disc));
     DensePhaseField plane = flatPlate(k, L, steps); // the flat reference
     auto planeP = [&](double u, double v) {
         const double x = u + L / 2 - 0.5, y = v + L / 2 - 0.5;
@@ -195,11 +268,12 @@ TEST_CASE("Shell phase field: a plate at 0, 30 and 45 degrees grows the same cry
     const double planeArea = iceArea(planeP, L);
     std::vector<double> areas;
     for (double angle : {0.0, 30.0, 45.0}) {
-        PlateRun run = runPlate(L, angle, angle, steps, 0.0, Vec3d(0.0), k);
+        PlateRun run = runPlate(L, angle, angle, steps, 0.0, Vec3d(0.0), k, disc);
         PlateSampler ps(run);
         auto p = [&](double u, double v) { return ps(u, v); };
         areas.push_back(iceArea(p, L));
         INFO("angle " << angle << " area " << areas.back() << " plane " << planeArea);
+        WARN(nameOf(disc) << ", plate at " << angle << " degrees: ice area " << areas.back() << ", plane " << planeArea);
         // The issue's 5 % (docs/shells.md has the measured figures). At eps / h = 0.21 it is
         // 8.6 %: the interface is narrower than a voxel and a front aligned with the grid is
         // slowed by the lattice, a tilted one is not (not the time step, not the Laplacian).
@@ -209,22 +283,28 @@ TEST_CASE("Shell phase field: a plate at 0, 30 and 45 degrees grows the same cry
         CHECK(std::fabs(p(r, 0.0) - p(-r, 0.0)) < 0.05);
         CHECK(std::fabs(p(0.0, r) - p(0.0, -r)) < 0.05);
     }
-    CHECK(std::fabs(areas[0] / planeArea - 1.0) < 0.02); // grid-aligned: the plane's stencil
+    // grid-aligned, the closest-point band's 7-point stencil is the plane's 5-point one; surface
+    // nodes use a least-squares stencil there too (measured -2.4 %, docs/shells.md)
+    if (disc == Discretisation::ClosestPoint) CHECK(std::fabs(areas[0] / planeArea - 1.0) < 0.02);
     CHECK(std::fabs(areas[2] / areas[1] - 1.0) < 0.03);  // 30 and 45 degrees agree (measured 0.2 %)
 }
 
 TEST_CASE("Shell phase field: bit-identical at 1 and 2 threads", "[fast][shell]")
 {
     std::vector<float> p1, p2, t1, t2;
+    const auto disc = GENERATE(Discretisation::ClosestPoint, Discretisation::SurfaceNodes);
+    INFO(nameOf(disc));
+    KobayashiParams k = plateParams();
+    k.noise = 0.01; // the noise is keyed by coordinates: still the same bits
     {
         tbb::global_control c(tbb::global_control::max_allowed_parallelism, 1);
-        PlateRun run = runPlate(32, 30, 30, 40);
+        PlateRun run = runPlate(32, 30, 30, 40, 0.0, Vec3d(3, 1, 0), k, disc);
         p1 = run.pf->p();
         t1 = run.pf->T();
     }
     {
         tbb::global_control c(tbb::global_control::max_allowed_parallelism, 2);
-        PlateRun run = runPlate(32, 30, 30, 40);
+        PlateRun run = runPlate(32, 30, 30, 40, 0.0, Vec3d(3, 1, 0), k, disc);
         p2 = run.pf->p();
         t2 = run.pf->T();
     }
@@ -235,8 +315,11 @@ TEST_CASE("Shell phase field: bit-identical at 1 and 2 threads", "[fast][shell]"
 
 TEST_CASE("Shell phase field: a sphere of curvature radius 5 voxels stays bounded", "[fast][shell][stability]")
 {
+    const auto disc = GENERATE(Discretisation::ClosestPoint, Discretisation::SurfaceNodes);
+    INFO(nameOf(disc));
     shell::BandSettings bs;
     bs.voxelSize = 1.0;
+    bs.discretisation = disc;
     auto band = shell::ShellBand::build(makeIcosphere(5.0, 4), bs);
     shell::ShellPhaseField pf(band, plateParams(), 3.0 / 64.0);
     for (size_t i = 0; i < band->size(); ++i)
@@ -264,7 +347,9 @@ TEST_CASE("Shell phase field: a sphere of curvature radius 5 voxels stays bounde
 TEST_CASE("Shell output: no ice beyond an open mesh's border", "[fast][shell]")
 {
     const double L = 32;
-    PlateRun run = runPlate(L, 30, 30, 400, /*seedOffset=*/L / 2 - 5); // grows into the border
+    const auto disc = GENERATE(Discretisation::ClosestPoint, Discretisation::SurfaceNodes);
+    INFO(nameOf(disc));
+    PlateRun run = runPlate(L, 30, 30, 400, /*seedOffset=*/L / 2 - 5, Vec3d(0.0), plateParams(), disc); // grows into the border
     PlateSampler ps(run);
     CHECK(ps(L / 2 - 1, 0) > 0.5); // the ice reached the border
     auto fog = shell::frostFog(*run.band, run.pf->p(), run.pf->growthValues());
@@ -276,7 +361,9 @@ TEST_CASE("Shell output: no ice beyond an open mesh's border", "[fast][shell]")
         worst = std::max({worst, std::fabs(q.x()) - L / 2, std::fabs(q.y()) - L / 2});
         CHECK(q.z() > -1.0); // outward (the normal side) only
     }
-    CHECK(worst <= 0.5 + 1e-6); // within half a voxel of the border
+    // within half a voxel of the border; surface nodes stamp the layer around each node's normal
+    // (0.75 voxels), so their frost ends within a voxel of it
+    CHECK(worst <= (disc == Discretisation::ClosestPoint ? 0.5 : 1.0) + 1e-6);
 }
 
 // The table in docs/shells.md: build/bin/frostvdb_tests "[shellexp]"
@@ -324,11 +411,19 @@ TEST_CASE("Shell domain: a missing, empty or unreadable mesh is a one-line error
                                           "release = \"perimeter\"\n");
     CHECK(dla.find("dla.release") != std::string::npos);
     // lw_cn's band system is not an M-matrix: Gauss-Seidel is refused by name (BiCGSTAB only)
-    const std::string lw = test::errorOf("[domain]\nkind = \"shell\"\nsphere_radius = 0.001\n[phase_field]\nscheme = \"lw_cn\"\n"
-                                         "solver = \"gauss_seidel\"\n");
+    const std::string cp = "[domain]\nkind = \"shell\"\nsphere_radius = 0.001\ndiscretisation = \"closest_point\"\n";
+    const std::string lw = test::errorOf(cp + "[phase_field]\nscheme = \"lw_cn\"\nsolver = \"gauss_seidel\"\n");
     CHECK(lw.find("phase_field.solver") != std::string::npos);
     CHECK(lw.find('\n') == std::string::npos);
-    CHECK(test::errorOf("[domain]\nkind = \"shell\"\nsphere_radius = 0.001\n[phase_field]\nscheme = \"lw_cn\"\n").empty());
+    CHECK(test::errorOf(cp + "[phase_field]\nscheme = \"lw_cn\"\n").empty());
+    // lw_cn and the potential flow need the closest-point band: refused on surface nodes, naming
+    // the key and the way out
+    const std::string sn = "[domain]\nkind = \"shell\"\nsphere_radius = 0.001\n";
+    const std::string lwSurface = test::errorOf(sn + "[phase_field]\nscheme = \"lw_cn\"\n");
+    CHECK(lwSurface.find("phase_field.scheme") != std::string::npos);
+    CHECK(lwSurface.find("closest_point") != std::string::npos);
+    const std::string potSurface = test::errorOf(sn + "[phase_field]\nwind = [1, 0, 0]\nwind_model = \"potential\"\n");
+    CHECK(potSurface.find("phase_field.wind_model") != std::string::npos);
 }
 
 TEST_CASE("Shell domain: the support is the band, the frame follows the surface", "[fast][shell][domain]")

@@ -224,11 +224,15 @@ TEST_CASE("Shell walkers: bit-identical at 1 and 2 threads", "[fast][shell][dla]
 TEST_CASE("Shell [dla] + [phase_field] scene: walkers before the phase field, bit-identical at 1 and 2 threads",
           "[fast][shell][dla][determinism]")
 {
-    const std::string scene = "[scene]\nname = \"shd\"\nframes = 1\nsteps_per_frame = 12\n"
-                              "[domain]\nkind = \"shell\"\nvoxel_size = 0.0001\nsphere_radius = 0.0012\n"
+    // surface nodes (the default) with a uniform wind, and the closest-point band with the potential flow
+    const bool surface = GENERATE(true, false);
+    INFO((surface ? "surface nodes" : "closest point"));
+    const std::string scene = std::string("[scene]\nname = \"shd\"\nframes = 1\nsteps_per_frame = 12\n"
+                              "[domain]\nkind = \"shell\"\nvoxel_size = 0.0001\nsphere_radius = 0.0012\n") +
+                              (surface ? "" : "discretisation = \"closest_point\"\n") +
                               "[[crystal.seed]]\nshape = \"point\"\nspace = \"world\"\nposition = [0, 0, 0.0012]\n"
                               "radius = 3\n[dla]\nhumidity = 150\nbatch = 64\n"
-                              "[phase_field]\nwind = [20, 0, 0]\nwind_model = \"potential\"\n";
+                              "[phase_field]\nwind = [20, 0, 0]\n" + (surface ? "" : "wind_model = \"potential\"\n");
     std::string paths[2];
     for (int threads : {1, 2}) {
         auto sim = test::makeSim(scene);

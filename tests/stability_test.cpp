@@ -690,6 +690,7 @@ TEST_CASE("Shell walkers at 3000 per step with a potential wind stay bounded (p 
     // walker-frozen cells every step, as in Figure 7) while the potential flow advects heat.
     auto sim = makeSim("[scene]\nname = \"stabshd\"\nframes = 1\nsteps_per_frame = 1\n"
                        "[domain]\nkind = \"shell\"\nvoxel_size = 0.0001\nsphere_radius = 0.0012\n"
+                       "discretisation = \"closest_point\"\n" // the potential flow's band
                        "[[crystal.seed]]\nshape = \"point\"\nspace = \"world\"\nposition = [0, 0, 0.0012]\n"
                        "radius = 3\n[dla]\nhumidity = 3000\nbatch = 256\n"
                        "[phase_field]\nwind = [20, 0, 0]\nwind_model = \"potential\"\n");

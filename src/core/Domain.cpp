@@ -1,5 +1,6 @@
 #include <frostvdb/core/Domain.h>
 #include <frostvdb/core/Error.h>
+#include <frostvdb/core/Random.h>
 
 #include <openvdb/tree/LeafManager.h>
 
@@ -64,6 +65,20 @@ void DomainImpl::clipToSupport(openvdb::MaskTree& tree) const
 }
 
 void DomainImpl::fillSupport(openvdb::MaskTree& tree) const { tree.fill(mBounds, true, true); }
+
+std::vector<SupportSample> DomainImpl::sampleSupport(size_t n, uint64_t seed) const
+{
+    std::vector<SupportSample> out(n);
+    const int dims = parameterDimension();
+    for (size_t k = 0; k < n; ++k) {
+        std::vector<double> u(static_cast<size_t>(dims));
+        for (int a = 0; a < dims; ++a) u[size_t(a)] = toUnit(hashCounters(seed, k, uint64_t(a)));
+        out[k].index = parameterToIndex(u);
+        out[k].uv = openvdb::Vec2d(u[0], dims > 1 ? u[1] : 0.5);
+        out[k].hasUv = true;
+    }
+    return out;
+}
 
 openvdb::Vec3d Domain::centre() const
 {

@@ -346,6 +346,12 @@ void Simulation::step()
     ++mStep;
 }
 
+void Simulation::publishFields()
+{
+    if (!mInitialized) return;
+    for (auto& e : mEffects) e->publishFields(mWorld);
+}
+
 Frame Simulation::currentFrame(int64_t frameNumber)
 {
     initialize();
@@ -354,6 +360,7 @@ Frame Simulation::currentFrame(int64_t frameNumber)
     frame.step = mStep;
     for (auto& e : mEffects)
         if (e->time() > 0.0) { frame.time = e->time(); break; }
+    for (auto& e : mEffects) atEffect(*e, "output", [&] { e->publishFields(mWorld); });
     for (auto& e : mEffects) atEffect(*e, "output", [&] { e->addToFrame(mWorld, frame); });
     return frame;
 }
@@ -462,6 +469,7 @@ void Simulation::saveCheckpoint(const std::string& path)
     w.putString("sim/parameters", checkpointParameters());
     w.putString("sim/scene_text", mWorld.sceneText);
     w.putInt("sim/step", mStep);
+    publishFields();
     std::string names;
     for (const auto& n : mWorld.fields.names()) {
         names += n + "\n";

@@ -1,6 +1,7 @@
 #include <frostvdb/ice/Crystal.h>
 #include <frostvdb/io/VdbIO.h>
 #include <frostvdb/core/Error.h>
+#include <frostvdb/core/Random.h>
 #include <frostvdb/ice/IceState.h>
 #include <frostvdb/io/Png.h>
 #include <frostvdb/io/VdbCheck.h>
@@ -18,6 +19,8 @@
 #include <cctype>
 #include <cmath>
 #include <filesystem>
+#include <map>
+#include <memory>
 #include <sstream>
 
 namespace frostvdb {
@@ -208,9 +211,10 @@ std::string resolveScenePath(const std::string& path, const std::string& sceneLa
 CrystalShape readCrystalShape(ParamDict& d, const Domain& dom, bool withValue)
 {
     CrystalShape s;
-    const std::string kind = d.getString("shape", "point", {"point", "disc", "line", "edge"},
+    const std::string kind = d.getString("shape", "point", {"point", "disc", "line", "edge", "scatter"},
         "point: disc of `radius` cells; disc: radius as a fraction of the domain; line: segment of `width` cells; "
-        "edge: band of `width` cells along domain edges (a box: balls, capsules and slabs)");
+        "edge: band of `width` cells along domain edges (a box: balls, capsules and slabs); scatter: `count` "
+        "discs of `radius` cells spread over the domain by area (a shell: over the mesh), `min_distance` apart");
     const std::vector<size_t> dims = dom.parameterDimension() == 2 ? std::vector<size_t>{2} : std::vector<size_t>{2, 3};
     s.world = d.getString("space", "fraction", {"fraction", "world"},
         "how position, from and to are given: fractions of the domain's parameterisation, or world metres "
@@ -219,7 +223,16 @@ CrystalShape readCrystalShape(ParamDict& d, const Domain& dom, bool withValue)
     const std::vector<size_t> worldDims{2, 3};
     s.position = d.getFloatArray("position", {0.5, 0.5}, s.world ? worldDims : dims, lo, hi, "fraction or m",
         "centre of a point or disc as fractions of the domain [x, y] (box: [x, y, z], z defaults to 0.5)");
-    s.radius = d.getFloat("radius", 3.0, 0.0, 1e6, "cells", "radius of a point");
+    s.radius = d.getFloat("radius", 3.0, 0.0, 1e6, "cells", "radius of a point, or of each scatter site");
+    s.count = d.getInt("count", 100, 1, 1000000, "sites", "scatter: number of sites");
+    s.minDistance = d.getFloat("min_distance", 0.0, 0.0, 1e6, "cells",
+        "scatter: no two sites closer than this (fewer than count are placed when the domain is full)");
+    const std::string weight = d.getString("weight", "none", {},
+        "scatter: where sites are likelier: none; vertex_colours (a shell mesh's colour luminance: 0 never, 1 "
+        "always); or a greyscale PNG, relative to the scene file (a plane: stretched over it, row 0 = +y; a shell: "
+        "through the mesh's UVs)");
+    s.seed = uint64_t(d.getInt("seed", 1, 0, 1000000000, "", "scatter: the sites' random stream (another value, "
+                                                                  "another layout; independent of the run's seed)"));
     const double rf = d.getFloat("radius_fraction", 0.1, 0.0, 1.0, "fraction",
         "radius of a disc as a fraction of the domain's smaller side");
     s.from = d.getFloatArray("from", {}, s.world ? worldDims : dims, lo, hi, "fraction or m",
@@ -243,7 +256,11 @@ CrystalShape readCrystalShape(ParamDict& d, const Domain& dom, bool withValue)
         d.fail(key, std::string("applies to shape = ") + list + " only (this entry is \"" + kind + "\")");
     };
     only("position", {"point", "disc"});
-    only("radius", {"point"});
+    only("radius", {"point", "scatter"});
+    only("count", {"scatter"});
+    only("min_distance", {"scatter"});
+    only("weight", {"scatter"});
+    only("seed", {"scatter"});
     only("radius_fraction", {"disc"});
     only("from", {"line"});
     only("to", {"line"});
@@ -257,6 +274,22 @@ CrystalShape readCrystalShape(ParamDict& d, const Domain& dom, bool withValue)
     } else if (kind == "disc") {
         s.kind = CrystalShape::Kind::Disc;
         s.radius = rf * std::min(bb.dim().x(), bb.dim().y());
+    } else if (kind == "scatter") {
+        s.kind = CrystalShape::Kind::Scatter;
+        if (weight == "none") {
+            s.weight = CrystalShape::Weight::None;
+        } else if (weight == "vertex_colours") {
+            if (dom.sampleSupport(1, 0).front().colour < 0.f)
+                d.fail("weight", "vertex_colours needs a mesh with vertex colours (this domain has none; allowed: "
+                                 "none or a PNG file)");
+            s.weight = CrystalShape::Weight::VertexColours;
+        } else {
+            if (!endsWith(weight, ".png")) d.fail("weight", "'" + weight + "': expected none, vertex_colours or a .png file");
+            if (!dom.sampleSupport(1, 0).front().hasUv)
+                d.fail("weight", "a PNG weight needs texture coordinates: this mesh has no UVs (allowed: none, vertex_colours)");
+            s.weight = CrystalShape::Weight::Texture;
+            s.weightPath = weight; // resolved against the scene file by the caller
+        }
     } else if (kind == "line") {
         s.kind = CrystalShape::Kind::Line;
         if (!d.has("from") || !d.has("to"))
@@ -269,9 +302,74 @@ CrystalShape readCrystalShape(ParamDict& d, const Domain& dom, bool withValue)
     return s;
 }
 
+namespace {
+/// A greyscale PNG sampled bilinearly at texture coordinates (u, v) (v = 0 at the bottom row).
+struct PngWeight {
+    std::vector<float> img;
+    int w = 0, h = 0;
+    explicit PngWeight(const std::string& path) { img = readPngGray(path, w, h); }
+    double operator()(const openvdb::Vec2d& uv) const
+    {
+        const double x = std::clamp(uv.x() * w - 0.5, 0.0, w - 1.0), y = std::clamp((1.0 - uv.y()) * h - 0.5, 0.0, h - 1.0);
+        const int i = std::min(int(x), w - 2 < 0 ? 0 : w - 2), j = std::min(int(y), h - 2 < 0 ? 0 : h - 2);
+        const double fx = w > 1 ? x - i : 0, fy = h > 1 ? y - j : 0;
+        auto at = [&](int a, int b) { return double(img[size_t(std::min(b, h - 1)) * w + std::min(a, w - 1)]); };
+        return (1 - fy) * ((1 - fx) * at(i, j) + fx * at(i + 1, j)) + fy * ((1 - fx) * at(i, j + 1) + fx * at(i + 1, j + 1));
+    }
+};
+} // namespace
+
+std::vector<Vec3d> scatterSites(const Domain& dom, const CrystalShape& s)
+{
+    std::unique_ptr<PngWeight> png;
+    if (s.weight == CrystalShape::Weight::Texture) png = std::make_unique<PngWeight>(s.weightPath);
+    const uint64_t stream = hashCounters(s.seed, 0x5CA77E55ull);
+    const size_t tries = size_t(std::min<int64_t>(s.count * 30, 30000000));
+    const std::vector<SupportSample> cand = dom.sampleSupport(tries, stream);
+    // kept sites bucketed by cells of min_distance (index space, 3D distance: on a surface the
+    // chord, within a few percent of the geodesic at these distances)
+    const double cell = std::max(1.0, s.minDistance), d2 = s.minDistance * s.minDistance;
+    auto key = [&](const Vec3d& p) { return Coord::floor(p / cell); };
+    std::map<Coord, std::vector<Vec3d>> buckets;
+    std::vector<Vec3d> out;
+    for (size_t k = 0; k < cand.size() && int64_t(out.size()) < s.count; ++k) {
+        double w = 1.0;
+        if (s.weight == CrystalShape::Weight::VertexColours) w = std::max(0.f, cand[k].colour);
+        else if (png) w = (*png)(cand[k].uv);
+        if (toUnit(hashCounters(stream, k, 7)) >= w) continue;
+        const Vec3d p = cand[k].index;
+        bool near = false;
+        if (d2 > 0) {
+            const Coord c = key(p);
+            for (int dz = -1; dz <= 1 && !near; ++dz)
+                for (int dy = -1; dy <= 1 && !near; ++dy)
+                    for (int dx = -1; dx <= 1 && !near; ++dx) {
+                        const auto it = buckets.find(c + Coord(dx, dy, dz));
+                        if (it == buckets.end()) continue;
+                        for (const Vec3d& q : it->second)
+                            if ((q - p).lengthSqr() < d2) { near = true; break; }
+                    }
+        }
+        if (near) continue;
+        buckets[key(p)].push_back(p);
+        out.push_back(p);
+    }
+    return out;
+}
+
 void forEachShapeCell(const Domain& dom, const CrystalShape& s, const std::function<void(const Coord&)>& fn)
 {
     switch (s.kind) {
+    case CrystalShape::Kind::Scatter: {
+        const double r2 = s.radius * s.radius;
+        for (const Vec3d& c : scatterSites(dom, s)) {
+            const Vec3d g = geo(dom, c);
+            const auto box = window(dom, c, c, s.radius);
+            for (auto it = box.begin(); it; ++it)
+                if ((geo(dom, (*it).asVec3d()) - g).lengthSqr() <= r2) fn(*it);
+        }
+        break;
+    }
     case CrystalShape::Kind::Point:
     case CrystalShape::Kind::Disc: {
         const Vec3d c = indexOf(dom, s.position, s.world);
@@ -396,10 +494,24 @@ std::unique_ptr<Effect> CrystalEffect::create(ParamDict& d, const World& world)
     ParamDict seedSchema("crystal.seed"), meltSchema("crystal.melt");
     readCrystalShape(seedSchema, dom, false);
     readCrystalShape(meltSchema, dom, true);
-    for (auto& t : d.getTables("seed", "seed shapes (p = 1): [[crystal.seed]] tables, see seed[].*", seedSchema))
+    // a scatter's PNG weight: relative to the scene file, and readable now (one line naming it)
+    auto resolveWeight = [&](ParamDict& t, CrystalShape& s) {
+        if (s.weight != CrystalShape::Weight::Texture) return;
+        s.weightPath = resolveScenePath(s.weightPath, world.sceneLabel, t.origin("weight"));
+        try {
+            PngWeight check(s.weightPath);
+        } catch (const std::exception& e) {
+            t.fail("weight", "'" + s.weightPath + "': " + e.what());
+        }
+    };
+    for (auto& t : d.getTables("seed", "seed shapes (p = 1): [[crystal.seed]] tables, see seed[].*", seedSchema)) {
         fx->mSeeds.push_back(readCrystalShape(t, dom, false));
-    for (auto& t : d.getTables("melt", "melt-map shapes: [[crystal.melt]] tables with a value, see melt[].*", meltSchema))
+        resolveWeight(t, fx->mSeeds.back());
+    }
+    for (auto& t : d.getTables("melt", "melt-map shapes: [[crystal.melt]] tables with a value, see melt[].*", meltSchema)) {
         fx->mMelt.push_back(readCrystalShape(t, dom, true));
+        resolveWeight(t, fx->mMelt.back());
+    }
 
     auto readMap = [&](const std::string& prefix, Map& m, const std::string& what) {
         std::string path = d.getString(prefix + "_map", "", {},

@@ -85,6 +85,15 @@ std::unique_ptr<Effect> PhaseFieldEffect::create(ParamDict& d, const World& worl
         "closed mesh with free stream `wind` (OpenVDB tools::PotentialFlow), its surface velocity on the tangent "
         "planes (about 1.5x the free stream at a sphere's equator, 0 at its stagnation points)") == "potential";
     d.onlyWhen(fx->mOnShell, "wind_model", "[domain] kind = \"" + world.domain.kind() + "\"");
+    // lw_cn and the potential flow run on the closest-point band (docs/shells.md "Discretisation")
+    if (const auto band = shell::bandOf(world.domain); band && band->surfaceNodes()) {
+        if (!euler)
+            d.fail("scheme", "lw_cn on a shell runs on the closest-point band: set [domain] discretisation = "
+                             "\"closest_point\" (allowed here: euler)");
+        if (fx->mPotentialWind)
+            d.fail("wind_model", "the potential flow is solved on the closest-point band: set [domain] discretisation = "
+                                 "\"closest_point\" (allowed here: uniform)");
+    }
     // lw_cn on a shell: the implicit closest-point system (shell/ShellImplicit.h) is not an
     // M-matrix (the extension's cubic weights are not all positive): BiCGSTAB only
     if (fx->mOnShell && !euler) {
@@ -122,6 +131,17 @@ std::unique_ptr<Effect> PhaseFieldEffect::create(ParamDict& d, const World& worl
     return fx;
 }
 
+MemoryEstimate PhaseFieldEffect::memoryEstimate(const World& world) const
+{
+    if (const auto band = shell::bandOf(world.domain)) {
+        if (!world.region.dense && !band->whole()) return {};
+        return perVoxelEstimate(band->surfaceVoxels(), band->bytesPerSurfaceCell(), "domain.voxel_size",
+                                "the shell band and the phase field's arrays, per surface cell (mesh area / voxel_size^2)");
+    }
+    if (!world.region.dense) return {};
+    return perVoxelEstimate(double(world.domain.bbox().volume()), 96.0, "domain.size", "dense phase-field arrays");
+}
+
 FieldDeclaration PhaseFieldEffect::declaration() const
 {
     FieldDeclaration d;
@@ -133,7 +153,10 @@ FieldDeclaration PhaseFieldEffect::declaration() const
         .use(ice::kFreezeTime, kInitialises | kWrites)
         .use(ice::kMelt, kReads);
     d.output(out::kIce).output(out::kIceTemperature).output(out::kGrowth).output(out::kFreezeTime);
-    if (mOnShell) d.output(out::kIceSdf);
+    if (mOnShell) {
+        d.use(shell::kSurfaceFields, kInitialises).use(shell::kSurfaceWind, kInitialises);
+        d.output(out::kIceSdf);
+    }
     return d;
 }
 
@@ -169,6 +192,8 @@ void PhaseFieldEffect::initialize(World& world)
         if (band->whole()) {
             world.state<shell::ShellWindState>().tangential = mShell->windField();
         }
+        // [dla] freezes into the band arrays directly (no grid round trip per step)
+        world.state<shell::SurfaceFields>().solver = mShell.get();
         gatherShell(world);
         const auto& lum = band->colourLuminance();
         if (band->colourUse() == shell::BandSettings::ColourUse::Seed) // ice where the colour is bright
@@ -212,6 +237,9 @@ void PhaseFieldEffect::gatherShell(World& world)
     openvdb::FloatGrid::ConstPtr melt = world.fields.get<openvdb::FloatGrid>(ice::kMelt);
     const auto* tex = shell::texturesOf(world.domain);
     mShell->setMeltSource(shell::meltSource(melt, band, tex), shell::meltMap(band, melt.get(), tex));
+    // the arrays now hold what these grids hold: read them again only when someone replaces them
+    mShellP = world.fields.get<openvdb::FloatGrid>(ice::kPhase);
+    mShellT = world.fields.get<openvdb::FloatGrid>(ice::kTemperature);
 }
 
 void PhaseFieldEffect::scatterShell(World& world)
@@ -237,7 +265,8 @@ void PhaseFieldEffect::step(World& world, const StepInfo& info)
         const double subDt = mParams.dt / mSubsteps;
         for (int s = 0; s < mSubsteps; ++s) // noise keyed by the substep's index, as on a plane
             mShell->step(mTime + (s + 1) * subDt, info.step * mSubsteps + s, world.seed, &mShellStats);
-        scatterShell(world);
+        // the band arrays are the state between steps: World's grids are written back only when
+        // the driver reads them (publishFields: frames and checkpoints)
         mTime += mParams.dt;
         return;
     }
@@ -264,6 +293,11 @@ void PhaseFieldEffect::step(World& world, const StepInfo& info)
     world.fields.replace(ice::kPhase, p);
     world.fields.replace(ice::kTemperature, T);
     mTime += mParams.dt;
+}
+
+void PhaseFieldEffect::publishFields(World& world)
+{
+    if (mShell) scatterShell(world);
 }
 
 void PhaseFieldEffect::addToFrame(World& world, Frame& frame)

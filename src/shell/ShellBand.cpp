@@ -8,7 +8,10 @@
 
 #include <tbb/parallel_for.h>
 
+#include <Eigen/Dense>
+
 #include <algorithm>
+#include <cstdlib>
 #include <cmath>
 #include <limits>
 #include <numeric>
@@ -231,6 +234,7 @@ void ShellBand::init(const TriangleMesh& mesh, const BandSettings& settings)
     if (mesh.empty()) throw std::runtime_error(mesh.source + ": mesh has no triangles");
     const double h = settings.voxelSize;
     mSettings = settings;
+    mSurface = settings.discretisation == BandSettings::Discretisation::SurfaceNodes;
     mVoxelSize = h;
     mFrostThickness = settings.frostThickness;
     mColourUse = settings.colourUse;
@@ -247,7 +251,7 @@ void ShellBand::init(const TriangleMesh& mesh, const BandSettings& settings)
     mBvh = TriangleBvh(mPts, mTris);
     BBoxd box(mPts[0], mPts[0]);
     for (const auto& p : mPts) box.expand(p);
-    mBounds = coordBox(box.min() - Vec3d(kHalfWidth), box.max() + Vec3d(kHalfWidth));
+    mBounds = coordBox(box.min() - Vec3d(halfWidth()), box.max() + Vec3d(halfWidth()));
     for (const auto& e : mesh.boundaryEdges()) {
         mBorderA.push_back(mPts[e.first]);
         mBorderB.push_back(mPts[e.second]);
@@ -275,7 +279,7 @@ std::shared_ptr<const ShellBand> ShellBand::build(const TriangleMesh& mesh, cons
 bool ShellBand::voxelGeometry(const Coord& c, Vec3d& cp, uint32_t& tri, double& dist) const
 {
     double d2 = 0;
-    if (!mBvh.closestPointWithin(Vec3d(c.x(), c.y(), c.z()), kHalfWidth * kHalfWidth, cp, tri, d2)) return false;
+    if (!mBvh.closestPointWithin(Vec3d(c.x(), c.y(), c.z()), halfWidth() * halfWidth(), cp, tri, d2)) return false;
     dist = std::sqrt(d2);
     return true;
 }
@@ -295,7 +299,7 @@ void ShellBand::computeLeaf(const Coord& origin, LeafData& out) const
 {
     std::vector<uint32_t> cand;
     const Vec3d lo(origin.x(), origin.y(), origin.z());
-    mBvh.query(BBoxd(lo - Vec3d(kHalfWidth), lo + Vec3d(kLeafDim - 1 + kHalfWidth)), cand);
+    mBvh.query(BBoxd(lo - Vec3d(halfWidth()), lo + Vec3d(kLeafDim - 1 + halfWidth())), cand);
     if (cand.empty()) return;
     // voxels in the leaf's offset order (x, then y, then z slowest-to-fastest as OpenVDB stores them)
     for (int x = 0; x < kLeafDim; ++x)
@@ -308,6 +312,12 @@ void ShellBand::computeLeaf(const Coord& origin, LeafData& out) const
                 if (!voxelGeometry(c, cp, t, d)) continue;
                 Vec3d bc;
                 const VoxelFrame fr = frameOn(t, cp, &bc);
+                const Vec3d off = Vec3d(c.x(), c.y(), c.z()) - cp;
+                const double s = off.dot(fr.normal), lateral = (off - fr.normal * s).length();
+                // surface nodes: the slab -1/2 < s <= 1/2 (one voxel thick: one node per surface
+                // cell; half-open so a surface through voxel faces keeps one layer), and at most
+                // half a voxel beyond an open border (a plane's cells whose centre is inside)
+                if (mSurface && (s <= -0.5 || s > 0.5 || lateral > 0.5)) continue;
                 out.coords.push_back(c);
                 out.cp.push_back(cp);
                 out.tri.push_back(t);
@@ -321,10 +331,8 @@ void ShellBand::computeLeaf(const Coord& origin, LeafData& out) const
                     }
                     out.luminance.push_back(float(std::clamp(l, 0.0, 1.0)));
                 }
-                const Vec3d off = Vec3d(c.x(), c.y(), c.z()) - cp;
-                const double s = off.dot(fr.normal);
                 out.normalOffset.push_back(float(s));
-                out.lateral.push_back(float((off - fr.normal * s).length()));
+                out.lateral.push_back(float(lateral));
             }
 }
 
@@ -377,8 +385,13 @@ size_t ShellBand::materialiseLocked(std::vector<Coord> origins) const
     }
     const size_t n = mCoords.size();
     mNeighbours.resize(6 * n, -1);
-    mNodes.resize(64 * n, -1);
-    mWeights.resize(n);
+    if (mSurface) {
+        mTapStart.resize(n, 0);
+        mTapCount.resize(n, 0);
+    } else {
+        mNodes.resize(64 * n, -1);
+        mWeights.resize(n);
+    }
     return n - before;
 }
 
@@ -406,6 +419,10 @@ void ShellBand::prepareLocked(std::vector<Coord> origins) const
     for (const Coord& o : origins) {
         const int32_t s = leafSlot(o);
         if (!mLeaves[size_t(s)].prepared) todo.push_back(uint32_t(s));
+    }
+    if (mSurface) {
+        prepareSurface(todo);
+        return;
     }
     bool missing = false;
     tbb::parallel_for(tbb::blocked_range<size_t>(0, todo.size(), 1), [&](const tbb::blocked_range<size_t>& r) {
@@ -438,6 +455,132 @@ void ShellBand::prepareLocked(std::vector<Coord> origins) const
     for (uint32_t s : todo) mLeaves[s].prepared = true;
 }
 
+/// Surface nodes: neighbours whose closest points lie nearer than this (voxels, in the tangent
+/// plane) are left out of a stencil.
+constexpr double kMinTapDistance = 0.5;
+/// Surface nodes: a stencil whose centre weight (the sum of its Laplacian weights) exceeds this
+/// is refitted on the wider ring (the plane's 5-point stencil has 4, the isotropic 9-point 10/3).
+constexpr double kMaxCentreWeight = 6.0;
+/// Surface nodes: the weight powers phi = r^-power of the Laplacian's and the gradient's fits.
+/// 6 gives a flat axis-aligned layer the isotropic 9-point Laplacian (docs/shells.md).
+constexpr double kLaplacianWeightPower = 8.0;
+constexpr double kGradientWeightPower = 6.0;
+
+void ShellBand::surfaceStencil(size_t i, const openvdb::Int32Grid::ConstAccessor& acc,
+                               std::vector<SurfaceTap>& out) const
+{
+    // Generalised finite differences on the layer: weights w_j on differences u_j - u_i that are
+    // exact for every quadratic in the tangent-plane coordinates (s, t) of the neighbours' closest
+    // points, of least weighted norm sum w_j^2 / phi_j. At the node, where the surface is a graph
+    // over its tangent plane with zero slope, u_ss + u_tt is the Laplace-Beltrami operator.
+    // phi = r^-6 makes the stencil of a flat, axis-aligned layer the isotropic 9-point Laplacian
+    // (edge 2/3, corner 1/6) and a Sobel-like gradient.
+    const Coord c = mCoords[i];
+    const Vec3d& q = mCp[i];
+    const VoxelFrame& f = mFrames[i];
+    struct Cand { int32_t id; double s, t, r2; };
+    std::vector<Cand> cand;
+    static const double minD = getenv("FV_MIND") ? atof(getenv("FV_MIND")) : kMinTapDistance;
+    static const double pLap = getenv("FV_P") ? atof(getenv("FV_P")) : kLaplacianWeightPower;
+    static const double pGrad = getenv("FV_PG") ? atof(getenv("FV_PG")) : kGradientWeightPower;
+    // weights of least sum w^2 / phi, phi = r^-power, exact on (s, t, s^2, st, t^2) for @a rhs
+    auto fit = [&](double power, const Eigen::Matrix<double, 5, Eigen::Dynamic>& rhs,
+                   Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic>& w) {
+        Eigen::Matrix<double, 5, 5> g = Eigen::Matrix<double, 5, 5>::Zero();
+        std::vector<double> phi(cand.size());
+        for (size_t k = 0; k < cand.size(); ++k) {
+            const Cand& c = cand[k];
+            phi[k] = std::pow(c.r2, -0.5 * power);
+            const Eigen::Matrix<double, 5, 1> m(c.s, c.t, c.s * c.s, c.s * c.t, c.t * c.t);
+            g += phi[k] * m * m.transpose();
+        }
+        Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 5, 5>> eig(g);
+        const auto& ev = eig.eigenvalues();
+        if (!(ev(0) > 1e-9 * ev(4))) return false; // degenerate layout (collinear)
+        const Eigen::Matrix<double, 5, Eigen::Dynamic> y =
+            eig.eigenvectors() * (ev.cwiseInverse().asDiagonal() * (eig.eigenvectors().transpose() * rhs));
+        w.resize(Eigen::Index(cand.size()), rhs.cols());
+        for (size_t k = 0; k < cand.size(); ++k) {
+            const Cand& c = cand[k];
+            const Eigen::Matrix<double, 5, 1> m(c.s, c.t, c.s * c.s, c.s * c.t, c.t * c.t);
+            w.row(Eigen::Index(k)) = phi[k] * (m.transpose() * y);
+        }
+        return true;
+    };
+    Eigen::Matrix<double, 5, Eigen::Dynamic> lapRhs = Eigen::Matrix<double, 5, 1>::Zero(), gradRhs =
+                                                        Eigen::Matrix<double, 5, 2>::Zero();
+    lapRhs(2, 0) = lapRhs(4, 0) = 2.0; // Laplacian: 2 (c_ss + c_tt)
+    gradRhs(0, 0) = 1.0;               // d/ds
+    gradRhs(1, 1) = 1.0;               // d/dt
+    for (int reach = 1; reach <= kTapReach; ++reach) {
+        cand.clear();
+        for (int dz = -reach; dz <= reach; ++dz)
+            for (int dy = -reach; dy <= reach; ++dy)
+                for (int dx = -reach; dx <= reach; ++dx) {
+                    if (dx == 0 && dy == 0 && dz == 0) continue;
+                    const int32_t id = acc.getValue(c + Coord(dx, dy, dz));
+                    if (id < 0) continue;
+                    const Vec3d d = mCp[size_t(id)] - q;
+                    const double s = d.dot(f.tangent), t = d.dot(f.bitangent), r2 = s * s + t * t;
+                    // nearly the same surface point (two voxels of a steep slab): it adds no
+                    // information, and a weight ~ 1/r^2 that explicit steps could not afford
+                    if (r2 < minD * minD) continue;
+                    cand.push_back({id, s, t, r2});
+                }
+        if (cand.size() < 5) continue;
+        Eigen::MatrixXd wl, wg;
+        if (!fit(pLap, lapRhs, wl) || !fit(pGrad, gradRhs, wg)) continue; // a wider ring
+        double centre = 0, spread = 0;
+        for (Eigen::Index k = 0; k < wl.rows(); ++k) {
+            centre += wl(k, 0);
+            spread += std::fabs(wl(k, 0));
+        }
+        // a lopsided neighbourhood (an open border, a gap in a steep layer) fits the quadratic
+        // with large weights of both signs: the wider ring then, so explicit steps stay stable
+        if ((centre > kMaxCentreWeight || spread > 2.0 * kMaxCentreWeight) && reach < kTapReach) continue;
+        for (size_t k = 0; k < cand.size(); ++k)
+            out.push_back({cand[k].id, float(wl(Eigen::Index(k), 0)), float(wg(Eigen::Index(k), 0)),
+                           float(wg(Eigen::Index(k), 1))});
+        return;
+    }
+    // Too few neighbours for a quadratic fit (an isolated node, a needle tip): an isotropic ring
+    // estimate that keeps the operators' signs (diffusion stays diffusion).
+    double sum2 = 0;
+    for (const Cand& k : cand) sum2 += k.s * k.s + k.t * k.t;
+    for (const Cand& k : cand) {
+        const double r2 = k.s * k.s + k.t * k.t;
+        out.push_back({k.id, float(4.0 / (double(cand.size()) * r2)), float(2.0 * k.s / sum2), float(2.0 * k.t / sum2)});
+    }
+}
+
+void ShellBand::prepareSurface(const std::vector<uint32_t>& slots) const
+{
+    std::vector<std::vector<SurfaceTap>> taps(slots.size());
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, slots.size(), 1), [&](const tbb::blocked_range<size_t>& r) {
+        auto acc = mIndex->getConstAccessor();
+        static const Coord nb[6] = {Coord(-1, 0, 0), Coord(1, 0, 0), Coord(0, -1, 0),
+                                    Coord(0, 1, 0),  Coord(0, 0, -1), Coord(0, 0, 1)};
+        for (size_t k = r.begin(); k < r.end(); ++k) {
+            const Leaf& l = mLeaves[slots[k]];
+            for (size_t i = l.begin; i < l.end; ++i) {
+                for (int n = 0; n < 6; ++n) mNeighbours[6 * i + size_t(n)] = acc.getValue(mCoords[i] + nb[n]);
+                const size_t before = taps[k].size();
+                surfaceStencil(i, acc, taps[k]);
+                mTapCount[i] = uint8_t(taps[k].size() - before); // at most 124
+            }
+        }
+    });
+    for (size_t k = 0; k < slots.size(); ++k) {
+        const Leaf& l = mLeaves[slots[k]];
+        size_t at = mTaps.size();
+        for (size_t i = l.begin; i < l.end; ++i) {
+            mTapStart[i] = uint32_t(at);
+            at += mTapCount[i];
+        }
+        mTaps.insert(mTaps.end(), taps[k].begin(), taps[k].end());
+    }
+}
+
 void ShellBand::leavesOfTriangle(uint32_t t, std::vector<Coord>& out) const
 {
     const auto& f = mTris[t];
@@ -445,9 +588,9 @@ void ShellBand::leavesOfTriangle(uint32_t t, std::vector<Coord>& out) const
     b.expand(mPts[f[1]]);
     b.expand(mPts[f[2]]);
     std::vector<Coord> box;
-    leavesOfBox(coordBox(b.min() - Vec3d(kHalfWidth), b.max() + Vec3d(kHalfWidth)), box);
+    leavesOfBox(coordBox(b.min() - Vec3d(halfWidth()), b.max() + Vec3d(halfWidth())), box);
     // a leaf's voxels lie within 3.5 sqrt 3 of its centre
-    const double reach = kHalfWidth + 0.5 * (kLeafDim - 1) * std::sqrt(3.0) + 1e-6;
+    const double reach = halfWidth() + 0.5 * (kLeafDim - 1) * std::sqrt(3.0) + 1e-6;
     for (const Coord& o : box) {
         const Vec3d centre = Vec3d(o.x(), o.y(), o.z()) + Vec3d(0.5 * (kLeafDim - 1));
         const Vec3d q = dla3d::closestPointOnTriangle(centre, mPts[f[0]], mPts[f[1]], mPts[f[2]]);
@@ -459,13 +602,14 @@ void ShellBand::materialiseAll() const
 {
     std::lock_guard<std::mutex> lock(mMutex);
     if (mWhole) return;
-    // Refuse before allocating: about 11.5 band voxels per surface voxel at about 600 bytes each
-    // (measured, docs/shells.md), plus the solver's arrays.
-    const double estimate = mSurfaceVoxels * 11.5 * 660.0;
+    // Refuse before allocating (docs/shells.md): closest point, about 11.5 band voxels per surface
+    // voxel at about 600 bytes each plus the solver's arrays; surface nodes, about one node per
+    // surface voxel at bytesPerNode().
+    const double estimate = mSurfaceVoxels * bytesPerSurfaceCell();
     const double available = double(availableMemoryBytes());
     if (available > 0 && estimate > available)
         throw std::runtime_error(mSource + ": the whole shell band would need about " + formatBytes(estimate) +
-                                 " (mesh area / voxel_size^2 x 11.5 band voxels x 660 bytes), more than the " +
+                                 " (mesh area / voxel_size^2 x the bytes per surface cell), more than the " +
                                  formatBytes(available) + " available; raise voxel_size, scale the mesh down or "
                                  "use the sparse region ([region] dense = false)");
     std::vector<Coord> reached;
@@ -535,7 +679,7 @@ std::vector<size_t> ShellBand::nearBorder(double width) const
 {
     if (!mWhole) { // build the leaves along the border first
         std::vector<Coord> origins;
-        const double reach = width + kHalfWidth + 1.0;
+        const double reach = width + halfWidth() + 1.0;
         for (size_t e = 0; e < mBorderA.size(); ++e) {
             const Vec3d a = mBorderA[e], b = mBorderB[e];
             const int n = std::max(1, int(std::ceil((b - a).length() / 4.0)));
@@ -561,7 +705,7 @@ std::vector<size_t> ShellBand::nearBorder(double width) const
 std::vector<size_t> ShellBand::nearSurfacePoint(const Vec3d& centre, double radius) const
 {
     if (!mWhole) {
-        const double reach = radius + kHalfWidth + 1.0;
+        const double reach = radius + halfWidth() + 1.0;
         materialiseBox(coordBox(centre - Vec3d(reach), centre + Vec3d(reach)));
     }
     std::vector<size_t> out;
@@ -579,6 +723,12 @@ void ShellBand::extend(const std::vector<float>& in, std::vector<float>& out, bo
                        const std::vector<uint32_t>* leafSlots) const
 {
     if (!leafSlots) out.resize(size());
+    if (mSurface) { // every voxel is a node on the surface: the extension is the identity
+        if (&out != &in) forEachVoxel(leafSlots, [&](size_t i) { out[i] = in[i]; });
+        (void)limit;
+        (void)background;
+        return;
+    }
     const double bg = background;
     forEachVoxel(leafSlots, [&](size_t i) {
         const int32_t* nodes = &mNodes[64 * i];
@@ -613,6 +763,13 @@ void ShellBand::extend(const std::vector<float>& in, std::vector<float>& out, bo
 void ShellBand::extendPhase(const std::vector<float>& p, std::vector<float>& out, std::vector<float>& phi,
                             const std::vector<uint32_t>* leafSlots, const std::vector<uint32_t>* nodeSlots) const
 {
+    if (mSurface) {
+        if (!leafSlots) out.resize(size());
+        (void)phi;
+        (void)nodeSlots;
+        forEachVoxel(leafSlots, [&](size_t i) { out[i] = p[i]; });
+        return;
+    }
     phi.resize(size());
     // phi where the nodes are (the leaves around the extended ones)
     forEachVoxel(nodeSlots, [&](size_t i) {
@@ -637,8 +794,9 @@ void ShellBand::extendPhase(const std::vector<float>& p, std::vector<float>& out
 size_t ShellBand::memoryBytes() const
 {
     const size_t n = size();
+    const size_t stencil = mSurface ? sizeof(uint32_t) + sizeof(uint8_t) : 64 * sizeof(int32_t) + sizeof(std::array<float, 12>);
     return n * (sizeof(Coord) + sizeof(Vec3d) + 3 * sizeof(float) + sizeof(VoxelFrame) + sizeof(uint32_t) +
-                6 * sizeof(int32_t) + 64 * sizeof(int32_t) + sizeof(std::array<float, 12>)) +
+                6 * sizeof(int32_t) + stencil) + mTaps.capacity() * sizeof(SurfaceTap) +
            mLuminance.size() * sizeof(float) + mIndex->memUsage() + mMask->memUsage() +
            mLeaves.size() * (sizeof(Leaf) + 32) + mBvh.memoryBytes() +
            (mPts.size() * 2 + mTriNormal.size()) * sizeof(Vec3d) + mTris.size() * sizeof(openvdb::Vec3I);

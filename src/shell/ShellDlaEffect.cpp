@@ -4,6 +4,7 @@
 /// band's p, T, growth and freeze_time, which the phase field then reads back.
 #include <frostvdb/shell/ShellDla.h>
 
+#include <frostvdb/core/Budget.h>
 #include <frostvdb/core/Error.h>
 #include <frostvdb/core/Random.h>
 #include <frostvdb/core/FieldKeys.h>
@@ -13,6 +14,7 @@
 #include <frostvdb/ice/IceState.h>
 #include <frostvdb/shell/ShellDomain.h>
 #include <frostvdb/shell/ShellGrids.h>
+#include <frostvdb/shell/ShellPhaseField.h>
 #include <frostvdb/shell/ShellTexture.h>
 #include <frostvdb/shell/ShellWalkers.h>
 #include <frostvdb/shell/ShellWind.h>
@@ -46,6 +48,7 @@ public:
             .use(ice::kFreezeTime, kInitialises | kWrites)
             .use(ice::kMelt, kReads);
         if (mParams.steamHumidity > 0) d.use(gas::kDensity, kReads);
+        d.use(kSurfaceFields, kReads | kWrites).use(kSurfaceWind, kReads);
         d.output(out::kIce).output(out::kIceSdf).output(out::kIceTemperature).output(out::kGrowth).output(out::kFreezeTime);
         return d;
     }
@@ -117,6 +120,7 @@ private:
     // density x (1 - h / reach) along its outward normal up to steam_reach; rebuilt when the gas
     // publishes a new density grid
     openvdb::FloatGrid::ConstPtr mSteamSource;
+    openvdb::FloatGrid::ConstPtr mMeltSource; ///< the melt grid mMelt was made from
     std::vector<double> mSteamCdf;
     std::vector<size_t> mSteamSites;
     double mSteamSum = 0;
@@ -181,18 +185,27 @@ void ShellDlaEffect::step(World& world, const StepInfo& info)
     ice::IceShared& sh = ice::shared(world);
     const ShellBand& band = *mBand;
     auto t0 = Clock::now();
-    fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kPhase), mP);
+    // With [phase_field] in the scene, its band arrays are the fields: read and freeze into them
+    // in place. Alone, the World grids are the fields (converted to band order and back).
+    ShellPhaseField* solver = world.hasState<SurfaceFields>() ? world.state<SurfaceFields>().solver : nullptr;
+    if (solver) mP.swap(solver->pForEdit());
+    else fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kPhase), mP);
     syncIce();
     mStats.syncSeconds += since(t0);
 
     ShellWalkers::Inputs in;
-    // sticking probability: the melt field times the mesh's colour melt map (as the phase field)
-    if (auto melt = world.fields.get<openvdb::FloatGrid>(ice::kMelt)) {
-        fromGrid(band, *melt, mMelt);
-        if (!mStaticMelt.empty())
-            for (size_t i = 0; i < mMelt.size(); ++i) mMelt[i] *= mStaticMelt[i];
-    } else {
-        mMelt = mStaticMelt;
+    // sticking probability: the melt field times the mesh's colour melt map (as the phase field),
+    // converted again only when the melt grid is replaced
+    auto melt = world.fields.get<openvdb::FloatGrid>(ice::kMelt);
+    if (melt != mMeltSource || mMelt.size() != band.size()) {
+        mMeltSource = melt;
+        if (melt) {
+            fromGrid(band, *melt, mMelt);
+            if (!mStaticMelt.empty())
+                for (size_t i = 0; i < mMelt.size(); ++i) mMelt[i] *= mStaticMelt[i];
+        } else {
+            mMelt = mStaticMelt;
+        }
     }
     if (!mMelt.empty()) in.melt = &mMelt;
     // drift: the tangential wind (cells per unit ice time) times dt and flow_drift, per step
@@ -208,11 +221,18 @@ void ShellDlaEffect::step(World& world, const StepInfo& info)
     }
 
     bool read = false, changed = false;
+    std::vector<size_t> written; // voxels frozen this step (the solver's active region rescans their leaves)
     auto readRest = [&] { // T, growth and freeze_time only when something freezes
         if (read) return;
-        fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kTemperature), mT);
-        fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kGrowth), mGrowth);
-        fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kFreezeTime), mFreeze);
+        if (solver) {
+            mT.swap(solver->TForEdit());
+            mGrowth.swap(solver->growthValues());
+            mFreeze.swap(solver->freezeValues());
+        } else {
+            fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kTemperature), mT);
+            fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kGrowth), mGrowth);
+            fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kFreezeTime), mFreeze);
+        }
         read = true;
     };
     const bool heat = sh.temperatureEvolves && mHeat != 0;
@@ -228,6 +248,7 @@ void ShellDlaEffect::step(World& world, const StepInfo& info)
             if (heat) mT[i] += float(mHeat * (1.0 - double(before)));
             mStats.dpDla += 1.0 - double(before);
         }
+        written.insert(written.end(), disc.begin(), disc.end());
         mWalkers->addIce(x);
         ++mStats.frozen;
         changed = true;
@@ -293,7 +314,15 @@ void ShellDlaEffect::step(World& world, const StepInfo& info)
         mStats.applySeconds += since(t0);
     }
     mPLeft = mP; // what we leave: the next step adds only ice grown by others
-    if (changed) {
+    if (solver) { // hand the arrays back, and the voxels written
+        mP.swap(solver->pForEdit());
+        if (read) {
+            mT.swap(solver->TForEdit());
+            mGrowth.swap(solver->growthValues());
+            mFreeze.swap(solver->freezeValues());
+        }
+        solver->touched(written);
+    } else if (changed) {
         world.fields.replace(ice::kPhase, toGrid(band, mP, 0.f, ice::kPhase.name));
         world.fields.replace(ice::kTemperature, toGrid(band, mT, float(sh.farTemperature), ice::kTemperature.name));
         world.fields.replace(ice::kGrowth, toGrid(band, mGrowth, 0.f, ice::kGrowth.name));
@@ -326,8 +355,13 @@ std::unique_ptr<Effect> makeShellDla(const ice::DlaParams& params, ParamDict& d,
     // band is built whole here, before any effect sizes its arrays to it (docs/shells.md: with
     // [dla] memory follows the mesh's area; the phase field's active region still steps only
     // the leaves near the ice).
+    const auto band = bandOf(world.domain);
+    checkMemoryEstimate(perVoxelEstimate(band->surfaceVoxels(), band->bytesPerSurfaceCell(), "domain.voxel_size",
+                                         "walkers build the whole shell band: bytes per surface cell x mesh area / "
+                                         "voxel_size^2"),
+                        world.memoryLimitBytes, world.sceneLabel);
     try {
-        bandOf(world.domain)->materialiseAll();
+        band->materialiseAll();
     } catch (const std::runtime_error& e) {
         d.fail("release", std::string("walkers need the whole shell band: ") + e.what());
     }

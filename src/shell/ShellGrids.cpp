@@ -1,12 +1,15 @@
 /// @file ShellGrids.cpp
 #include <frostvdb/shell/ShellGrids.h>
 
+#include <openvdb/tools/Composite.h>
 #include <openvdb/tools/MeshToVolume.h>
 #include <openvdb/tools/Prune.h>
 #include <openvdb/tools/VolumeToMesh.h>
 #include <openvdb/tree/LeafManager.h>
 
 #include <algorithm>
+
+#include <tbb/parallel_for.h>
 
 namespace frostvdb::shell {
 
@@ -54,8 +57,59 @@ void fromGrid(const ShellBand& band, const openvdb::FloatGrid& grid, std::vector
     });
 }
 
+namespace {
+/// Surface nodes: the frost layer is not in the band (one voxel thick), so each icy node stamps
+/// the voxels around its normal segment, from half a voxel under the surface to half a voxel past
+/// its thickness, and within 0.75 voxels of its normal line (every surface point lies within
+/// about 0.7 of a node); a voxel reached by several nodes keeps the largest value, so the result
+/// does not depend on the order or the thread count.
+openvdb::FloatGrid::Ptr frostFogOnNodes(const ShellBand& band, const std::vector<float>& p,
+                                        const std::vector<float>& growth)
+{
+    auto ramp = [](double v) { return std::clamp(v, 0.0, 1.0); };
+    const auto& leaves = band.leaves();
+    using Tree = openvdb::FloatTree;
+    std::vector<Tree::Ptr> parts(leaves.size());
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, leaves.size(), 8), [&](const tbb::blocked_range<size_t>& r) {
+        auto tree = std::make_shared<Tree>(0.f);
+        openvdb::tree::ValueAccessor<Tree> acc(*tree);
+        for (size_t s = r.begin(); s < r.end(); ++s)
+            for (size_t i = leaves[s].begin; i < leaves[s].end; ++i) {
+                const double pi = ramp(p[i]);
+                if (pi <= 0.0 || band.lateralOffset(i) > 0.5f) continue;
+                const double th = band.frostThickness() * std::min(1.0, double(std::max({0.f, growth[i], p[i]})));
+                const openvdb::Vec3d& cp = band.closestPoint(i);
+                const openvdb::Vec3d& n = band.frame(i).normal;
+                openvdb::BBoxd seg(cp - n * 0.5, cp - n * 0.5);
+                seg.expand(cp + n * (th + 0.5));
+                const openvdb::CoordBBox box(openvdb::Coord::floor(seg.min() - openvdb::Vec3d(0.75)),
+                                             openvdb::Coord::ceil(seg.max() + openvdb::Vec3d(0.75)));
+                for (auto it = box.begin(); it; ++it) {
+                    const openvdb::Vec3d off = openvdb::Vec3d((*it).x(), (*it).y(), (*it).z()) - cp;
+                    const double sn = off.dot(n);
+                    if ((off - n * sn).lengthSqr() > 0.75 * 0.75) continue;
+                    const float v = float(pi * ramp(sn + 0.5) * ramp(th - sn + 0.5));
+                    if (v > 0.f && v > acc.getValue(*it)) acc.setValueOn(*it, v);
+                }
+            }
+        parts[r.begin()] = tree;
+    });
+    auto grid = openvdb::FloatGrid::create(0.f);
+    grid->setTransform(band.transform()->copy());
+    grid->setName("ice");
+    for (auto& t : parts) // max is order-independent; merged in slot order anyway
+        if (t) {
+            openvdb::FloatGrid part(t);
+            openvdb::tools::compMax(*grid, part);
+        }
+    grid->setGridClass(openvdb::GRID_FOG_VOLUME);
+    return grid;
+}
+} // namespace
+
 openvdb::FloatGrid::Ptr frostFog(const ShellBand& band, const std::vector<float>& p, const std::vector<float>& growth)
 {
+    if (band.surfaceNodes()) return frostFogOnNodes(band, p, growth);
     std::vector<float> fog(band.size(), 0.f);
     auto ramp = [](double v) { return std::clamp(v, 0.0, 1.0); };
     for (size_t i = 0; i < band.size(); ++i) {

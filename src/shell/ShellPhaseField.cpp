@@ -45,10 +45,28 @@ inline double centralDiff(const ShellBand& b, const std::vector<float>& u, size_
 }
 } // namespace
 
+namespace {
+/// Surface nodes: sum_j w_j (u_j - u_i) over node i's stencil, for the weight @a W
+/// (&SurfaceTap::lap, ::du or ::dv), in the stencil's fixed order.
+template <float SurfaceTap::*W>
+inline double tapSum(const ShellBand& b, const float* u, size_t i)
+{
+    const double u0 = u[i];
+    double s = 0;
+    for (const SurfaceTap* t = b.tapsBegin(i); t != b.tapsEnd(i); ++t) s += double(t->*W) * (double(u[t->node]) - u0);
+    return s;
+}
+} // namespace
+
 void heatStep(const ShellBand& band, std::vector<float>& u, double dt, double h, std::vector<float>& scratch)
 {
     scratch.assign(band.size(), 0.f);
     const double r = dt / (h * h);
+    if (band.surfaceNodes()) { // Laplace-Beltrami by the nodes' stencils; nothing to extend
+        forEachVoxel(band.size(), [&](size_t i) { scratch[i] = float(u[i] + r * tapSum<&SurfaceTap::lap>(band, u.data(), i)); });
+        u.swap(scratch);
+        return;
+    }
     forEachVoxel(band.size(), [&](size_t i) {
         if (band.inUpdateSet(i)) scratch[i] = float(u[i] + r * laplacianSum(band, u, i));
     });
@@ -115,12 +133,16 @@ void ShellPhaseField::grow()
     // lw_cn fades the anisotropy out where p is flat (the plane's kobayashiEpsSquared): eps_bar
     mA.resize(n, mParams.scheme == PhaseFieldScheme::SecondOrder ? float(mParams.epsBar * mParams.epsBar)
                                                                  : float(eps0 * eps0));
-    mStartP.resize(n, 0.f);
-    mStartT.resize(n, tInf);
-    mPe.resize(n, 0.f);
-    mPf.resize(n, 0.f);
-    mPhi.resize(n, float(std::atanh(2.0 * 1e-6 - 1.0)));
-    for (auto* v : {&mPn, &mTn, &mPOld, &mCx, &mCy, &mCz, &mGx, &mGy, &mGz}) v->resize(n, 0.f);
+    if (b.surfaceNodes()) { // the surface-node step needs no extension or lw_cn arrays
+        for (auto* v : {&mPn, &mTn, &mCx, &mCy, &mCz, &mGx, &mGy}) v->resize(n, 0.f);
+    } else {
+        mStartP.resize(n, 0.f);
+        mStartT.resize(n, tInf);
+        mPe.resize(n, 0.f);
+        mPf.resize(n, 0.f);
+        mPhi.resize(n, float(std::atanh(2.0 * 1e-6 - 1.0)));
+        for (auto* v : {&mPn, &mTn, &mPOld, &mCx, &mCy, &mCz, &mGx, &mGy, &mGz}) v->resize(n, 0.f);
+    }
     if (mMeltSource && mMelt.size() < n) { // the new leaves' melt values, computed as they are built
         const size_t from = mMelt.size();
         mMelt.resize(n);
@@ -191,7 +213,10 @@ void ShellPhaseField::updateRegion()
             if (leaves[s].end > leaves[s].begin) scan.push_back(s);
     } else {
         scan = mStepped;
+        for (uint32_t s : mTouched) // leaves another effect wrote (touched()), stepped or not
+            if (!mInStepped[s]) scan.push_back(s);
     }
+    mTouched.clear();
     mDirty = false;
     const float tol = float(mTolerance), tInf = float(mParams.farTemperature);
     std::vector<openvdb::CoordBBox> off(scan.size());
@@ -205,7 +230,8 @@ void ShellPhaseField::updateRegion()
     // One step reads at most kReach voxels away (see the file comment): every leaf within kReach
     // of an off-background voxel is stepped; the ring of leaves around those stays at the
     // background (built, for the stencils' indices).
-    constexpr int kReach = 9;
+    // Surface nodes read their stencil (kTapReach) in each of the two passes.
+    const int kReach = b.surfaceNodes() ? 2 * ShellBand::kTapReach + 1 : 9;
     std::vector<openvdb::Coord> stepped;
     for (size_t k = 0; k < scan.size(); ++k) {
         if (off[k].empty()) continue;
@@ -239,6 +265,18 @@ void ShellPhaseField::updateRegion()
         }
     }
     mSlotsSeen = leaves.size();
+}
+
+void ShellPhaseField::touched(const std::vector<size_t>& voxels)
+{
+    const auto& leaves = mBand->leaves();
+    for (size_t i : voxels) {
+        // the leaf holding band index i: leaves are contiguous index ranges, found by origin
+        const int32_t s = mBand->leafSlot(leafOrigin(mBand->coord(i)));
+        if (s >= 0 && leaves[size_t(s)].end > leaves[size_t(s)].begin) mTouched.push_back(uint32_t(s));
+    }
+    std::sort(mTouched.begin(), mTouched.end());
+    mTouched.erase(std::unique(mTouched.begin(), mTouched.end()), mTouched.end());
 }
 
 void ShellPhaseField::regionState(openvdb::Int32Grid& boxes, openvdb::MaskGrid& stepped) const
@@ -316,6 +354,10 @@ void ShellPhaseField::step(double time, int64_t stepIndex, uint64_t seed, ShellS
         return;
     }
     updateRegion();
+    if (mBand->surfaceNodes()) {
+        stepSurface(time, stepIndex, seed, stats);
+        return;
+    }
     const ShellBand& b = *mBand;
     const KobayashiParams& k = mParams;
     const double invH = 1.0 / mH, invH2 = invH * invH;
@@ -377,6 +419,89 @@ void ShellPhaseField::step(double time, int64_t stepIndex, uint64_t seed, ShellS
     const float tNext = float(time);
     b.forEachVoxel(&mStepped, [&](size_t i) {
         const float d = mP[i] - mPOld[i];
+        if (d > 0.f) mGrowth[i] += d;
+        if (mFreeze[i] == 0.f && mP[i] > 0.5f) mFreeze[i] = tNext;
+    });
+    if (stats) {
+        stats->kernelSeconds += std::chrono::duration<double>(t1 - t0).count();
+        stats->extendSeconds += since(t1);
+        stats->voxelUpdates += mUpdateCount;
+    }
+}
+
+void ShellPhaseField::stepSurface(double time, int64_t stepIndex, uint64_t seed, ShellStepStats* stats)
+{
+    // The plane's Euler step (kobayashiAux / kobayashiEuler) with its differences replaced by the
+    // nodes' surface stencils, in each node's tangent frame (t, b, n):
+    //   pass 1: g = (dp/dt, dp/db), a = eps^2(theta(g)), C = eps eps' (n x g) as a world vector;
+    //   pass 2: tau dp/dt = a lap p + grad a . g + div C + reaction, where div C sums the
+    //           neighbours' C projected on this node's t and b (exact for a tangent field: the
+    //           surface divergence is the trace of its derivative on the tangent plane);
+    //           T' = T + dt (lap T - w . grad T) + K dp, the wind w's advection centred with
+    //           the upwind scheme's diffusion |w| h / 2 added (first order, as the plane's upwind).
+    const ShellBand& b = *mBand;
+    const KobayashiParams& k = mParams;
+    const double invH = 1.0 / mH, invH2 = invH * invH;
+    const auto t0 = Clock::now();
+    const float* P = mP.data();
+    const float* T = mT.data();
+    b.forEachVoxel(&mStepped, [&](size_t i) {
+        const VoxelFrame& f = b.frame(i);
+        const double gu = tapSum<&SurfaceTap::du>(b, P, i) * invH, gv = tapSum<&SurfaceTap::dv>(b, P, i) * invH;
+        double eps, epsPrime;
+        mAniso(gu, gv, eps, epsPrime);
+        // n x (gu t + gv b) = gu b - gv t
+        const openvdb::Vec3d c = (f.bitangent * gu - f.tangent * gv) * (eps * epsPrime);
+        mA[i] = float(eps * eps);
+        mCx[i] = float(c.x());
+        mCy[i] = float(c.y());
+        mCz[i] = float(c.z());
+        mGx[i] = float(gu);
+        mGy[i] = float(gv);
+    });
+    const float* A = mA.data();
+    b.forEachVoxel(&mStepped, [&](size_t i) {
+        const VoxelFrame& f = b.frame(i);
+        const double p0 = P[i], t0v = T[i], a0 = A[i];
+        const openvdb::Vec3d c0(mCx[i], mCy[i], mCz[i]);
+        const double ct0 = c0.dot(f.tangent), cb0 = c0.dot(f.bitangent);
+        double lapP = 0, lapT = 0, dau = 0, dav = 0, divC = 0, dtu = 0, dtv = 0;
+        for (const SurfaceTap* t = b.tapsBegin(i); t != b.tapsEnd(i); ++t) {
+            const size_t j = size_t(t->node);
+            const double dp = double(P[j]) - p0, dT = double(T[j]) - t0v, da = double(A[j]) - a0;
+            lapP += t->lap * dp;
+            lapT += t->lap * dT;
+            dau += t->du * da;
+            dav += t->dv * da;
+            dtu += t->du * dT;
+            dtv += t->dv * dT;
+            const openvdb::Vec3d cj(mCx[j], mCy[j], mCz[j]);
+            divC += t->du * (cj.dot(f.tangent) - ct0) + t->dv * (cj.dot(f.bitangent) - cb0);
+        }
+        const double div = (a0 * lapP) * invH2 + (dau * mGx[i] + dav * mGy[i]) * invH + divC * invH;
+        const double Te = k.localMeltTemperature(mMelt.empty() ? 1.0 : double(mMelt[i]));
+        const double m = k.alpha / M_PI * std::atan(k.gamma * (Te - t0v));
+        double chi = 0; // the plane's noiseDraw: same hash, keyed by the voxel's coordinate
+        if (k.noise != 0) {
+            const openvdb::Coord& cc = b.coord(i);
+            chi = toUnit(hashCounters(seed, uint64_t(stepIndex), coordKey(cc.x(), cc.y(), cc.z()))) - 0.5;
+        }
+        const double reaction = p0 * (1.0 - p0) * (p0 - 0.5 + m + k.noise * chi);
+        const double dp = k.dt / k.tau * (div + reaction);
+        mPn[i] = float(p0 + dp);
+        double heat = lapT * invH2;
+        if (!mWind.empty()) {
+            const double wu = f.tangent.dot(mWind[i]), wv = f.bitangent.dot(mWind[i]);
+            heat += -(wu * dtu + wv * dtv) * invH + 0.5 * std::sqrt(wu * wu + wv * wv) * lapT * invH;
+        }
+        mTn[i] = float(t0v + k.dt * heat + k.latentHeat * dp);
+    });
+    const auto t1 = Clock::now();
+    const float tNext = float(time);
+    b.forEachVoxel(&mStepped, [&](size_t i) {
+        const float d = mPn[i] - mP[i];
+        mP[i] = mPn[i];
+        mT[i] = mTn[i];
         if (d > 0.f) mGrowth[i] += d;
         if (mFreeze[i] == 0.f && mP[i] > 0.5f) mFreeze[i] = tNext;
     });

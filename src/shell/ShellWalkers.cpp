@@ -6,6 +6,7 @@
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
+#include <limits>
 #include <cmath>
 
 namespace frostvdb::shell {
@@ -57,8 +58,50 @@ bool interpolateCp(const ShellBand& b, IndexAccessor& acc, const Vec3d& y, Vec3d
     return true;
 }
 
+/// Surface nodes: a node near @a y (the voxel holding y when it is one, else the node of the 26
+/// around it whose closest point is nearest y, lowest index on ties), or -1.
+int32_t nodeNear(const ShellBand& b, IndexAccessor& acc, const Vec3d& y)
+{
+    const Coord c = Coord::round(y);
+    int32_t id = acc.getValue(c);
+    if (id >= 0) return id;
+    double best = std::numeric_limits<double>::max();
+    for (int dz = -1; dz <= 1; ++dz)
+        for (int dy = -1; dy <= 1; ++dy)
+            for (int dx = -1; dx <= 1; ++dx) {
+                const int32_t k = acc.getValue(c + Coord(dx, dy, dz));
+                if (k < 0) continue;
+                const double d = (b.closestPoint(size_t(k)) - y).lengthSqr();
+                if (d < best || (d == best && k < id)) { best = d; id = k; }
+            }
+    return id;
+}
+
+/// Surface nodes: @a y projected on the tangent plane at a nearby node's closest point (twice:
+/// the second from the first's projection). A surface point lies within about 0.7 voxels of some
+/// node's closest point (one node per surface cell); @a lateral is the distance beyond that, so a
+/// point more than about half a voxel past an open border reads lateral > 0.5, as on the
+/// closest-point band.
+bool projectOnNodes(const ShellBand& b, IndexAccessor& acc, const Vec3d& y, Vec3d& out, double* lateral)
+{
+    Vec3d q = y;
+    int32_t id = -1;
+    for (int pass = 0; pass < 2; ++pass) {
+        const int32_t k = nodeNear(b, acc, q);
+        if (k < 0) return pass > 0 && (out = q, true);
+        id = k;
+        const Vec3d& cp = b.closestPoint(size_t(k));
+        const Vec3d& n = b.frame(size_t(k)).normal;
+        q -= n * (q - cp).dot(n);
+    }
+    out = q;
+    if (lateral) *lateral = std::max(0.0, (q - b.closestPoint(size_t(id))).length() - 0.7);
+    return true;
+}
+
 bool projectWith(const ShellBand& b, IndexAccessor& acc, const Vec3d& y, Vec3d& out, double* lateral)
 {
+    if (b.surfaceNodes()) return projectOnNodes(b, acc, y, out, lateral);
     Vec3d q;
     if (!interpolateCp(b, acc, y, q, lateral)) return false;
     Vec3d q2; // a second pass: the first lands within O(kappa h^2) of the surface
@@ -68,7 +111,7 @@ bool projectWith(const ShellBand& b, IndexAccessor& acc, const Vec3d& y, Vec3d& 
 
 const VoxelFrame* frameWith(const ShellBand& b, IndexAccessor& acc, const Vec3d& x)
 {
-    const int32_t id = acc.getValue(Coord::round(x));
+    const int32_t id = b.surfaceNodes() ? nodeNear(b, acc, x) : acc.getValue(Coord::round(x));
     return id < 0 ? nullptr : &b.frame(size_t(id));
 }
 
@@ -197,6 +240,12 @@ ShellWalkers::ShellWalkers(std::shared_ptr<const ShellBand> band, const ice::Dla
         if (open && b.lateralOffset(i) > 0.5f && std::fabs(b.normalOffset(i)) <= 1.0f) mBorder.insert(b.closestPoint(i));
         else if (std::fabs(b.normalOffset(i)) <= 0.5f && b.lateralOffset(i) <= 0.25f) mLayer.push_back(i);
     }
+    if (open && b.surfaceNodes()) // no voxels beyond the border: the border edges themselves
+        for (size_t e = 0; e < b.borderEdgeCount(); ++e) {
+            const auto [a, c] = b.borderEdge(e);
+            const int n = std::max(1, int(std::ceil((c - a).length() / 0.5)));
+            for (int k = 0; k <= n; ++k) mBorder.insert(a + (c - a) * (double(k) / n));
+        }
     if (mBorder.size() > 0)
         for (size_t i : mLayer)
             if (mBorder.distance(b.closestPoint(i)) <= 1.5) mBorderLayer.push_back(i);
@@ -218,7 +267,12 @@ void ShellWalkers::addIceVoxels(const std::vector<size_t>& voxels)
             mIce.insert(mBand->closestPoint(i));
 }
 
-int32_t ShellWalkers::siteOf(const Vec3d& x) const { return mBand->indexOf(Coord::round(x)); }
+int32_t ShellWalkers::siteOf(const Vec3d& x) const
+{
+    if (!mBand->surfaceNodes()) return mBand->indexOf(Coord::round(x));
+    auto acc = mBand->indexGrid().getConstAccessor();
+    return nodeNear(*mBand, acc, x);
+}
 
 bool ShellWalkers::project(const Vec3d& y, Vec3d& out, double* lateral) const
 {
@@ -233,7 +287,7 @@ std::vector<size_t> ShellWalkers::markDisc(const Vec3d& x) const
     const VoxelFrame* f = frameWith(*mBand, acc, x);
     const Vec3d n = f ? f->normal : Vec3d(0, 0, 1);
     // the disc's voxels lie along the normal through x, within the band's half-width
-    const double reach = kHalfWidth + 1.0;
+    const double reach = mBand->halfWidth() + 1.0;
     openvdb::CoordBBox box(Coord::floor(x - n * reach), Coord::floor(x - n * reach));
     box.expand(Coord::floor(x + n * reach));
     box.expand(1);

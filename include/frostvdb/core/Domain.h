@@ -41,6 +41,14 @@ struct VoxelFrame {
     openvdb::Vec3d normal{0, 0, 1};
 };
 
+/// A point of the support drawn by DomainImpl::sampleSupport (scatter seeds).
+struct SupportSample {
+    openvdb::Vec3d index{0.0};   ///< index-space position (on the surface for a shell)
+    openvdb::Vec2d uv{0.5, 0.5}; ///< texture coordinates: a plane's fractions (x, y), a mesh's UVs
+    bool hasUv = false;          ///< false on a mesh without UVs
+    float colour = -1.f;         ///< the mesh's vertex-colour luminance there (-1: none)
+};
+
 /// The interface a domain kind implements. The data every domain has (lattice, stencil, index
 /// bounds, transform) lives in the base so the hot accessors are not virtual.
 class DomainImpl {
@@ -89,6 +97,11 @@ public:
     /// Calls @a fn for every member voxel within @a width cells of boundary part @a name.
     virtual void forEachBoundaryVoxel(const std::string& name, int width,
                                       const std::function<void(const openvdb::Coord&)>& fn) const = 0;
+
+    /// @a n points spread uniformly over the support (by area on a surface or a plane, by volume
+    /// in a box), the k-th drawn from hashCounters(@a seed, k), so the same whatever the thread
+    /// count. Default: uniform fractions through parameterToIndex, uv = the first two fractions.
+    virtual std::vector<SupportSample> sampleSupport(size_t n, uint64_t seed) const;
 
     // ---- after each step ---------------------------------------------------------------------
     /// True when the driver must call postStep() on the fields written in a step.
@@ -162,6 +175,7 @@ public:
     void forEachBoundaryVoxel(const std::string& name, int width,
                               const std::function<void(const openvdb::Coord&)>& fn) const
     { mImpl->forEachBoundaryVoxel(name, width, fn); }
+    std::vector<SupportSample> sampleSupport(size_t n, uint64_t seed) const { return mImpl->sampleSupport(n, seed); }
     bool hasPostStep() const { return mImpl->hasPostStep(); }
     void postStep(openvdb::GridBase& field) const { mImpl->postStep(field); }
     /// Index-space centre of the bounds (cell centre, may be fractional).

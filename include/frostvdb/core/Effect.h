@@ -164,6 +164,10 @@ public:
     virtual void step(World& world, const StepInfo& info) = 0;
     /// Adds this effect's output grids to a frame.
     virtual void addToFrame(World& world, Frame& frame) = 0;
+    /// Brings World's fields up to date before the driver reads them outside the step loop (a
+    /// frame, a checkpoint). An effect that keeps fields in its own layout between steps (the
+    /// phase field on a shell keeps them in band order) writes them back here. Default: nothing.
+    virtual void publishFields(World& world) { (void)world; }
     /// False for effects whose frame N is a pure function of N (procedural gas): the driver may
     /// then skip the steps of frames that are not written.
     virtual bool needsHistory() const { return true; }

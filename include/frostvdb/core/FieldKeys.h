@@ -74,6 +74,15 @@ inline const FieldKey kFlows{"gas_flows", FieldType::State, FieldRole::State, ""
     "the flow sections' functions ([attractor], [vortex], ...) that move every gas"};
 } // namespace gas
 
+// ---- shells: state shared by the effects on a shell domain -------------------------------------
+namespace shell {
+inline const FieldKey kSurfaceFields{"surface_fields", FieldType::State, FieldRole::State, "", "",
+    "a shell's p, T, growth_acc and freeze_time in band order, kept by [phase_field] between steps (the grids "
+    "are written back for frames and checkpoints); [dla] freezes into them"};
+inline const FieldKey kSurfaceWind{"surface_wind", FieldType::State, FieldRole::State, "cells of h per unit ice time", "",
+    "the tangential wind per band voxel of [phase_field] on a shell: the drift of [dla]'s walkers"};
+} // namespace shell
+
 // ---- output grids (names in the .vdb files) -------------------------------------------------
 namespace out {
 inline const FieldKey kIce{"ice", FieldType::Float, FieldRole::Output, "", "0",

@@ -81,7 +81,16 @@ public:
     explicit Simulation(Scene scene);
     ~Simulation();
 
-    World& world() { return mWorld; }
+    /// The world, its fields brought up to date first (Effect::publishFields: an effect may keep
+    /// fields in its own layout between steps; the run loop itself writes them back only for
+    /// frames and checkpoints).
+    World& world()
+    {
+        publishFields();
+        return mWorld;
+    }
+    /// Every effect's publishFields (after initialisation; nothing before).
+    void publishFields();
     const std::vector<std::unique_ptr<Effect>>& effects() const { return mEffects; }
     const OutputSettings& output() const { return mOutput; }
     Effect* effect(const std::string& section) const;

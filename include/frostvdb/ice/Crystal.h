@@ -46,7 +46,7 @@ namespace ice {
 
 /// One element of [[crystal.seed]] or [[crystal.melt]].
 struct CrystalShape {
-    enum class Kind { Point, Disc, Line, Edge };
+    enum class Kind { Point, Disc, Line, Edge, Scatter };
     Kind kind = Kind::Point;
     std::vector<double> position{0.5, 0.5}; ///< centre (point, disc), fractions of the domain
     std::vector<double> from, to;           ///< line end points, fractions of the domain
@@ -55,7 +55,20 @@ struct CrystalShape {
     std::vector<std::string> edges;         ///< boundary parts of the domain (Domain::boundaryNames)
     bool world = false;                     ///< position/from/to in world metres, not fractions
     float value = 1.f;                      ///< melt value ([[crystal.melt]] only)
+    // scatter: `count` sites of `radius` cells, spread by area at least `minDistance` cells apart,
+    // each kept with the probability `weight` gives at it (see scatterSites)
+    int64_t count = 100;
+    double minDistance = 0;
+    enum class Weight { None, VertexColours, Texture } weight = Weight::None;
+    std::string weightPath; ///< Texture: a greyscale PNG (a plane: stretched over it; a mesh: through its UVs)
+    uint64_t seed = 1;      ///< the sites' random stream
 };
+
+/// The scatter shape's site centres (index space): candidates drawn uniformly by area
+/// (Domain::sampleSupport), each kept when a uniform draw is below its weight and no kept site
+/// lies within minDistance (dart throwing, in draw order), until `count` are kept or 30 x count
+/// candidates are spent. Same sites whatever the thread count.
+std::vector<openvdb::Vec3d> scatterSites(const Domain& domain, const CrystalShape& shape);
 
 /// Reads one shape table (an empty table gives the default point). @a withValue: read `value`.
 /// Throws SceneError naming the entry and key on bad input (checks against @a domain).

@@ -22,18 +22,17 @@ public:
     void initialize(World& world) override;
     void step(World& world, const StepInfo& info) override;
     void addToFrame(World& world, Frame& frame) override;
+    void publishFields(World& world) override;
     /// On a shell with frost_mesh set: writes the frost layer as OBJ/PLY beside the preview.
     bool writePreview(World& world, const Frame& frame, const std::string& pngPath) override;
     double time() const override { return mTime; }
     std::vector<std::pair<std::string, double>> timings() const override;
     std::vector<std::pair<std::string, double>> counters() const override;
     /// PhaseFieldSolver keeps about 21 float arrays over the active region: the whole domain in
-    /// region.dense mode; the sparse region's size is not known before the run.
-    MemoryEstimate memoryEstimate(const World& world) const override
-    {
-        if (!world.region.dense) return {};
-        return perVoxelEstimate(double(world.domain.bbox().volume()), 96.0, "domain.size", "dense phase-field arrays");
-    }
+    /// region.dense mode; the sparse region's size is not known before the run. On a shell: the
+    /// band and the solver's arrays per surface cell when the band is built whole (dense, or
+    /// [dla] built it), else nothing is known before the ice grows.
+    MemoryEstimate memoryEstimate(const World& world) const override;
     bool supportsCheckpoint() const override { return true; }
     /// Checkpoints fall where the region cadence rebuilds (see PhaseFieldSolver::CadenceState).
     bool atCheckpointBoundary() const override;

@@ -46,8 +46,12 @@
 
 namespace frostvdb::shell {
 
-/// Band half-width in voxels (see the file comment for why 5.5 and not 4.5).
+/// Band half-width in voxels of the closest-point band (see the file comment for why 5.5 and
+/// not 4.5); a surface-node band keeps the voxels within kLayerReach.
 constexpr double kHalfWidth = 5.5;
+/// Surface nodes: voxels whose centre lies within 1/2 along the normal and 1/2 beyond an open
+/// border, so within sqrt(1/2) of the surface.
+constexpr double kLayerReach = 0.7072;
 /// Radius of the update set U in voxels: it must hold every tricubic node (2 sqrt 3 = 3.46).
 constexpr double kUpdateRadius = 3.5;
 /// Radius of the set where the phase field's coefficients are evaluated (the neighbours of U).
@@ -67,6 +71,24 @@ struct BandSettings {
     /// What the mesh's vertex colours (their luminance, interpolated at cp) control: nothing,
     /// seeds (ice where the luminance exceeds 1/2) or the melt map (T_e scale = luminance).
     enum class ColourUse { None, Seed, Melt } colourUse = ColourUse::None;
+    /// How surface operators are discretised (docs/shells.md "Discretisation"):
+    ///  - SurfaceNodes: one layer of voxels, those whose centre lies within half a voxel of the
+    ///    surface along its normal (a slab one voxel thick: one node per surface cell on average,
+    ///    the plane's density, whatever the orientation), with precomputed least-squares surface
+    ///    stencils (Laplace-Beltrami and the two tangential derivatives) over the node's layer
+    ///    neighbours. No extension, no off-surface voxels.
+    ///  - ClosestPoint: the band of half-width 5.5 and the tricubic closest-point extension
+    ///    (Ruuth & Merriman 2008), the reference; lw_cn (the implicit closest point method) and the
+    ///    potential-flow wind run on it.
+    enum class Discretisation { SurfaceNodes, ClosestPoint } discretisation = Discretisation::ClosestPoint;
+};
+
+/// One tap of a surface-node stencil: the neighbour's band index and its weights for the
+/// Laplace-Beltrami operator and the derivatives along the node's tangent and bitangent (index
+/// units: divide by h^2 and h). Weights act on differences u_j - u_i.
+struct SurfaceTap {
+    int32_t node = -1;
+    float lap = 0, du = 0, dv = 0;
 };
 
 /// A bounding-volume hierarchy over a mesh's triangles (index space): the triangles whose
@@ -125,8 +147,18 @@ public:
     /// Band index of face neighbour k (0: -x, 1: +x, 2: -y, 3: +y, 4: -z, 5: +z), or -1 (valid once
     /// the voxel's leaf is prepared).
     int32_t neighbour(size_t i, int k) const { return mNeighbours[6 * i + size_t(k)]; }
-    bool inUpdateSet(size_t i) const { return mDistance[i] <= kUpdateRadius; }
-    bool inCoefficientSet(size_t i) const { return mDistance[i] <= kCoefficientRadius; }
+    bool inUpdateSet(size_t i) const { return mSurface || mDistance[i] <= kUpdateRadius; }
+    bool inCoefficientSet(size_t i) const { return mSurface || mDistance[i] <= kCoefficientRadius; }
+    /// True for a surface-node band (BandSettings::Discretisation::SurfaceNodes).
+    bool surfaceNodes() const { return mSurface; }
+    /// The band's half-width in voxels (kHalfWidth, or kLayerReach for surface nodes).
+    double halfWidth() const { return mSurface ? kLayerReach : kHalfWidth; }
+    /// Surface nodes: the stencil of node @a i (valid once its leaf is prepared), taps in a fixed
+    /// order (neighbour offsets z, y, x ascending), so every sum over it is one fixed sum.
+    const SurfaceTap* tapsBegin(size_t i) const { return mTaps.data() + mTapStart[i]; }
+    const SurfaceTap* tapsEnd(size_t i) const { return mTaps.data() + mTapStart[i] + mTapCount[i]; }
+    /// Surface nodes: the largest voxel offset (Chebyshev) between a node and a stencil tap.
+    static constexpr int kTapReach = 2;
     /// Band index of voxel @a c, or -1 (also where its leaf is not built yet).
     int32_t indexOf(const openvdb::Coord& c) const;
     /// Whether voxel @a c lies in the band (exact, also where its leaf is not built yet).
@@ -210,11 +242,18 @@ public:
     const int32_t* stencilNodes(size_t i) const { return &mNodes[64 * i]; }
     const std::array<float, 12>& stencilWeights(size_t i) const { return mWeights[i]; }
 
+    /// Surface nodes: the bytes a run holds per surface cell (band, stencils, the phase field's
+    /// arrays), for memory estimates; measured in docs/shells.md.
+    static double surfaceBytesPerCell() { return 900.0; }
+    /// The same for this band's discretisation (closest point: 11.5 band voxels of about 660 bytes).
+    double bytesPerSurfaceCell() const { return mSurface ? surfaceBytesPerCell() : 11.5 * 660.0; }
     /// Bytes held by the band (the per-voxel arrays, the index grid, the mesh and its hierarchy).
     size_t memoryBytes() const;
 
     /// Number of the mesh's boundary edges (0: a closed mesh). (Appended for the walkers.)
     size_t borderEdgeCount() const { return mBorderA.size(); }
+    /// Boundary edge @a e's end points (index space).
+    std::pair<openvdb::Vec3d, openvdb::Vec3d> borderEdge(size_t e) const { return {mBorderA[e], mBorderB[e]}; }
 
     /// Calls fn(i) for every band voxel (@a leafSlots null) or every voxel of those leaves, in
     /// parallel; fn must write only to index i.
@@ -242,6 +281,10 @@ private:
     void computeLeaf(const openvdb::Coord& origin, LeafData& out) const;
     size_t materialiseLocked(std::vector<openvdb::Coord> origins) const;
     void prepareLocked(std::vector<openvdb::Coord> origins) const;
+    /// Surface nodes: fills the 6 neighbours and the stencils of these leaves' voxels.
+    void prepareSurface(const std::vector<uint32_t>& slots) const;
+    /// Surface nodes: the least-squares stencil of voxel @a i (its 26 or 124 neighbours built).
+    void surfaceStencil(size_t i, const openvdb::Int32Grid::ConstAccessor& acc, std::vector<SurfaceTap>& out) const;
     /// Closest point of voxel @a c (exact, lowest triangle index on ties): false beyond the half-width.
     bool voxelGeometry(const openvdb::Coord& c, openvdb::Vec3d& cp, uint32_t& tri, double& dist) const;
     VoxelFrame frameOn(uint32_t tri, const openvdb::Vec3d& cp, openvdb::Vec3d* bary = nullptr) const;
@@ -271,6 +314,10 @@ private:
     mutable std::vector<VoxelFrame> mFrames;
     mutable std::vector<uint32_t> mTriangle;
     mutable std::vector<int32_t> mNeighbours;             ///< 6 per voxel
+    bool mSurface = false;                                ///< surface nodes (else closest point)
+    mutable std::vector<SurfaceTap> mTaps;                ///< surface nodes: every prepared node's taps
+    mutable std::vector<uint32_t> mTapStart;              ///< per voxel: first tap in mTaps
+    mutable std::vector<uint8_t> mTapCount;               ///< per voxel: number of taps
     mutable std::vector<int32_t> mNodes;                  ///< 64 per voxel: x fastest, then y, then z
     mutable std::vector<std::array<float, 12>> mWeights;  ///< per axis x, y, z: 4 Lagrange weights
     mutable openvdb::Int32Grid::Ptr mIndex;               ///< band index per voxel, background -1

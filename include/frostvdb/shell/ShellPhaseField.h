@@ -97,6 +97,12 @@ public:
     void setMeltSource(std::function<float(const ShellBand&, size_t)> melt, std::vector<float> now = {});
     /// The melt values per band voxel (empty: none).
     const std::vector<float>& melt() const { return mMelt; }
+    /// For an effect that writes single voxels between steps (the walkers' freezes): p, T, growth
+    /// and freeze_time without marking everything changed; the writer lists the voxels it wrote
+    /// with touched(), so the next step rescans only their leaves for the active region.
+    std::vector<float>& pForEdit() { return mP; }
+    std::vector<float>& TForEdit() { return mT; }
+    void touched(const std::vector<size_t>& voxels);
     std::vector<float>& growthValues() { return mGrowth; }
     std::vector<float>& freezeValues() { return mFreeze; }
     /// A prescribed wind (PDE units: cells of spacing h per unit of ice time) that advects the
@@ -151,6 +157,9 @@ public:
 private:
     /// One theta-step of @a dt (theta 1/2: Crank-Nicolson, 1: implicit Euler).
     void stepImplicit(double dt, double theta, double tNext, int64_t stepIndex, uint64_t seed, ShellStepStats* stats);
+    /// The forward Euler step on a surface-node band (ShellBand::surfaceNodes): the nodes' stencils
+    /// instead of Cartesian differences, nothing to extend.
+    void stepSurface(double time, int64_t stepIndex, uint64_t seed, ShellStepStats* stats);
     /// Finds new hot leaves and grows the stepped set (active mode), or lists every leaf.
     void updateRegion();
     std::shared_ptr<const ShellBand> mBand;
@@ -168,6 +177,7 @@ private:
     std::vector<openvdb::CoordBBox> mOff;        ///< per leaf slot: box of its off-background voxels
     std::vector<char> mInStepped;                 ///< per leaf slot
     std::vector<uint32_t> mStepped;               ///< leaf slots stepped (sorted)
+    std::vector<uint32_t> mTouched;               ///< leaf slots written by others since the last scan
     std::vector<float> mPhi;                      ///< extendPhase's atanh(2p - 1)
     size_t mSlotsSeen = 0;                        ///< leaf slots scanned for heat so far
     // lw_cn
@@ -178,6 +188,12 @@ private:
     size_t mRowsStepped = size_t(-1), mRowsBand = size_t(-1); ///< what mRows was built for
     BandSystem mSysP, mSysT;
     std::vector<double> mXP, mXT, mP0, mEP, mEPFixed, mET, mETFixed, mEPhiN, mEPhiF;
+};
+
+/// Typed shared state (key shell::kSurfaceFields): the phase field's solver on a shell, whose
+/// band-order arrays [dla] freezes into (null: no phase field in the scene).
+struct SurfaceFields {
+    ShellPhaseField* solver = nullptr;
 };
 
 } // namespace frostvdb::shell

@@ -1,14 +1,17 @@
 /// @file ShellDomain.cpp
 /// @brief `[domain] kind = "shell"`: frost on objects. The support is a narrow band of voxels
-/// around a triangle mesh (shell/ShellBand.h); surface operators run there by the closest point
-/// method (shell/ShellPhaseField.h). The band is built lazily, leaf by leaf, where the ice and its
+/// around a triangle mesh (shell/ShellBand.h): one layer of surface nodes with least-squares
+/// surface stencils (`discretisation = "surface"`, the default), or the closest point method's
+/// thick band (`"closest_point"`, the reference) (shell/ShellPhaseField.h). The band is built lazily, leaf by leaf, where the ice and its
 /// heat need it ([region] tolerance; dense = true builds it whole): memory follows the ice.
 #include <frostvdb/shell/ShellDomain.h>
 
 #include <frostvdb/core/Error.h>
+#include <frostvdb/core/Random.h>
 #include <frostvdb/io/Mesh.h>
 #include <frostvdb/shell/ShellTexture.h>
 
+#include <algorithm>
 #include <filesystem>
 #include <stdexcept>
 #include <tuple>
@@ -20,11 +23,47 @@ using openvdb::Vec3d;
 
 class ShellDomain : public DomainImpl {
 public:
-    ShellDomain(std::shared_ptr<const shell::ShellBand> band, double spacing, const openvdb::CoordBBox& bounds)
+    ShellDomain(std::shared_ptr<const shell::ShellBand> band, double spacing, const openvdb::CoordBBox& bounds,
+                const TriangleMesh& mesh)
         : DomainImpl(Lattice(LatticeKind::Square, spacing), bounds, band->voxelSize(), /*withZ=*/true),
-          mBand(std::move(band))
+          mBand(std::move(band)), mMesh(mesh)
     {
         mTransform = mBand->transform();
+        double sum = 0;
+        for (size_t t = 0; t < mMesh.triangles.size(); ++t) mAreaCdf.push_back(sum += mMesh.area(t));
+    }
+
+    /// Area-weighted triangles, uniform barycentric points on them (index space), with the
+    /// mesh's UVs and vertex-colour luminance there.
+    std::vector<SupportSample> sampleSupport(size_t n, uint64_t seed) const override
+    {
+        std::vector<SupportSample> out(n);
+        if (mAreaCdf.empty() || !(mAreaCdf.back() > 0)) return {};
+        const double h = mBand->voxelSize();
+        for (size_t k = 0; k < n; ++k) {
+            const double pick = toUnit(hashCounters(seed, k, 0)) * mAreaCdf.back();
+            const size_t t = size_t(std::upper_bound(mAreaCdf.begin(), mAreaCdf.end(), pick) - mAreaCdf.begin());
+            const auto& f = mMesh.triangles[std::min(t, mMesh.triangles.size() - 1)];
+            double a = toUnit(hashCounters(seed, k, 1)), b = toUnit(hashCounters(seed, k, 2));
+            if (a + b > 1.0) { a = 1.0 - a; b = 1.0 - b; }
+            const double w[3] = {1.0 - a - b, a, b};
+            Vec3d p(0.0);
+            openvdb::Vec2d uv(0.0);
+            double lum = 0;
+            for (int v = 0; v < 3; ++v) {
+                p += Vec3d(mMesh.points[f[v]]) * w[v];
+                if (!mMesh.uvs.empty()) uv += openvdb::Vec2d(mMesh.uvs[f[v]]) * w[v];
+                if (!mMesh.colours.empty()) {
+                    const auto& c = mMesh.colours[f[v]];
+                    lum += w[v] * (0.2126 * c.x() + 0.7152 * c.y() + 0.0722 * c.z());
+                }
+            }
+            out[k].index = p / h;
+            out[k].uv = uv;
+            out[k].hasUv = !mMesh.uvs.empty();
+            out[k].colour = mMesh.colours.empty() ? -1.f : float(std::clamp(lum, 0.0, 1.0));
+        }
+        return out;
     }
 
     const std::shared_ptr<const shell::ShellBand>& band() const { return mBand; }
@@ -73,6 +112,8 @@ public:
 private:
     std::shared_ptr<const shell::ShellBand> mBand;
     std::shared_ptr<const shell::SurfaceTextures> mTextures;
+    TriangleMesh mMesh;            ///< world metres, for sampleSupport
+    std::vector<double> mAreaCdf;  ///< running sum of the triangles' areas
 };
 
 Vec3d vec3(const std::vector<double>& v) { return Vec3d(v[0], v[1], v[2]); }
@@ -126,6 +167,13 @@ Domain readShell(ParamDict& d, const DomainCommon& c)
     const std::string meltTexture = d.getString("melt_texture", "", {},
         "PNG texture through the mesh's UVs: the melt map (T_e scale = luminance, 0 keeps a patch clear; with "
         "[dla] the sticking probability), multiplied with vertex_colours = \"melt\" and the melt field; empty: none");
+    const std::string disc = d.getString("discretisation", "surface", {"surface", "closest_point"},
+        "how surface operators are discretised (docs/shells.md): surface = one layer of voxels on the surface with "
+        "precomputed least-squares surface stencils, about the plane's cost per surface cell; closest_point = a band "
+        "5.5 voxels thick with the tricubic closest-point extension, the reference (needed by phase_field.scheme = "
+        "\"lw_cn\" and phase_field.wind_model = \"potential\")");
+    bs.discretisation = disc == "surface" ? shell::BandSettings::Discretisation::SurfaceNodes
+                                          : shell::BandSettings::Discretisation::ClosestPoint;
     // secondary axis: perpendicular to the first, fixed by it alone
     Vec3d sec = std::fabs(bs.crystalAxis.z()) < 0.9 ? Vec3d(0, 0, 1) : Vec3d(0, 1, 0);
     bs.secondaryAxis = sec.cross(bs.crystalAxis).unit();
@@ -154,7 +202,7 @@ Domain readShell(ParamDict& d, const DomainCommon& c)
                     if (lum(mesh.triangles[t][v]) > 0.5) { bright.push_back(t); break; }
             band->materialiseTriangles(bright);
         }
-        auto dom = std::make_shared<ShellDomain>(band, c.spacing, band->bounds());
+        auto dom = std::make_shared<ShellDomain>(band, c.spacing, band->bounds(), mesh);
         if (!seedTexture.empty() || !meltTexture.empty()) {
             // sampled per voxel on demand (shell/ShellTexture.h): the band grows after this
             std::shared_ptr<shell::SurfaceTextures> maps;
@@ -205,7 +253,7 @@ const SurfaceTextures* texturesOf(const Domain& domain)
 Domain makeShellDomain(const TriangleMesh& mesh, const BandSettings& settings, double spacing)
 {
     auto band = ShellBand::build(mesh, settings);
-    return Domain(std::make_shared<ShellDomain>(band, spacing, band->bounds()));
+    return Domain(std::make_shared<ShellDomain>(band, spacing, band->bounds(), mesh));
 }
 
 } // namespace shell
