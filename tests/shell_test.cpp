@@ -186,7 +186,7 @@ TEST_CASE("Surface nodes: one node per surface cell on the surface, stencils exa
         double worstLap = 0, worstGrad = 0;
         for (size_t i = 0; i < band->size(); ++i) {
             REQUIRE(std::fabs(band->normalOffset(i)) <= 0.5f + 1e-5f);
-            REQUIRE(band->tapsEnd(i) - band->tapsBegin(i) >= 5);
+            REQUIRE(band->tapsEnd(i) - band->tapsBegin(i) >= 3); // a corner: the ring estimate
             if (which == 0) continue;
             const Vec3d q = band->closestPoint(i);
             if (m.matrix().inverse().transform(q).length() > 20) continue; // away from the border

@@ -422,6 +422,7 @@ void ShellBand::prepareLocked(std::vector<Coord> origins) const
     }
     if (mSurface) {
         prepareSurface(todo);
+        for (uint32_t s : todo) mLeaves[s].prepared = true;
         return;
     }
     bool missing = false;
@@ -461,6 +462,9 @@ constexpr double kMinTapDistance = 0.5;
 /// Surface nodes: a stencil whose centre weight (the sum of its Laplacian weights) exceeds this
 /// is refitted on the wider ring (the plane's 5-point stencil has 4, the isotropic 9-point 10/3).
 constexpr double kMaxCentreWeight = 6.0;
+/// Surface nodes: the same bound on the gradient weights' absolute sum (a central difference
+/// has 1, the flat layer's fit 1.0 per axis).
+constexpr double kMaxGradientSpread = 4.0;
 /// Surface nodes: the weight powers phi = r^-power of the Laplacian's and the gradient's fits.
 /// 6 gives a flat axis-aligned layer the isotropic 9-point Laplacian (docs/shells.md).
 constexpr double kLaplacianWeightPower = 8.0;
@@ -530,21 +534,32 @@ void ShellBand::surfaceStencil(size_t i, const openvdb::Int32Grid::ConstAccessor
         if (cand.size() < 5) continue;
         Eigen::MatrixXd wl, wg;
         if (!fit(pLap, lapRhs, wl) || !fit(pGrad, gradRhs, wg)) continue; // a wider ring
-        double centre = 0, spread = 0;
+        double centre = 0, spread = 0, gradSpread = 0;
         for (Eigen::Index k = 0; k < wl.rows(); ++k) {
             centre += wl(k, 0);
             spread += std::fabs(wl(k, 0));
+            gradSpread += std::fabs(wg(k, 0)) + std::fabs(wg(k, 1));
         }
         // a lopsided neighbourhood (an open border, a gap in a steep layer) fits the quadratic
-        // with large weights of both signs: the wider ring then, so explicit steps stay stable
-        if ((centre > kMaxCentreWeight || spread > 2.0 * kMaxCentreWeight) && reach < kTapReach) continue;
+        // with large weights of both signs: the wider ring then, so explicit steps stay stable;
+        // past that, the ring estimate below
+        if (centre > kMaxCentreWeight || spread > 2.0 * kMaxCentreWeight || gradSpread > kMaxGradientSpread) continue;
         for (size_t k = 0; k < cand.size(); ++k)
             out.push_back({cand[k].id, float(wl(Eigen::Index(k), 0)), float(wg(Eigen::Index(k), 0)),
                            float(wg(Eigen::Index(k), 1))});
         return;
     }
-    // Too few neighbours for a quadratic fit (an isolated node, a needle tip): an isotropic ring
-    // estimate that keeps the operators' signs (diffusion stays diffusion).
+    // Too few neighbours for a quadratic fit, or a fit too lopsided to step explicitly (an open
+    // border's corner, a needle tip): an isotropic ring estimate over the nearest ring that keeps
+    // the operators' signs (diffusion stays diffusion), first order.
+    if (kTapReach > 1) {
+        std::vector<Cand> inner;
+        for (const Cand& k : cand)
+            if (std::abs(mCoords[size_t(k.id)].x() - c.x()) <= 1 && std::abs(mCoords[size_t(k.id)].y() - c.y()) <= 1 &&
+                std::abs(mCoords[size_t(k.id)].z() - c.z()) <= 1)
+                inner.push_back(k);
+        if (!inner.empty()) cand.swap(inner);
+    }
     double sum2 = 0;
     for (const Cand& k : cand) sum2 += k.s * k.s + k.t * k.t;
     for (const Cand& k : cand) {

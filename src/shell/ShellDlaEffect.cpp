@@ -164,19 +164,24 @@ private:
         }
     }
 
-    /// The walkers' ice from p: in full at the first step or when ice melted, else only the
-    /// voxels another effect (the phase field) turned to ice since our last step.
-    void syncIce()
+    /// The walkers' ice from p: in full at the first step and every kFullSyncSteps steps, else
+    /// the voxels another effect (the phase field) turned to ice or melted since our last step
+    /// are added or removed (stick points stay until the next full sync).
+    static constexpr int64_t kFullSyncSteps = 64;
+    void syncIce(int64_t step)
     {
-        bool full = mPLeft.size() != mP.size();
-        std::vector<size_t> grown;
-        for (size_t i = 0; i < mP.size() && !full; ++i) {
+        if (mPLeft.size() != mP.size() || step % kFullSyncSteps == 0) {
+            mWalkers->sync(mP);
+            return;
+        }
+        std::vector<size_t> grown, melted;
+        for (size_t i = 0; i < mP.size(); ++i) {
             const bool was = mPLeft[i] > 0.5f, is = mP[i] > 0.5f;
-            if (was && !is) full = true;
+            if (was && !is) melted.push_back(i);
             else if (is && !was) grown.push_back(i);
         }
-        if (full) mWalkers->sync(mP);
-        else mWalkers->addIceVoxels(grown);
+        mWalkers->removeIceVoxels(melted);
+        mWalkers->addIceVoxels(grown);
     }
 };
 
@@ -190,7 +195,7 @@ void ShellDlaEffect::step(World& world, const StepInfo& info)
     ShellPhaseField* solver = world.hasState<SurfaceFields>() ? world.state<SurfaceFields>().solver : nullptr;
     if (solver) mP.swap(solver->pForEdit());
     else fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kPhase), mP);
-    syncIce();
+    syncIce(info.step);
     mStats.syncSeconds += since(t0);
 
     ShellWalkers::Inputs in;
@@ -341,7 +346,7 @@ void ShellDlaEffect::addToFrame(World& world, Frame& frame)
     auto fog = frostFog(*mBand, mP, mGrowth);
     for (auto& g : frame.grids)
         if (g->getName() == out::kIce.name) g = fog;
-    frame.add(frostLevelSet(*fog));
+    frame.add(frostLevelSet(*mBand, *fog));
 }
 
 } // namespace

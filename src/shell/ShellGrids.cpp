@@ -2,7 +2,9 @@
 #include <frostvdb/shell/ShellGrids.h>
 
 #include <openvdb/tools/Composite.h>
+#include <openvdb/tools/FastSweeping.h>
 #include <openvdb/tools/MeshToVolume.h>
+#include <openvdb/tools/Morphology.h>
 #include <openvdb/tools/Prune.h>
 #include <openvdb/tools/VolumeToMesh.h>
 #include <openvdb/tree/LeafManager.h>
@@ -139,6 +141,42 @@ void frostMesh(const openvdb::FloatGrid& fog, std::vector<openvdb::Vec3s>& point
     quads.clear();
     if (fog.activeVoxelCount() == 0) return;
     openvdb::tools::volumeToMesh(fog, points, triangles, quads, 0.5, 0.0);
+}
+
+openvdb::FloatGrid::Ptr frostLevelSetSwept(const openvdb::FloatGrid& fog)
+{
+    const float h = float(fog.voxelSize()[0]), halfWidth = 3.f * h;
+    openvdb::FloatGrid::Ptr sdf;
+    bool crosses = false; // fogToSdf needs the iso-value inside the fog's range
+    for (auto it = fog.cbeginValueOn(); it && !crosses; ++it) crosses = *it > 0.5f;
+    if (crosses) {
+        auto grown = fog.deepCopy();
+        openvdb::tools::dilateActiveValues(grown->tree(), 3, openvdb::tools::NN_FACE_EDGE_VERTEX,
+                                           openvdb::tools::IGNORE_TILES);
+        sdf = openvdb::tools::fogToSdf(*grown, 0.5f);
+        // trim to the narrow band; |phi| beyond it is the background's
+        openvdb::tree::LeafManager<openvdb::FloatTree> leaves(sdf->tree());
+        leaves.foreach([&](openvdb::FloatTree::LeafNodeType& leaf, size_t) {
+            for (openvdb::Index n = 0; n < openvdb::FloatTree::LeafNodeType::SIZE; ++n) {
+                if (!leaf.isValueOn(n)) continue;
+                const float v = leaf.getValue(n);
+                if (!(std::fabs(v) < halfWidth)) leaf.setValueOff(n, v < 0 ? -halfWidth : halfWidth);
+            }
+        });
+        sdf->tree().root().setBackground(halfWidth, true);
+        openvdb::tools::pruneLevelSet(sdf->tree());
+    } else {
+        sdf = openvdb::FloatGrid::create(halfWidth);
+        sdf->setTransform(fog.transform().copy());
+    }
+    sdf->setGridClass(openvdb::GRID_LEVEL_SET);
+    sdf->setName("ice_sdf");
+    return sdf;
+}
+
+openvdb::FloatGrid::Ptr frostLevelSet(const ShellBand& band, const openvdb::FloatGrid& fog)
+{
+    return band.surfaceNodes() ? frostLevelSetSwept(fog) : frostLevelSet(fog);
 }
 
 openvdb::FloatGrid::Ptr frostLevelSet(const openvdb::FloatGrid& fog)

@@ -24,17 +24,6 @@ uint64_t packKey(const Vec3d& q, double size)
     return uint64_t(i & kMask) | (uint64_t(j & kMask) << 21) | (uint64_t(k & kMask) << 42);
 }
 
-/// The 27 keys of the 3x3x3 buckets around the one holding @a x.
-template <typename Fn>
-bool anyNeighbourBucket(const Vec3d& x, double size, const Fn& fn)
-{
-    for (int dz = -1; dz <= 1; ++dz)
-        for (int dy = -1; dy <= 1; ++dy)
-            for (int dx = -1; dx <= 1; ++dx)
-                if (fn(packKey(x + Vec3d(dx, dy, dz) * size, size))) return true;
-    return false;
-}
-
 using IndexAccessor = openvdb::Int32Grid::ConstAccessor;
 
 /// One trilinear pass of the band's closest points at @a y.
@@ -58,14 +47,25 @@ bool interpolateCp(const ShellBand& b, IndexAccessor& acc, const Vec3d& y, Vec3d
     return true;
 }
 
-/// Surface nodes: a node near @a y (the voxel holding y when it is one, else the node of the 26
-/// around it whose closest point is nearest y, lowest index on ties), or -1.
+/// Surface nodes: a node near @a y: the voxel holding y when it is one; else, of its 6 face
+/// neighbours that are nodes, the one whose closest point is nearest y (a column along the
+/// normal's dominant axis crosses the one-voxel slab within a voxel of y, so one is nearly always
+/// there); else the same among the 26 around it (lowest index on ties), or -1.
 int32_t nodeNear(const ShellBand& b, IndexAccessor& acc, const Vec3d& y)
 {
     const Coord c = Coord::round(y);
     int32_t id = acc.getValue(c);
     if (id >= 0) return id;
     double best = std::numeric_limits<double>::max();
+    static const Coord faces[6] = {Coord(-1, 0, 0), Coord(1, 0, 0), Coord(0, -1, 0),
+                                   Coord(0, 1, 0),  Coord(0, 0, -1), Coord(0, 0, 1)};
+    for (const Coord& o : faces) {
+        const int32_t k = acc.getValue(c + o);
+        if (k < 0) continue;
+        const double d = (b.closestPoint(size_t(k)) - y).lengthSqr();
+        if (d < best || (d == best && k < id)) { best = d; id = k; }
+    }
+    if (id >= 0) return id;
     for (int dz = -1; dz <= 1; ++dz)
         for (int dy = -1; dy <= 1; ++dy)
             for (int dx = -1; dx <= 1; ++dx) {
@@ -149,16 +149,53 @@ bool shootWith(const ShellBand& b, IndexAccessor& acc, Vec3d& x, Vec3d dir, doub
 void SurfacePointIndex::clear()
 {
     mFine.clear();
-    for (auto& c : mCoarse) c.clear();
+    for (auto& c : mCounts) c = std::make_shared<openvdb::Int32Tree>(0);
     mCount = 0;
+}
+
+namespace {
+Coord bucketOf(const Vec3d& q, int level)
+{
+    const double size = SurfacePointIndex::kBucket * double(1 << level);
+    return Coord(int(std::floor(q.x() / size)), int(std::floor(q.y() / size)), int(std::floor(q.z() / size)));
+}
+} // namespace
+
+SurfacePointIndex::Accessors SurfacePointIndex::accessors() const
+{
+    Accessors out;
+    out.reserve(kLevels);
+    for (const auto& c : mCounts) out.emplace_back(*c);
+    return out;
 }
 
 void SurfacePointIndex::insert(const Vec3d& q)
 {
     mFine[packKey(q, kBucket)].push_back(q);
-    for (int k = 1; k < kLevels; ++k)
-        if (!mCoarse[size_t(k)].insert(packKey(q, kBucket * double(1 << k))).second) break; // and above
+    for (int k = 0; k < kLevels; ++k) {
+        const Coord b = bucketOf(q, k);
+        mCounts[size_t(k)]->setValue(b, mCounts[size_t(k)]->getValue(b) + 1);
+    }
     ++mCount;
+}
+
+bool SurfacePointIndex::erase(const Vec3d& q)
+{
+    const auto it = mFine.find(packKey(q, kBucket));
+    if (it == mFine.end()) return false;
+    auto& v = it->second;
+    const auto at = std::find(v.begin(), v.end(), q);
+    if (at == v.end()) return false;
+    v.erase(at); // keeps the others' order: distances are minima anyway
+    if (v.empty()) mFine.erase(it);
+    for (int k = 0; k < kLevels; ++k) {
+        const Coord b = bucketOf(q, k);
+        const int32_t n = mCounts[size_t(k)]->getValue(b) - 1;
+        if (n > 0) mCounts[size_t(k)]->setValue(b, n);
+        else mCounts[size_t(k)]->setValueOff(b, 0);
+    }
+    --mCount;
+    return true;
 }
 
 std::vector<double> SurfacePointIndex::pointList() const
@@ -176,32 +213,31 @@ std::vector<double> SurfacePointIndex::pointList() const
 
 double SurfacePointIndex::distance(const Vec3d& x) const
 {
-    if (mCount == 0) return kFar;
-    // exact within the 3x3x3 fine buckets: any point outside them is more than kBucket away
-    double best2 = kFar * kFar;
-    anyNeighbourBucket(x, kBucket, [&](uint64_t key) {
-        auto it = mFine.find(key);
-        if (it != mFine.end())
-            for (const Vec3d& q : it->second) best2 = std::min(best2, (q - x).lengthSqr());
-        return false;
-    });
-    const double best = std::sqrt(best2);
-    if (best <= kBucket) return best;
-    return std::min(best, coarseBound(x));
+    Cursor c(*this);
+    return c.distance(x);
 }
 
-double SurfacePointIndex::coarseBound(const Vec3d& x) const
+double SurfacePointIndex::coarseBound(const Vec3d& x, Accessors& acc) const
 {
     // free 3x3x3 neighbourhood at level k: no point within 4 * 2^k (of any point of x's fine
-    // bucket, which lies inside x's bucket at every level)
-    double lower = kBucket;
-    for (int k = 1; k < kLevels; ++k) {
-        const double size = kBucket * double(1 << k);
-        const auto& set = mCoarse[size_t(k)];
-        if (anyNeighbourBucket(x, size, [&](uint64_t key) { return set.count(key) > 0; })) return lower;
-        lower = size;
+    // bucket, which lies inside x's bucket at every level). A level's neighbourhood lies inside
+    // the next one's, so occupancy only grows with k: the first occupied level by bisection.
+    auto occupied = [&](int k) {
+        const Coord b = bucketOf(x, k);
+        for (int dz = -1; dz <= 1; ++dz)
+            for (int dy = -1; dy <= 1; ++dy)
+                for (int dx = -1; dx <= 1; ++dx)
+                    if (acc[size_t(k)].getValue(b + Coord(dx, dy, dz)) > 0) return true;
+        return false;
+    };
+    int lo = 1, hi = kLevels; // levels below lo are free; level hi is occupied (or hi = kLevels)
+    while (lo < hi) {
+        const int mid = (lo + hi) / 2;
+        if (occupied(mid)) hi = mid;
+        else lo = mid + 1;
     }
-    return kFar; // nothing within the top level's reach
+    if (lo == kLevels) return kFar; // nothing within the top level's reach
+    return kBucket * double(1 << (lo - 1));
 }
 
 double SurfacePointIndex::Cursor::distance(const Vec3d& x)
@@ -211,18 +247,21 @@ double SurfacePointIndex::Cursor::distance(const Vec3d& x)
     if (key != mKey) {
         mKey = key;
         mPoints.clear();
-        anyNeighbourBucket(x, kBucket, [&](uint64_t k) {
-            auto it = mIndex.mFine.find(k);
-            if (it != mIndex.mFine.end()) mPoints.insert(mPoints.end(), it->second.begin(), it->second.end());
-            return false;
-        });
+        const Coord b = bucketOf(x, 0);
+        for (int dz = -1; dz <= 1; ++dz)
+            for (int dy = -1; dy <= 1; ++dy)
+                for (int dx = -1; dx <= 1; ++dx) {
+                    if (mAcc[0].getValue(b + Coord(dx, dy, dz)) <= 0) continue; // empty: no look-up
+                    auto it = mIndex.mFine.find(packKey(x + Vec3d(dx, dy, dz) * kBucket, kBucket));
+                    if (it != mIndex.mFine.end()) mPoints.insert(mPoints.end(), it->second.begin(), it->second.end());
+                }
         mCoarse = -1; // computed when first needed
     }
     double best2 = kFar * kFar;
     for (const Vec3d& q : mPoints) best2 = std::min(best2, (q - x).lengthSqr());
     const double best = std::sqrt(best2);
     if (best <= kBucket) return best;
-    if (mCoarse < 0) mCoarse = mIndex.coarseBound(x);
+    if (mCoarse < 0) mCoarse = mIndex.coarseBound(x, mAcc);
     return std::min(best, mCoarse);
 }
 
@@ -259,6 +298,13 @@ void ShellWalkers::sync(const std::vector<float>& p)
 }
 
 void ShellWalkers::addIce(const Vec3d& x) { mIce.insert(x); }
+
+void ShellWalkers::removeIceVoxels(const std::vector<size_t>& voxels)
+{
+    for (size_t i : voxels)
+        if (std::fabs(mBand->normalOffset(i)) <= 0.5f && mBand->lateralOffset(i) <= 0.25f)
+            mIce.erase(mBand->closestPoint(i));
+}
 
 void ShellWalkers::addIceVoxels(const std::vector<size_t>& voxels)
 {

@@ -47,8 +47,11 @@ public:
     static constexpr double kBucket = 4.0;
     static constexpr int kLevels = 8;
 
+    SurfacePointIndex() { clear(); }
     void clear();
     void insert(const openvdb::Vec3d& q);
+    /// Removes one point equal to @a q (false when there is none).
+    bool erase(const openvdb::Vec3d& q);
     size_t size() const { return mCount; }
     /// Every point as x, y, z triples, bucket by bucket in key order.
     std::vector<double> pointList() const;
@@ -60,13 +63,18 @@ public:
     /// Repeated queries along a walk: the points of the 3x3x3 fine buckets around the last
     /// query's bucket and the coarse levels' bound are kept until the walk leaves that bucket
     /// (the index must not change meanwhile). Same results as distance().
+    /// One accessor per level's count tree (one per thread: they cache the nodes last visited).
+    using Accessors = std::vector<openvdb::tree::ValueAccessor<const openvdb::Int32Tree>>;
+    Accessors accessors() const;
+
     class Cursor {
     public:
-        explicit Cursor(const SurfacePointIndex& index) : mIndex(index) {}
+        explicit Cursor(const SurfacePointIndex& index) : mIndex(index), mAcc(index.accessors()) {}
         double distance(const openvdb::Vec3d& x);
 
     private:
         const SurfacePointIndex& mIndex;
+        Accessors mAcc;
         uint64_t mKey = ~uint64_t(0);
         std::vector<openvdb::Vec3d> mPoints;
         double mCoarse = -1; ///< bound from the coarse levels (-1: not computed yet)
@@ -74,10 +82,12 @@ public:
 
 private:
     /// The coarse levels' lower bound for any point of the fine bucket holding @a x.
-    double coarseBound(const openvdb::Vec3d& x) const;
+    double coarseBound(const openvdb::Vec3d& x, Accessors& acc) const;
 
     std::unordered_map<uint64_t, std::vector<openvdb::Vec3d>> mFine;
-    std::array<std::unordered_set<uint64_t>, kLevels> mCoarse; ///< level k: buckets of 4 * 2^k
+    /// level k: points per bucket of 4 * 2^k, as a sparse grid of bucket coordinates (counts,
+    /// so points can be removed; level 0 tells which fine buckets to look up in mFine)
+    std::array<openvdb::Int32Tree::Ptr, kLevels> mCounts;
     size_t mCount = 0;
 };
 
@@ -114,6 +124,9 @@ public:
     void addIce(const openvdb::Vec3d& x);
     /// Adds the surface-layer voxels among @a voxels (ice that another effect grew).
     void addIceVoxels(const std::vector<size_t>& voxels);
+    /// Removes the surface-layer voxels among @a voxels (ice that melted); stick points stay
+    /// until the next sync().
+    void removeIceVoxels(const std::vector<size_t>& voxels);
     /// Lower bound of the distance (voxels) from @a x to the ice.
     double iceDistance(const openvdb::Vec3d& x) const { return mIce.distance(x); }
     size_t icePoints() const { return mIce.size(); }
