@@ -311,7 +311,9 @@ void PhaseFieldEffect::addToFrame(World& world, Frame& frame)
     auto fog = shell::frostFog(mShell->band(), mShell->p(), mShell->growthValues());
     for (auto& g : frame.grids)
         if (g->getName() == out::kIce.name) g = fog;
-    frame.add(shell::frostLevelSet(mShell->band(), *fog));
+    const shell::ShellBand& band = mShell->band();
+    frame.add(band.surfaceNodes() ? shell::frostLevelSetOnNodes(band, mShell->p(), mShell->growthValues())
+                                  : shell::frostLevelSet(*fog));
 }
 
 bool PhaseFieldEffect::writePreview(World&, const Frame& frame, const std::string& pngPath)

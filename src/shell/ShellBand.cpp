@@ -11,7 +11,6 @@
 #include <Eigen/Dense>
 
 #include <algorithm>
-#include <cstdlib>
 #include <cmath>
 #include <limits>
 #include <numeric>
@@ -484,9 +483,7 @@ void ShellBand::surfaceStencil(size_t i, const openvdb::Int32Grid::ConstAccessor
     const VoxelFrame& f = mFrames[i];
     struct Cand { int32_t id; double s, t, r2; };
     std::vector<Cand> cand;
-    static const double minD = getenv("FV_MIND") ? atof(getenv("FV_MIND")) : kMinTapDistance;
-    static const double pLap = getenv("FV_P") ? atof(getenv("FV_P")) : kLaplacianWeightPower;
-    static const double pGrad = getenv("FV_PG") ? atof(getenv("FV_PG")) : kGradientWeightPower;
+    const double minD = kMinTapDistance, pLap = kLaplacianWeightPower, pGrad = kGradientWeightPower;
     // weights of least sum w^2 / phi, phi = r^-power, exact on (s, t, s^2, st, t^2) for @a rhs
     auto fit = [&](double power, const Eigen::Matrix<double, 5, Eigen::Dynamic>& rhs,
                    Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic>& w) {

@@ -346,7 +346,7 @@ void ShellDlaEffect::addToFrame(World& world, Frame& frame)
     auto fog = frostFog(*mBand, mP, mGrowth);
     for (auto& g : frame.grids)
         if (g->getName() == out::kIce.name) g = fog;
-    frame.add(frostLevelSet(*mBand, *fog));
+    frame.add(mBand->surfaceNodes() ? frostLevelSetOnNodes(*mBand, mP, mGrowth) : frostLevelSet(*fog));
 }
 
 } // namespace

@@ -33,11 +33,9 @@ void frostMesh(const openvdb::FloatGrid& fog, std::vector<openvdb::Vec3s>& point
                std::vector<openvdb::Vec3I>& triangles, std::vector<openvdb::Vec4I>& quads);
 /// The fog's 0.5 iso-surface as a narrow-band level set (3 voxels each side).
 openvdb::FloatGrid::Ptr frostLevelSet(const openvdb::FloatGrid& fog);
-/// The same level set by fast sweeping from the fog itself (tools::fogToSdf on the fog's
-/// topology dilated by 3 voxels, trimmed to 3 voxels): about 4x faster than the mesh route, for
-/// surface-node shells (docs/shells.md).
-openvdb::FloatGrid::Ptr frostLevelSetSwept(const openvdb::FloatGrid& fog);
-/// The frost layer's level set as @a band's discretisation writes it.
-openvdb::FloatGrid::Ptr frostLevelSet(const ShellBand& band, const openvdb::FloatGrid& fog);
+/// Surface nodes: the frost layer's level set straight from the nodes (the union of one prism
+/// per icy node along its normal, 3 voxels each side), without meshing or sweeping.
+openvdb::FloatGrid::Ptr frostLevelSetOnNodes(const ShellBand& band, const std::vector<float>& p,
+                                             const std::vector<float>& growth);
 
 } // namespace frostvdb::shell
