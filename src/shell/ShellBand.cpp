@@ -476,8 +476,9 @@ void ShellBand::surfaceStencil(size_t i, const openvdb::Int32Grid::ConstAccessor
     // exact for every quadratic in the tangent-plane coordinates (s, t) of the neighbours' closest
     // points, of least weighted norm sum w_j^2 / phi_j. At the node, where the surface is a graph
     // over its tangent plane with zero slope, u_ss + u_tt is the Laplace-Beltrami operator.
-    // phi = r^-6 makes the stencil of a flat, axis-aligned layer the isotropic 9-point Laplacian
-    // (edge 2/3, corner 1/6) and a Sobel-like gradient.
+    // phi = r^-6 would make the stencil of a flat, axis-aligned layer the isotropic 9-point
+    // Laplacian (edge 2/3, corner 1/6); the Laplacian uses r^-8 (edge 0.8, corner 0.1: nearer the
+    // plane's 5-point stencil, measured in docs/shells.md), the gradient r^-6 (Sobel-like).
     const Coord c = mCoords[i];
     const Vec3d& q = mCp[i];
     const VoxelFrame& f = mFrames[i];
