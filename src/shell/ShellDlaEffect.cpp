@@ -244,7 +244,13 @@ void ShellDlaEffect::step(World& world, const StepInfo& info)
     const double time = sh.timeAtStep(info.step);
     auto freezeAt = [&](const openvdb::Vec3d& x) {
         readRest();
-        const std::vector<size_t> disc = mWalkers->markDisc(x);
+        std::vector<size_t> disc;
+        if (band.surfaceNodes()) { // the free node next to the ice, as a plane's walker freezes its cell
+            const int32_t id = mWalkers->freeNodeNear(x, mP);
+            if (id >= 0) disc.push_back(size_t(id));
+        } else {
+            disc = mWalkers->markDisc(x);
+        }
         for (size_t i : disc) {
             const float before = mP[i];
             mP[i] = 1.f;

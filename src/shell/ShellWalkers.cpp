@@ -326,10 +326,32 @@ bool ShellWalkers::project(const Vec3d& y, Vec3d& out, double* lateral) const
     return projectWith(*mBand, acc, y, out, lateral);
 }
 
+int32_t ShellWalkers::freeNodeNear(const Vec3d& x, const std::vector<float>& p) const
+{
+    auto acc = mBand->indexGrid().getConstAccessor();
+    const Coord c = Coord::round(x);
+    int32_t id = -1;
+    double best = std::numeric_limits<double>::max();
+    for (int dz = -1; dz <= 1; ++dz)
+        for (int dy = -1; dy <= 1; ++dy)
+            for (int dx = -1; dx <= 1; ++dx) {
+                const int32_t k = acc.getValue(c + Coord(dx, dy, dz));
+                if (k < 0 || p[size_t(k)] > 0.5f) continue;
+                const double d = (mBand->closestPoint(size_t(k)) - x).lengthSqr();
+                if (d < best || (d == best && k < id)) { best = d; id = k; }
+            }
+    return id;
+}
+
 std::vector<size_t> ShellWalkers::markDisc(const Vec3d& x) const
 {
     std::vector<size_t> out;
     auto acc = mBand->indexGrid().getConstAccessor();
+    if (mBand->surfaceNodes()) { // one node per surface cell: a stick freezes the node holding it, as on a plane
+        const int32_t id = nodeNear(*mBand, acc, x);
+        if (id >= 0) out.push_back(size_t(id));
+        return out;
+    }
     const VoxelFrame* f = frameWith(*mBand, acc, x);
     const Vec3d n = f ? f->normal : Vec3d(0, 0, 1);
     // the disc's voxels lie along the normal through x, within the band's half-width

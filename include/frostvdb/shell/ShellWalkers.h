@@ -138,8 +138,13 @@ public:
         mIce.clear();
         for (size_t k = 0; k + 2 < xyz.size(); k += 3) mIce.insert(openvdb::Vec3d(xyz[k], xyz[k + 1], xyz[k + 2]));
     }
-    /// Band voxels whose closest point lies within kMarkRadius of @a x (ascending band index).
+    /// Band voxels whose closest point lies within kMarkRadius of @a x (ascending band index);
+    /// on surface nodes, the node nearest @a x (one per surface cell, as a plane's stick freezes one cell).
     std::vector<size_t> markDisc(const openvdb::Vec3d& x) const;
+    /// Surface nodes: the node a stick at @a x freezes: of the nodes around it that are not ice
+    /// yet (p <= 1/2), the one whose closest point is nearest (a walker sticks next to the ice and
+    /// freezes its own cell, as on a plane); -1 when all are ice.
+    int32_t freeNodeNear(const openvdb::Vec3d& x, const std::vector<float>& p) const;
     /// Band index of the voxel holding @a x (the walker's site: hits and melt are read there).
     int32_t siteOf(const openvdb::Vec3d& x) const;
     /// Surface-layer voxels (release sites) and those within a voxel of the border.
