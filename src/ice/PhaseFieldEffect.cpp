@@ -13,6 +13,8 @@
 #include <openvdb/tools/ValueTransformer.h>
 
 #include <cmath>
+#include <cstdio>
+#include <thread>
 #include <sstream>
 
 namespace frostvdb {
@@ -182,6 +184,7 @@ void PhaseFieldEffect::initialize(World& world)
         }
         // [region]: the band around the ice (tolerance) or the whole band (dense, the reference)
         mShell->setActiveRegion(!world.region.dense, world.region.tolerance);
+        printShellEstimate(*band, world);
         if (mPotentialWind) {
             mShell->setWindField(shell::potentialFlowWind(*band, mWind, 0));
         } else {
@@ -219,6 +222,22 @@ void PhaseFieldEffect::initialize(World& world)
     FieldEdits& edits = world.state<FieldEdits>();
     edits.listen(ice::kPhase.name);
     edits.listen(ice::kTemperature.name);
+}
+
+void PhaseFieldEffect::printShellEstimate(const shell::ShellBand& band, const World& world) const
+{
+    // One line before the run (stderr): the surface's cells, the memory they ask when the band
+    // is whole, and the steps per second once the whole surface is stepped, from the node update
+    // rate measured by `frostvdb bench shell pane` (docs/performance.md): an upper bound of the
+    // time, as the active region steps only the ice and its heat halo.
+    constexpr double kNodeUpdatesPerSecondPerCore = 12e6;
+    const double cells = band.surfaceVoxels(), cores = double(std::max(1u, std::thread::hardware_concurrency()));
+    const double rate = kNodeUpdatesPerSecondPerCore * cores / std::max(1.0, cells);
+    const double steps = double(world.frames * world.stepsPerFrame);
+    std::fprintf(stderr, "frostvdb: shell: %.2f M surface cells (%s), %zu built now; whole: about %s; about %.1f steps/s "
+                         "when all are stepped (%d steps: at most %.0f s)\n",
+                 cells * 1e-6, band.surfaceNodes() ? "surface nodes" : "closest-point band", band.size(),
+                 formatBytes(cells * band.bytesPerSurfaceCell()).c_str(), rate, int(steps), steps / rate);
 }
 
 void PhaseFieldEffect::gatherShell(World& world)

@@ -58,6 +58,7 @@ private:
     openvdb::FloatGrid::Ptr mShellP, mShellT;
     shell::ShellStepStats mShellStats;
     void gatherShell(World& world);
+    void printShellEstimate(const shell::ShellBand& band, const World& world) const;
     void scatterShell(World& world);
 };
 
