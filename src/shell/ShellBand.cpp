@@ -541,7 +541,12 @@ void ShellBand::surfaceStencil(size_t i, const openvdb::Int32Grid::ConstAccessor
         // a lopsided neighbourhood (an open border, a gap in a steep layer) fits the quadratic
         // with large weights of both signs: the wider ring then, so explicit steps stay stable;
         // past that, the ring estimate below
-        if (centre > kMaxCentreWeight || spread > 2.0 * kMaxCentreWeight || gradSpread > kMaxGradientSpread) continue;
+        // negative Laplacian weights beyond a tenth of the centre weight (a lopsided neighbourhood
+        // at an open border: a 0.5 mm windshield went unstable at a corner after 1,600 steps)
+        const double negative = 0.5 * (spread - centre);
+        if (centre > kMaxCentreWeight || spread > 2.0 * kMaxCentreWeight || gradSpread > kMaxGradientSpread ||
+            negative > 0.1 * centre)
+            continue;
         for (size_t k = 0; k < cand.size(); ++k)
             out.push_back({cand[k].id, float(wl(Eigen::Index(k), 0)), float(wg(Eigen::Index(k), 0)),
                            float(wg(Eigen::Index(k), 1))});
