@@ -56,6 +56,20 @@ inline double tapSum(const ShellBand& b, const float* u, size_t i)
     for (const SurfaceTap* t = b.tapsBegin(i); t != b.tapsEnd(i); ++t) s += double(t->*W) * (double(u[t->node]) - u0);
     return s;
 }
+/// Kobayashi's reaction p (1 - p) (p - 1/2 + m(T) + a chi) at band voxel @a i: m from the local
+/// melt temperature, chi the plane's noise draw (same hash, keyed by the voxel's coordinate).
+inline double reactionAt(const KobayashiParams& k, const ShellBand& b, const std::vector<float>& melt, size_t i,
+                         double p0, double t0v, uint64_t seed, int64_t stepIndex)
+{
+    const double Te = k.localMeltTemperature(melt.empty() ? 1.0 : double(melt[i]));
+    const double m = k.alpha / M_PI * std::atan(k.gamma * (Te - t0v));
+    double chi = 0;
+    if (k.noise != 0) {
+        const openvdb::Coord& c = b.coord(i);
+        chi = toUnit(hashCounters(seed, uint64_t(stepIndex), coordKey(c.x(), c.y(), c.z()))) - 0.5;
+    }
+    return p0 * (1.0 - p0) * (p0 - 0.5 + m + k.noise * chi);
+}
 } // namespace
 
 void heatStep(const ShellBand& band, std::vector<float>& u, double dt, double h, std::vector<float>& scratch)
@@ -392,14 +406,7 @@ void ShellPhaseField::step(double time, int64_t stepIndex, uint64_t seed, ShellS
                      daz = centralDiff(b, mA, i, 2) * invH;
         const double divC = (centralDiff(b, mCx, i, 0) + centralDiff(b, mCy, i, 1) + centralDiff(b, mCz, i, 2)) * invH;
         const double div = double(mA[i]) * lapP + dax * mGx[i] + day * mGy[i] + daz * mGz[i];
-        const double Te = k.localMeltTemperature(mMelt.empty() ? 1.0 : double(mMelt[i]));
-        const double m = k.alpha / M_PI * std::atan(k.gamma * (Te - t0v));
-        double chi = 0; // the plane's noiseDraw: same hash, keyed by the voxel's coordinate
-        if (k.noise != 0) {
-            const openvdb::Coord& c = b.coord(i);
-            chi = toUnit(hashCounters(seed, uint64_t(stepIndex), coordKey(c.x(), c.y(), c.z()))) - 0.5;
-        }
-        const double reaction = p0 * (1.0 - p0) * (p0 - 0.5 + m + k.noise * chi);
+        const double reaction = reactionAt(k, b, mMelt, i, p0, t0v, seed, stepIndex);
         const double dp = k.dt / k.tau * (div + divC + reaction);
         mPn[i] = float(p0 + dp);
         double adv = 0; // v . grad T, upwind
@@ -479,14 +486,7 @@ void ShellPhaseField::stepSurface(double time, int64_t stepIndex, uint64_t seed,
             divC += t->du * (cj.dot(f.tangent) - ct0) + t->dv * (cj.dot(f.bitangent) - cb0);
         }
         const double div = (a0 * lapP) * invH2 + (dau * mGx[i] + dav * mGy[i]) * invH + divC * invH;
-        const double Te = k.localMeltTemperature(mMelt.empty() ? 1.0 : double(mMelt[i]));
-        const double m = k.alpha / M_PI * std::atan(k.gamma * (Te - t0v));
-        double chi = 0; // the plane's noiseDraw: same hash, keyed by the voxel's coordinate
-        if (k.noise != 0) {
-            const openvdb::Coord& cc = b.coord(i);
-            chi = toUnit(hashCounters(seed, uint64_t(stepIndex), coordKey(cc.x(), cc.y(), cc.z()))) - 0.5;
-        }
-        const double reaction = p0 * (1.0 - p0) * (p0 - 0.5 + m + k.noise * chi);
+        const double reaction = reactionAt(k, b, mMelt, i, p0, t0v, seed, stepIndex);
         const double dp = k.dt / k.tau * (div + reaction);
         mPn[i] = float(p0 + dp);
         double heat = lapT * invH2;
