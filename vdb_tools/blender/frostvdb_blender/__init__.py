@@ -322,11 +322,8 @@ class FROSTVDB_OT_cancel(bpy.types.Operator):
 # ---------------------------------------------------------------------------------------------
 # Panel
 
-class FROSTVDB_PT_object(bpy.types.Panel):
+class FrostvdbPanelMixin:
     bl_label = "frostvdb"
-    bl_space_type = 'PROPERTIES'
-    bl_region_type = 'WINDOW'
-    bl_context = "object"
 
     @classmethod
     def poll(cls, context):
@@ -379,8 +376,22 @@ class FROSTVDB_PT_object(bpy.types.Panel):
             layout.label(text="Scene: " + shown, icon='FILE_TEXT')
 
 
+class FROSTVDB_PT_object(FrostvdbPanelMixin, bpy.types.Panel):
+    """Properties editor > Object tab."""
+    bl_space_type = 'PROPERTIES'
+    bl_region_type = 'WINDOW'
+    bl_context = "object"
+
+
+class FROSTVDB_PT_view3d(FrostvdbPanelMixin, bpy.types.Panel):
+    """3D Viewport > Sidebar (N) > frostvdb tab: the same panel."""
+    bl_space_type = 'VIEW_3D'
+    bl_region_type = 'UI'
+    bl_category = "frostvdb"
+
+
 classes = (FROSTVDB_AddonPreferences, FROSTVDB_Settings, FROSTVDB_OT_estimate, FROSTVDB_OT_run,
-           FROSTVDB_OT_cancel, FROSTVDB_PT_object)
+           FROSTVDB_OT_cancel, FROSTVDB_PT_object, FROSTVDB_PT_view3d)
 
 
 def register():

@@ -316,9 +316,11 @@ def error_line(stderr_text):
 
 
 def format_estimate(est):
-    mib = est.get("memory_bytes", 0) / (1024.0 * 1024.0)
-    return "about %.0f s, %.0f MiB (%d steps, %d frames)" % (est.get("seconds", 0), mib, est.get("steps", 0),
-                                                             est.get("frames", 0))
+    """One line: time, the effects' memory estimate and the resident memory the probe measured."""
+    mib = 1.0 / (1024.0 * 1024.0)
+    return "about %.0f s for %d steps, %d frames; memory %.0f MiB estimated, %.0f MiB measured" % (
+        est.get("seconds", 0), est.get("steps", 0), est.get("frames", 0), est.get("memory_bytes", 0) * mib,
+        est.get("peak_rss_bytes", 0) * mib)
 
 
 class Run:
