@@ -58,7 +58,7 @@ class FROSTVDB_Settings(bpy.types.PropertyGroup):
     voxel_size: FloatProperty(
         name="Voxel size", default=0.0, min=0.0, soft_max=0.1, precision=5, unit='LENGTH',
         description="World size of a voxel; 0: automatic from the object's size (largest side / 64 for frost "
-                    "and crystals, / 160 for feathers; steam: cup radius / 20)")
+                    "and crystals, / 160 for feathers; steam: the cup radius / 40)")
     frames: IntProperty(name="Frames", default=4, min=1, soft_max=250, description="Frames to write")
     steps: IntProperty(name="Steps per frame", default=100, min=1, soft_max=5000,
                        description="Simulation steps between frames (frost, crystals, feathers)")
