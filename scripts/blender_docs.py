@@ -1,7 +1,10 @@
 """Makes the images of docs/blender.md through the add-on itself.
 
     blender -b --factory-startup -noaudio -P scripts/blender_docs.py -- render OUT.png [--samples N]
-    xvfb-run -a -s "-screen 0 1400x900x24" blender --factory-startup -noaudio -P scripts/blender_docs.py -- panel OUT.png
+    blender -b --factory-startup --python-expr "import bpy; bpy.ops.wm.save_as_mainfile(filepath='/tmp/empty.blend')"
+    xvfb-run -a -s "-screen 0 1400x900x24" blender --factory-startup -noaudio /tmp/empty.blend -P scripts/blender_docs.py -- panel OUT.png
+
+(opening a .blend keeps Blender's splash screen away)
 
 render: a 1 m icosphere with three seeds painted in a colour attribute, the Frost preset with its
 defaults, the operator run synchronously, and a Cycles render (denoising off) of the last frame.
@@ -69,7 +72,7 @@ def stage(ball):
     bpy.ops.object.shade_smooth()
     cam = bpy.data.objects.new("cam", bpy.data.cameras.new("cam"))
     scene.collection.objects.link(cam)
-    cam.location = (0.9, -3.6, 1.4)
+    cam.location = (1.2, -4.6, 1.8)
     cam.rotation_euler = (mathutils.Vector((0, 0, 0)) - cam.location).to_track_quat('-Z', 'Y').to_euler()
     cam.data.lens = 50
     scene.camera = cam
@@ -93,13 +96,13 @@ def render():
     scene.cycles.samples = SAMPLES
     scene.cycles.use_denoising = False  # Debian's Blender 3.4 has no denoiser
     scene.cycles.device = 'CPU'
-    scene.render.resolution_x, scene.render.resolution_y = 800, 600
+    scene.render.resolution_x, scene.render.resolution_y = 640, 480
     scene.render.resolution_percentage = 100
     scene.render.image_settings.file_format = 'PNG'
     scene.render.filepath = OUT
     t0 = time.monotonic()
     bpy.ops.render.render(write_still=True)
-    print("render %dx%d, %d samples: %.1f s -> %s" % (800, 600, SAMPLES, time.monotonic() - t0, OUT))
+    print("render %dx%d, %d samples: %.1f s -> %s" % (640, 480, SAMPLES, time.monotonic() - t0, OUT))
 
 
 def panel():
@@ -107,7 +110,12 @@ def panel():
     the progress bar runs, then Blender waits for the run to finish and quits."""
     import frostvdb_blender
     ball = setup(run=False)
-    ball.frostvdb.steps = 300  # long enough to catch the progress bar
+    # The panel first in the Object tab, for the picture (users find it at the end of the tab).
+    bpy.utils.unregister_class(frostvdb_blender.FROSTVDB_PT_object)
+    frostvdb_blender.FROSTVDB_PT_object.bl_order = -1
+    bpy.utils.register_class(frostvdb_blender.FROSTVDB_PT_object)
+    ball.frostvdb.voxel_size = 0.04
+    ball.frostvdb.steps = 150  # long enough to catch the progress bar
     win = bpy.context.window_manager.windows[0]
     screen = win.screen
     props = max((a for a in screen.areas if a.type == 'PROPERTIES'), key=lambda a: a.height)
