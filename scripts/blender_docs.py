@@ -2,14 +2,16 @@
 
     blender -b --factory-startup -noaudio -P scripts/blender_docs.py -- render OUT.png [--samples N]
     blender -b --factory-startup --python-expr "import bpy; bpy.ops.wm.save_as_mainfile(filepath='/tmp/empty.blend')"
-    xvfb-run -a -s "-screen 0 1400x900x24" blender --factory-startup -noaudio /tmp/empty.blend -P scripts/blender_docs.py -- panel OUT.png
+    xvfb-run -a -s "-screen 0 1800x1900x24" blender --factory-startup -noaudio /tmp/empty.blend -P scripts/blender_docs.py -- panel OUT.png
 
 (opening a .blend keeps Blender's splash screen away)
 
 render: a 1 m icosphere with three seeds painted in a colour attribute, the Frost preset with its
 defaults, the operator run synchronously, and a Cycles render (denoising off) of the last frame.
-panel: the same set-up in Blender's UI (needs a display: Xvfb), then a screenshot of the window
-with the Properties editor on the Object tab, which holds the frostvdb panel.
+panel: the same set-up in Blender's UI (needs a display: Xvfb): the operator started as a click
+does (the modal run), a screenshot of the window once a third of the steps are done (the
+Properties editor on the Object tab shows the frostvdb panel with its progress bar), then it
+waits for the run to load and quits. docs/blender.md crops the panel out of it.
 The .blend, scene and frames go to a temporary folder, kept with --keep.
 """
 import os
@@ -110,10 +112,6 @@ def panel():
     the progress bar runs, then Blender waits for the run to finish and quits."""
     import frostvdb_blender
     ball = setup(run=False)
-    # The panel first in the Object tab, for the picture (users find it at the end of the tab).
-    bpy.utils.unregister_class(frostvdb_blender.FROSTVDB_PT_object)
-    frostvdb_blender.FROSTVDB_PT_object.bl_order = -1
-    bpy.utils.register_class(frostvdb_blender.FROSTVDB_PT_object)
     ball.frostvdb.voxel_size = 0.04
     ball.frostvdb.steps = 150  # long enough to catch the progress bar
     win = bpy.context.window_manager.windows[0]
@@ -122,6 +120,17 @@ def panel():
     props.spaces[0].context = 'OBJECT'
     view = max((a for a in screen.areas if a.type == 'VIEW_3D'), key=lambda a: a.width * a.height)
     region = [r for r in view.regions if r.type == 'WINDOW'][0]
+    # A wider Properties editor (its left edge dragged 330 px to the left), scrolled down to the
+    # frostvdb panel at the end of the Object tab.
+    pregion = [r for r in props.regions if r.type == 'WINDOW'][0]
+    try:
+        with bpy.context.temp_override(window=win, screen=screen, area=props, region=pregion):
+            bpy.ops.screen.area_move(x=props.x, y=props.y + props.height // 2, delta=-330)
+    except RuntimeError as e:
+        print("could not widen the Properties editor:", e)
+    with bpy.context.temp_override(window=win, area=props, region=pregion):
+        for _ in range(3):
+            bpy.ops.view2d.scroll_down(deltax=0, deltay=0, page=True)
     with bpy.context.temp_override(window=win, area=view, region=region):
         bpy.ops.view3d.view_selected()
         bpy.ops.frostvdb.run('INVOKE_DEFAULT')
