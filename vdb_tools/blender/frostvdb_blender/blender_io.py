@@ -123,10 +123,11 @@ def build_material(name, preset, voxel_size, look_grid="ice"):
     return mat
 
 
-def remove_previous(source):
-    """Removes the Volume objects (and their volume data) an earlier run made for @a source."""
+def remove_previous(source, preset):
+    """Removes the Volume objects (and their volume data) an earlier run of @a preset made for
+    @a source (another preset's result stays: steam and frost on one object)."""
     for ob in list(bpy.data.objects):
-        if ob.get(VOLUME_TAG) == source.name and ob.type == 'VOLUME':
+        if ob.get(VOLUME_TAG) == source.name and ob.get("frostvdb_preset") == preset and ob.type == 'VOLUME':
             data = ob.data
             bpy.data.objects.remove(ob, do_unlink=True)
             if data is not None and data.users == 0:
@@ -137,7 +138,7 @@ def import_sequence(context, source, files, preset, start_frame, name, voxel_siz
     """A Volume object reading the frame sequence @a files (sorted), starting at @a start_frame,
     parented to @a source without moving (the grids are in world metres), with the preset's
     material. Replaces the one of an earlier run."""
-    remove_previous(source)
+    remove_previous(source, preset)
     vol = bpy.data.volumes.new(name)
     vol.filepath = bpy.path.relpath(files[0]) if bpy.data.filepath else files[0]
     vol.is_sequence = len(files) > 1
@@ -149,6 +150,7 @@ def import_sequence(context, source, files, preset, start_frame, name, voxel_siz
         vol.display.density = 1.0
     ob = bpy.data.objects.new(name, vol)
     ob[VOLUME_TAG] = source.name
+    ob["frostvdb_preset"] = preset
     coll = source.users_collection[0] if source.users_collection else context.scene.collection
     coll.objects.link(ob)
     ob.parent = source
