@@ -238,7 +238,8 @@ int cmdInfo(const std::vector<std::string>& args)
         for (auto it = g->beginMeta(); it != g->endMeta(); ++it) {
             const std::string& k = it->first;
             if (k == "name" || k == "class" || k == "file_bbox_min" || k == "file_bbox_max" || k == "file_mem_bytes" ||
-                k == "file_voxel_count" || k == "is_local_space" || k == "vector_type" || k == "value_type")
+                k == "file_voxel_count" || k == "is_local_space" || k == "vector_type" || k == "value_type" ||
+                k == "file_compression") // OpenVDB's read-time guess; the line above reads the grid's own flags
                 continue;
             std::cout << "    " << k << ": " << metaValue(*it->second) << "\n";
         }
