@@ -10,7 +10,8 @@ packages=(build-essential cmake ccache pkg-config
           libopenvdb-dev libboost-iostreams-dev libboost-program-options-dev
           libtbb-dev libeigen3-dev catch2 libtomlplusplus-dev libpng-dev
           python3-openvdb libopenvdb-tools libopenvdb-ax-tools
-          libassimp-dev)
+          libassimp-dev
+          blender)   # the add-on's tests run in real headless Blender (tests/blender, docs/blender.md)
 "$here/scripts/install-packages.sh" "${packages[@]}"
 
 build_type="${FROSTVDB_BUILD_TYPE:-Release}"

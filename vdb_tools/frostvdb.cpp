@@ -1,6 +1,6 @@
 /// frostvdb: grows ice, frost and snowflakes and makes procedural steam as OpenVDB volumes.
 ///   frostvdb run [SCENE] [--out DIR] [--set K=V]... [--threads N] [--seed S] [--frames A-B] [--keep-lattice]
-///                [--overwrite]
+///                [--overwrite] [--progress human|json|none] [--estimate[=SECONDS]]
 ///                [--checkpoint-every N|Nm] [--resume DIR]
 ///   frostvdb info FILE.vdb
 ///   frostvdb preview FILE.vdb -o FILE.png [--grid NAME]
@@ -8,6 +8,7 @@
 ///   frostvdb keys [--markdown]
 #include <frostvdb/core/Bench.h>
 #include <frostvdb/core/Error.h>
+#include <frostvdb/core/Progress.h>
 #include <frostvdb/core/Simulation.h>
 #include <frostvdb/io/AtomicFile.h>
 #include <frostvdb/io/Preview.h>
@@ -18,6 +19,7 @@
 
 #include <iostream>
 #include <regex>
+#include <set>
 #include <sstream>
 
 namespace po = boost::program_options;
@@ -71,6 +73,7 @@ std::string commandLineText(int argc, char** argv)
 }
 
 std::string gCommandLine;
+bool gJsonErrors = false; ///< run --progress json: errors also as one JSON line on stderr
 
 /// --checkpoint-every and --resume: the run options they set (--resume DIR also means --out DIR
 /// unless --out is given).
@@ -109,7 +112,15 @@ int cmdRun(const std::vector<std::string>& args)
          "come out bit-identical to an uninterrupted run")
         ("keep-lattice", "hexagonal domains: write grids on the sheared lattice transform instead of resampling "
                          "them to square voxels (output.keep_lattice = true)")
-        ("quiet,q", "no progress output")
+        ("quiet,q", "no progress output (same as --progress none)")
+        ("progress", po::value<std::string>()->default_value("human"),
+         "human: a bar on a terminal, a line every 10% in logs; json: one JSON object per line on stderr "
+         "(event, phase, step, steps, frame, frames, elapsed, eta; then one per written frame with its files, "
+         "\"done\" at the end, \"error\" with the message on failure) for front ends and farm wrappers; none")
+        ("estimate", po::value<double>()->implicit_value(1.5, "1.5"),
+         "print the estimated memory and time and exit without writing anything: the effects' memory estimates, "
+         "and the time of the first steps for about this many seconds (--estimate=0.5) extrapolated to the run; "
+         "with --progress json, one JSON object on stdout")
         ("print-default-scene", "print the built-in default scene and exit");
     po::positional_options_description pos;
     pos.add("scene", 1);
@@ -126,6 +137,14 @@ int cmdRun(const std::vector<std::string>& args)
         return 0;
     }
     if (threads < 0) throw SceneError("--threads", 0, "", "must be >= 0");
+    ProgressStyle style;
+    try {
+        style = parseProgressStyle(vm["progress"].as<std::string>());
+    } catch (const std::invalid_argument& e) {
+        throw SceneError("--progress", 0, "", e.what());
+    }
+    if (vm.count("quiet")) style = ProgressStyle::None;
+    gJsonErrors = style == ProgressStyle::Json;
     Scene scene = vm.count("scene") ? Scene::load(vm["scene"].as<std::string>()) : Scene::builtinDefault();
     for (const auto& s : sets) scene.applyOverride(s);
     if (vm.count("seed")) {
@@ -136,12 +155,20 @@ int cmdRun(const std::vector<std::string>& args)
     RunOptions ro;
     ro.outDir = out;
     ro.threads = threads;
-    ro.progress = !vm.count("quiet");
+    ro.progress = style != ProgressStyle::None;
+    ro.progressJson = style == ProgressStyle::Json;
     ro.overwrite = vm.count("overwrite") > 0;
     ro.commandLine = gCommandLine;
     if (!frames.empty()) parseFrames(frames, ro.firstFrame, ro.lastFrame);
     applyCheckpointOptions(vm, ro);
     Simulation sim(std::move(scene)); // validates every section and key before anything runs
+    if (vm.count("estimate")) {
+        const double probe = vm["estimate"].as<double>();
+        if (!(probe >= 0.0 && probe <= 3600.0)) throw SceneError("--estimate", 0, "", "probe seconds must be in [0, 3600]");
+        const RunEstimate est = sim.estimate(ro, probe);
+        std::cout << (style == ProgressStyle::Json ? est.toJson() + "\n" : est.toText());
+        return 0;
+    }
     const RunSummary sum = sim.run(ro);
     std::cout << sum.toText();
     const std::string dir = ro.outDir.empty() ? "out/" + sum.scene : ro.outDir;
@@ -173,7 +200,21 @@ int cmdInfo(const std::vector<std::string>& args)
     const std::string path = vm["file"].as<std::string>();
     openvdb::MetaMap::Ptr meta;
     auto grids = readVdb(path, &meta, /*requireGrids=*/true);
-    std::cout << path << ": " << grids->size() << " grid(s)\n";
+    const VdbLayout layout = validateVdb(path, readWholeFile(path));
+    // The file-wide summary: what `[output] precision` and `compression` asked for.
+    bool anyHalf = false, anyFull = false;
+    std::set<std::string> comps;
+    for (const auto& span : layout.grids) {
+        const bool floating = span.type.find("_float_") != std::string::npos || span.type.find("_vec3s_") != std::string::npos;
+        if (span.half) anyHalf = true;
+        else if (floating) anyFull = true;
+        if (span.compression >= 0) comps.insert(compressionText(uint32_t(span.compression)));
+    }
+    std::string compText;
+    for (const auto& c : comps) compText += (compText.empty() ? "" : ", ") + c;
+    std::cout << path << ": " << grids->size() << " grid(s), precision "
+              << (anyHalf && anyFull ? "mixed" : anyHalf ? "half" : "float") << ", compression "
+              << (compText.empty() ? "not recorded" : compText) << "\n";
     for (auto& g : *grids) {
         const auto bbox = g->evalActiveVoxelBoundingBox();
         const auto vs = g->voxelSize();
@@ -184,11 +225,21 @@ int cmdInfo(const std::vector<std::string>& args)
                                                       : std::string())
                   << "\n    active voxels " << g->activeVoxelCount() << ", bbox " << bbox.min() << " - " << bbox.max()
                   << "\n    voxel size " << vs[0] << " x " << vs[1] << " x " << vs[2] << " m, memory "
-                  << g->memUsage() / 1024 << " KiB\n";
+                  << g->memUsage() / 1024 << " KiB\n";        for (const auto& span : layout.grids)
+            if (span.name == g->getName() && (g->isType<openvdb::FloatGrid>() || g->isType<openvdb::Vec3SGrid>() ||
+                                              g->isType<openvdb::DoubleGrid>() || g->isType<openvdb::Vec3DGrid>()))
+                std::cout << "    precision " << (span.half ? "half (16-bit)" : "float (32-bit)") << ", compression "
+                          << (span.compression < 0 ? std::string("not recorded") : compressionText(uint32_t(span.compression)))
+                          << "\n";
+            else if (span.name == g->getName())
+                std::cout << "    compression "
+                          << (span.compression < 0 ? std::string("not recorded") : compressionText(uint32_t(span.compression)))
+                          << "\n";
         for (auto it = g->beginMeta(); it != g->endMeta(); ++it) {
             const std::string& k = it->first;
             if (k == "name" || k == "class" || k == "file_bbox_min" || k == "file_bbox_max" || k == "file_mem_bytes" ||
-                k == "file_voxel_count" || k == "is_local_space" || k == "vector_type" || k == "value_type")
+                k == "file_voxel_count" || k == "is_local_space" || k == "vector_type" || k == "value_type" ||
+                k == "file_compression") // OpenVDB's read-time guess; the line above reads the grid's own flags
                 continue;
             std::cout << "    " << k << ": " << metaValue(*it->second) << "\n";
         }
@@ -288,6 +339,14 @@ int main(int argc, char** argv)
     const std::string cmd = argv[1];
     gCommandLine = commandLineText(argc, argv);
     std::vector<std::string> args(argv + 2, argv + argc);
+    // --progress json: a failure is also one JSON line, so a front end needs to parse one format.
+    auto fail = [&](const std::string& line, int code) {
+        std::cerr << line << "\n";
+        if (gJsonErrors)
+            std::cerr << "{\"event\":\"error\",\"phase\":\"error\",\"message\":" << jsonQuote(line)
+                      << ",\"exit_code\":" << code << "}\n";
+        return code;
+    };
     try {
         if (cmd == "run") return cmdRun(args);
         if (cmd == "info") return cmdInfo(args);
@@ -297,26 +356,19 @@ int main(int argc, char** argv)
         std::cerr << "frostvdb: unknown command '" << cmd << "'\n" << kUsage;
         return 2;
     } catch (const SceneError& e) {
-        std::cerr << "frostvdb: error: " << shortMessage(e.what()) << "\n";
-        return 2;
+        return fail(std::string() + "frostvdb: error: " + shortMessage(e.what()), 2);
     } catch (const CheckpointError& e) {
-        std::cerr << "frostvdb: checkpoint: " << e.what() << "\n";
-        return 2;
+        return fail(std::string() + "frostvdb: checkpoint: " + e.what(), 2);
     } catch (const SimulationError& e) {
-        std::cerr << "frostvdb: simulation stopped: " << shortMessage(e.what()) << "\n";
-        return 3;
+        return fail(std::string() + "frostvdb: simulation stopped: " + shortMessage(e.what()), 3);
     } catch (const WriteError& e) {
-        std::cerr << "frostvdb: output failed: " << shortMessage(e.what()) << "\n";
-        return 4;
+        return fail(std::string() + "frostvdb: output failed: " + shortMessage(e.what()), 4);
     } catch (const po::error& e) {
-        std::cerr << "frostvdb: " << cmd << ": " << shortMessage(e.what()) << " (see frostvdb " << cmd << " --help)\n";
-        return 2;
+        return fail(std::string() + "frostvdb: " + cmd + ": " + shortMessage(e.what()) + " (see frostvdb " + cmd + " --help)", 2);
     } catch (const std::bad_alloc&) {
-        std::cerr << "frostvdb: error: out of memory (an allocation failed; lower the scene's sizes or "
-                     "run.memory_limit)\n";
-        return 1;
+        return fail(std::string() + "frostvdb: error: out of memory (an allocation failed; lower the scene's sizes or "
+                     "run.memory_limit)", 1);
     } catch (const std::exception& e) {
-        std::cerr << "frostvdb: error: " << shortMessage(e.what()) << "\n";
-        return 1;
+        return fail(std::string() + "frostvdb: error: " + shortMessage(e.what()), 1);
     }
 }

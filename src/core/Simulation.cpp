@@ -99,7 +99,18 @@ void readOutputSection(ParamDict& d, OutputSettings& o, double* worldScale = nul
     o.previewEvery = p == "every";
     o.previewGrid = d.getString("preview_grid", "", {}, "grid drawn in previews (default: ice, density or cells)");
     d.onlyWhen(o.preview, "preview_grid", "preview = \"none\"");
-    o.halfFloat = d.getBool("half_float", false, "store float grids as 16-bit half floats");
+    const std::string precision = d.getString("precision", "float", {"float", "half"},
+        "storage of float grids: float (32-bit) or half (16-bit, OpenVDB setSaveFloatAsHalf, as Houdini's "
+        "\"Write 16-Bit\"): smaller files, values within 2^-11 relative (about 3 decimal digits); grids are "
+        "read back as float");
+    const bool legacyHalf = d.getBool("half_float", false, "older spelling of precision = \"half\"");
+    if (legacyHalf && d.has("precision") && precision == "float")
+        d.onlyWhen(false, "half_float", "precision = \"float\"");
+    o.halfFloat = precision == "half" || legacyHalf;
+    o.compression = compressionFlags(d.getString("compression", "blosc", {"blosc", "zip", "none"},
+        "data compression of the .vdb files: blosc (fast, the default), zip (smaller for some grids, slower; "
+        "OpenVDB applies zip only to grids that are neither fog volumes nor level sets, so ice, ice_sdf and "
+        "density keep only the active-mask compression), or none (the fastest to write and read; largest)"));
     o.keepLattice = d.getBool("keep_lattice", false,
         "hexagonal domains: write grids on the sheared lattice transform instead of resampling them to square voxels "
         "(same as `frostvdb run --keep-lattice`)");
@@ -404,7 +415,7 @@ std::string Simulation::writeFrame(Frame&& frame, const std::string& dir)
         g->insertMeta("frostvdb_step", openvdb::Int64Metadata(frame.step));
         g->insertMeta("frostvdb_time", openvdb::DoubleMetadata(frame.time));
         return g;
-    }, meta, mOutput.halfFloat);
+    }, meta, mOutput.halfFloat, mOutput.compression);
     return path;
 }
 
@@ -681,26 +692,129 @@ void Simulation::simulateFrames(int64_t first, int64_t last, const RunOptions& o
     const int64_t startFrame = std::max(stateless ? first : int64_t(1), mStep / mWorld.stepsPerFrame + 1);
     const int64_t stepsToRun = stateless ? std::max<int64_t>(0, last - startFrame + 1) * mWorld.stepsPerFrame
                                          : std::max<int64_t>(0, last * mWorld.stepsPerFrame - mStep);
-    mWorld.progress = opt.progress;
-    Progress progress(mWorld.sceneName, stepsToRun, "steps", opt.progress);
+    const ProgressStyle style = !opt.progress ? ProgressStyle::None
+                              : opt.progressJson ? ProgressStyle::Json : ProgressStyle::Human;
+    mWorld.progress = style == ProgressStyle::Human; // effects' own bars only on the human style
+    Progress progress(mWorld.sceneName, stepsToRun, "steps", style);
     int64_t done = 0;
     for (int64_t f = startFrame; f <= last; ++f) {
         if (stateless) mStep = (f - 1) * mWorld.stepsPerFrame;
         while (mStep < f * mWorld.stepsPerFrame) {
             checkpointIfDue(opt, dir, checkpointClock, false, sum); // mid-frame, or after the last frame's output
             step();
-            progress.update(++done);
+            progress.update(++done, f, last);
         }
         sum.activeVoxels.emplace_back(mStep, mWorld.fields.activeVoxels());
         if (f < first || !opt.writeFiles) continue;
         const auto t0 = Clock::now();
         returnFreePages(); // the output's copies then start from what the fields hold
+        const size_t before = sum.files.size();
         writeFrameOutputs(f, last, dir, sum);
         returnFreePages();
         sum.outputSeconds += seconds(t0, Clock::now());
+        if (progress.json()) {
+            std::string files;
+            for (size_t i = before; i < sum.files.size(); ++i) files += (files.empty() ? "" : ",") + jsonQuote(sum.files[i]);
+            progress.event("frame", "write", f, last, ",\"files\":[" + files + "]");
+        }
     }
     checkpointIfDue(opt, dir, checkpointClock, true, sum); // the next chained task starts here
     progress.finish();
+    progress.event("done", "done", last, last, ",\"frames_written\":" + std::to_string(sum.framesWritten));
+}
+
+// ---------------------------------------------------------------------------------------------
+// --estimate
+
+RunEstimate Simulation::estimate(const RunOptions& opt, double probeSeconds)
+{
+    std::unique_ptr<tbb::global_control> threads;
+    if (opt.threads > 0)
+        threads = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism, opt.threads);
+    RunEstimate est;
+    const int64_t first = opt.firstFrame > 0 ? opt.firstFrame : 1;
+    const int64_t last = opt.lastFrame > 0 ? opt.lastFrame : mWorld.frames;
+    checkFrameRange(first, last);
+    bool stateless = true;
+    for (auto& e : mEffects) stateless = stateless && !e->needsHistory();
+    est.frames = last - first + 1;
+    est.steps = (stateless ? est.frames : last) * mWorld.stepsPerFrame;
+    est.memoryLimitBytes = mWorld.memoryLimitBytes;
+    if (mOutput.displacementPng && mWorld.domain.flat()) {
+        est.memory.push_back(perVoxelEstimate(double(mWorld.domain.bbox().volume()), 8.0, "domain.size",
+                                              "the displacement PNG raster (output.displacement_png)"));
+        est.memoryBytes += est.memory.back().bytes;
+    }
+    for (auto& e : mEffects) {
+        MemoryEstimate m;
+        atSection(e->name(), "memory estimate", [&] { m = e->memoryEstimate(mWorld); });
+        if (m.key.empty()) m.key = e->name();
+        est.memoryBytes += m.bytes;
+        est.memory.push_back(m);
+    }
+    mWorld.progress = false;
+    auto t0 = Clock::now();
+    initialize();
+    est.initSeconds = seconds(t0, Clock::now());
+    t0 = Clock::now();
+    // The probe: whole steps until the time is up (at least one, at most the run's).
+    while (est.probeSteps < est.steps && (est.probeSteps == 0 || seconds(t0, Clock::now()) < probeSeconds)) {
+        step();
+        ++est.probeSteps;
+    }
+    est.probeSeconds = seconds(t0, Clock::now());
+    if (mOutput.vdb) {
+        t0 = Clock::now();
+        Frame frame = currentFrame(std::max<int64_t>(1, mStep / mWorld.stepsPerFrame));
+        for (size_t i = 0; i < frame.grids.size(); ++i) exportGrid(frame.grid(i), mWorld.domain, mOutput.keepLattice);
+        est.frameSeconds = seconds(t0, Clock::now());
+    }
+    const double perStep = est.probeSteps > 0 ? est.probeSeconds / double(est.probeSteps) : 0.0;
+    est.seconds = est.initSeconds + perStep * double(est.steps) + est.frameSeconds * double(est.frames);
+    est.peakRssBytes = peakRss();
+    return est;
+}
+
+namespace {
+std::string fixed(double v, int digits)
+{
+    std::ostringstream os;
+    os << std::fixed << std::setprecision(digits) << v;
+    return os.str();
+}
+} // namespace
+
+std::string RunEstimate::toText() const
+{
+    std::ostringstream os;
+    os << "estimate (nothing written):\n";
+    os << "  memory: about " << formatBytes(memoryBytes) << " by the effects' estimates";
+    if (memoryLimitBytes > 0) os << " (limit " << formatBytes(memoryLimitBytes) << ")";
+    os << "\n";
+    for (const auto& m : memory)
+        os << "    " << m.key << ": " << formatBytes(m.bytes) << (m.detail.empty() ? "" : " (" + m.detail + ")") << "\n";
+    os << "  measured: peak " << formatBytes(double(peakRssBytes)) << " resident after " << probeSteps
+       << " probe step(s)\n";
+    os << "  time: about " << fixed(seconds, 1) << " s for " << steps << " steps and " << frames << " frame(s): setup "
+       << fixed(initSeconds, 2) << " s, " << probeSteps << " probe step(s) in " << fixed(probeSeconds, 2)
+       << " s, one frame's grids " << fixed(frameSeconds, 2) << " s\n";
+    os << "  (linear in the steps: growing ice makes later steps slower, so take it as a lower bound)\n";
+    return os.str();
+}
+
+std::string RunEstimate::toJson() const
+{
+    std::ostringstream os;
+    os << "{\"event\":\"estimate\",\"memory_bytes\":" << fixed(memoryBytes, 0)
+       << ",\"memory_limit_bytes\":" << fixed(memoryLimitBytes, 0) << ",\"memory\":[";
+    for (size_t i = 0; i < memory.size(); ++i)
+        os << (i ? "," : "") << "{\"key\":" << jsonQuote(memory[i].key) << ",\"bytes\":" << fixed(memory[i].bytes, 0)
+           << ",\"detail\":" << jsonQuote(memory[i].detail) << "}";
+    os << "],\"peak_rss_bytes\":" << peakRssBytes << ",\"steps\":" << steps << ",\"frames\":" << frames
+       << ",\"probe_steps\":" << probeSteps << ",\"probe_seconds\":" << fixed(probeSeconds, 3)
+       << ",\"init_seconds\":" << fixed(initSeconds, 3) << ",\"frame_seconds\":" << fixed(frameSeconds, 3)
+       << ",\"seconds\":" << fixed(seconds, 3) << "}";
+    return os.str();
 }
 
 void Simulation::finishSummary(RunSummary& sum) const

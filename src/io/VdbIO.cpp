@@ -206,6 +206,7 @@ void readDescriptors(Cursor& c, VdbLayout& out, size_t fileSize)
                                      ? g.type.substr(0, g.type.size() - half.size()) : g.type;
         if (!openvdb::GridBase::isRegistered(base)) c.fail("grid '" + g.name + "' has unknown type '" + g.type + "'");
         if (out.fileVersion >= openvdb::OPENVDB_FILE_VERSION_GRID_INSTANCING) c.readString("an instance parent name");
+        g.half = base != g.type;
         g.gridPos = c.read<int64_t>("a grid position");
         g.blockPos = c.read<int64_t>("a grid data position");
         g.endPos = c.read<int64_t>("a grid end position");
@@ -215,11 +216,32 @@ void readDescriptors(Cursor& c, VdbLayout& out, size_t fileSize)
             uint64_t(g.endPos) > fileSize)
             c.fail("grid '" + g.name + "' claims bytes " + std::to_string(g.gridPos) + "-" + std::to_string(g.endPos) +
                    " (the file is truncated or damaged)");
+        // Each grid starts with its own compression flags (Archive::setGridCompression).
+        if (out.fileVersion >= openvdb::OPENVDB_FILE_VERSION_NODE_MASK_COMPRESSION && g.blockPos - g.gridPos >= 4)
+            out.grids.back().compression = c.read<uint32_t>("a grid's compression flags");
         c.seek(size_t(g.endPos));
     }
 }
 
 } // namespace
+
+uint32_t compressionFlags(const std::string& name)
+{
+    if (name == "blosc") return openvdb::io::COMPRESS_BLOSC | openvdb::io::COMPRESS_ACTIVE_MASK;
+    if (name == "zip") return openvdb::io::COMPRESS_ZIP | openvdb::io::COMPRESS_ACTIVE_MASK;
+    if (name == "none") return openvdb::io::COMPRESS_NONE;
+    throw std::invalid_argument("expected blosc, zip or none, got '" + name + "'");
+}
+
+std::string compressionText(uint32_t flags)
+{
+    std::string out;
+    auto add = [&](const char* s) { out += (out.empty() ? "" : " + ") + std::string(s); };
+    if (flags & openvdb::io::COMPRESS_BLOSC) add("blosc");
+    if (flags & openvdb::io::COMPRESS_ZIP) add("zip");
+    if (flags & openvdb::io::COMPRESS_ACTIVE_MASK) add("active mask");
+    return out.empty() ? "none" : out;
+}
 
 std::string readWholeFile(const std::string& path)
 {
@@ -269,6 +291,7 @@ public:
     void writeStreamed(std::ostream& os, size_t count, const std::function<openvdb::GridBase::ConstPtr(size_t)>& next,
                        const openvdb::MetaMap& meta) const
     {
+        // setCompression is the archive's; io::File does the same with its own setting.
         openvdb::io::setVersion(os, openvdb::VersionId(openvdb::OPENVDB_LIBRARY_MAJOR_VERSION, openvdb::OPENVDB_LIBRARY_MINOR_VERSION),
                                 openvdb::OPENVDB_FILE_VERSION);
         openvdb::io::setDataCompression(os, compression());
@@ -373,12 +396,14 @@ private:
 
 void writeVdbStreamed(const std::string& path, size_t count,
                       const std::function<openvdb::GridBase::Ptr(size_t)>& next, const openvdb::MetaMap& fileMeta,
-                      bool halfFloat)
+                      bool halfFloat, uint32_t compression)
 {
     AtomicFile file(path); // the final name is untouched until commit
     AtomicFileBuf buf(file);
     std::ostream os(&buf);
-    MemoryArchive().writeStreamed(os, count, [&](size_t i) -> openvdb::GridBase::ConstPtr {
+    MemoryArchive archive;
+    archive.setCompression(compression);
+    archive.writeStreamed(os, count, [&](size_t i) -> openvdb::GridBase::ConstPtr {
         openvdb::GridBase::Ptr g = next(i);
         checkFinite(*g);
         g->setSaveFloatAsHalf(halfFloat);
@@ -391,10 +416,10 @@ void writeVdbStreamed(const std::string& path, size_t count,
 }
 
 void writeVdbAtomic(const std::string& path, const openvdb::GridPtrVec& grids,
-                    const openvdb::MetaMap& fileMeta, bool halfFloat)
+                    const openvdb::MetaMap& fileMeta, bool halfFloat, uint32_t compression)
 {
     // writeVdbStreamed checks each grid before writing it; a failure leaves the final name untouched.
-    writeVdbStreamed(path, grids.size(), [&](size_t i) { return grids[i]; }, fileMeta, halfFloat);
+    writeVdbStreamed(path, grids.size(), [&](size_t i) { return grids[i]; }, fileMeta, halfFloat, compression);
 }
 
 namespace {

@@ -16,6 +16,8 @@
 #include <frostvdb/core/Scene.h>
 #include <frostvdb/core/StepOrder.h>
 
+#include <openvdb/io/Compression.h>
+
 #include <memory>
 #include <string>
 #include <vector>
@@ -26,6 +28,7 @@ struct RunOptions {
     std::string outDir;      ///< "" -> out/<scene name>
     int threads = 0;         ///< 0: all cores
     bool progress = true;    ///< progress bar / log lines on stderr
+    bool progressJson = false; ///< with progress: JSON lines on stderr instead (`--progress json`, core/Progress.h)
     bool writeFiles = true;  ///< false: simulate only (tests, benchmarks)
     int64_t firstFrame = 0;  ///< 0: from frame 1
     int64_t lastFrame = 0;   ///< 0: to the last frame
@@ -42,7 +45,10 @@ struct OutputSettings {
     bool preview = true;
     bool previewEvery = false; ///< a PNG for every frame, not only the last
     std::string previewGrid; ///< "" -> first of ice, density, cells
-    bool halfFloat = false;
+    bool halfFloat = false;       ///< precision = "half": float grids stored as 16-bit halves
+    /// OpenVDB stream compression flags (io/Compression.h) from `compression`: blosc (default) or
+    /// zip with the active mask, or none.
+    uint32_t compression = openvdb::io::COMPRESS_BLOSC | openvdb::io::COMPRESS_ACTIVE_MASK;
     bool keepLattice = false;     ///< hexagonal domains: write the sheared grids, not square resamples
     bool displacementPng = true;  ///< flat domains with a `growth` grid: <name>.<frame>.displacement.png
     int displacementTile = 4096;  ///< larger rasters: UDIM tiles of this many pixels, only those with ice
@@ -75,6 +81,23 @@ struct RunSummary {
     std::string toText() const;
 };
 
+/// What `frostvdb run --estimate` reports: the effects' memory estimates and a time measured on
+/// a short probe of the first steps (nothing is written).
+struct RunEstimate {
+    std::vector<MemoryEstimate> memory; ///< one per effect (and the displacement raster), by key
+    double memoryBytes = 0;             ///< their sum
+    double memoryLimitBytes = 0;        ///< [run] memory_limit in bytes (0: none)
+    int64_t steps = 0, frames = 0;      ///< what the run would do
+    int64_t probeSteps = 0;             ///< steps simulated by the probe
+    double probeSeconds = 0;            ///< their wall time (after initialisation)
+    double initSeconds = 0;             ///< initialisation (band build, seeds, tables)
+    double frameSeconds = 0;            ///< gathering one frame's grids (not writing them)
+    double seconds = 0;                 ///< init + steps x probe rate + frames x frameSeconds
+    uint64_t peakRssBytes = 0;          ///< measured during the probe
+    std::string toText() const;
+    std::string toJson() const;
+};
+
 class Simulation {
 public:
     /// Validates the whole scene (every section and key) before anything runs; throws SceneError.
@@ -97,6 +120,11 @@ public:
 
     /// Initialises (once) and runs all frames, writing what the options ask.
     RunSummary run(const RunOptions& options);
+
+    /// Estimates memory (the effects' own estimates) and time (by simulating the first steps for
+    /// about @a probeSeconds of wall time and extrapolating linearly) without writing anything.
+    /// The Simulation has stepped afterwards: use a fresh one for the run.
+    RunEstimate estimate(const RunOptions& options, double probeSeconds = 1.5);
 
     /// Lower-level stepping for tests and benchmarks.
     void initialize();

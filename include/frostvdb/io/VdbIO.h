@@ -8,6 +8,7 @@
 /// checked against the file length before OpenVDB allocates anything, and the grids are then
 /// parsed from memory by a stream that stops at the first read past the end.
 #include <openvdb/openvdb.h>
+#include <openvdb/io/Compression.h>
 
 #include <functional>
 
@@ -26,10 +27,21 @@ public:
     VdbFileError(const std::string& path, const std::string& reason);
 };
 
+/// OpenVDB's own default when built with Blosc (as Debian's is): Blosc and the active mask.
+constexpr uint32_t kDefaultVdbCompression = openvdb::io::COMPRESS_BLOSC | openvdb::io::COMPRESS_ACTIVE_MASK;
+
+/// "blosc", "zip" (each with the active mask) or "none" -> OpenVDB compression flags; throws
+/// std::invalid_argument otherwise.
+uint32_t compressionFlags(const std::string& name);
+/// Compression flags -> "blosc + active mask", "zip + active mask", "none", ...
+std::string compressionText(uint32_t flags);
+
 /// One grid as its descriptor states it.
 struct VdbGridSpan {
     std::string name, type;
     int64_t gridPos = 0, blockPos = 0, endPos = 0;
+    bool half = false;        ///< stored as 16-bit halves (type name ends in _HalfFloat)
+    int64_t compression = -1; ///< the grid's compression flags as stored, -1 when the file does not say
 };
 /// What validateVdb found.
 struct VdbLayout {
@@ -53,8 +65,11 @@ void checkFinite(const openvdb::GridBase& grid);
 
 /// Writes grids and file metadata atomically. Each grid is checked finite first.
 void writeVdbAtomic(const std::string& path, const openvdb::GridPtrVec& grids,
-                    const openvdb::MetaMap& fileMeta, bool halfFloat = false);
+                    const openvdb::MetaMap& fileMeta, bool halfFloat = false,
+                    uint32_t compression = kDefaultVdbCompression);
 
+/// @a compression: OpenVDB stream flags for every grid (as Archive::setCompression; OpenVDB
+/// itself drops zip for fog volumes and level sets, Blosc is kept).
 /// Writes @a count grids atomically, asking @a next for them one at a time (index order), so
 /// that only the grid being written need exist: a frame of a large domain is exported grid by
 /// grid, each dropped once written. Same bytes as writeVdbAtomic (the header's random UUID
@@ -62,7 +77,7 @@ void writeVdbAtomic(const std::string& path, const openvdb::GridPtrVec& grids,
 /// a throwing @a next, a failed write) leaves the final name untouched. Names must be distinct.
 void writeVdbStreamed(const std::string& path, size_t count,
                       const std::function<openvdb::GridBase::Ptr(size_t)>& next, const openvdb::MetaMap& fileMeta,
-                      bool halfFloat = false);
+                      bool halfFloat = false, uint32_t compression = kDefaultVdbCompression);
 
 /// Reads every grid of a file (and its file metadata, if @a fileMeta is given) after
 /// validateVdb. @a requireGrids: a file without grids is an error. Throws VdbFileError.
