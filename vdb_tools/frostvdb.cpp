@@ -1,7 +1,7 @@
 /// frostvdb: grows ice, frost and snowflakes and makes procedural steam as OpenVDB volumes.
 ///   frostvdb run [SCENE] [--out DIR] [--set K=V]... [--threads N] [--seed S] [--frames A-B] [--keep-lattice]
 ///                [--overwrite]
-///                [--checkpoint-every N|Nm] [--resume DIR]
+///                [--checkpoint-every N|Nm] [--resume DIR] [--wait-lock]
 ///   frostvdb info FILE.vdb
 ///   frostvdb preview FILE.vdb -o FILE.png [--grid NAME]
 ///   frostvdb bench NAME [--threads N] [--quick]
@@ -109,6 +109,8 @@ int cmdRun(const std::vector<std::string>& args)
          "come out bit-identical to an uninterrupted run")
         ("keep-lattice", "hexagonal domains: write grids on the sheared lattice transform instead of resampling "
                          "them to square voxels (output.keep_lattice = true)")
+        ("wait-lock", "another run holds the output folder's lock on these frames: wait for it to end instead of "
+                      "refusing (exit code 5)")
         ("quiet,q", "no progress output")
         ("print-default-scene", "print the built-in default scene and exit");
     po::positional_options_description pos;
@@ -138,6 +140,7 @@ int cmdRun(const std::vector<std::string>& args)
     ro.threads = threads;
     ro.progress = !vm.count("quiet");
     ro.overwrite = vm.count("overwrite") > 0;
+    ro.waitLock = vm.count("wait-lock") > 0;
     ro.commandLine = gCommandLine;
     if (!frames.empty()) parseFrames(frames, ro.firstFrame, ro.lastFrame);
     applyCheckpointOptions(vm, ro);
@@ -234,7 +237,15 @@ int cmdPreview(const std::vector<std::string>& args)
     if (!pick && gridName.empty())
         for (auto& g : *grids)
             if (!pick && g->isType<openvdb::FloatGrid>()) pick = g;
-    if (!pick) throw SceneError(vm["file"].as<std::string>(), 0, "--grid", "no grid named '" + gridName + "'");
+    if (!pick) {
+        std::string names;
+        for (auto& g : *grids) names += (names.empty() ? "" : ", ") + g->getName() + " (" + g->valueType() + ")";
+        if (gridName.empty())
+            throw SceneError(vm["file"].as<std::string>(), 0, "",
+                             "no float grid to draw (grids: " + (names.empty() ? std::string("none") : names) + ")");
+        throw SceneError(vm["file"].as<std::string>(), 0, "--grid",
+                         "no grid named '" + gridName + "' (grids: " + (names.empty() ? std::string("none") : names) + ")");
+    }
     PreviewOptions po;
     po.width = width;
     writePreview(*pick, out, po);
@@ -296,27 +307,25 @@ int main(int argc, char** argv)
         if (cmd == "keys") return cmdKeys(args);
         std::cerr << "frostvdb: unknown command '" << cmd << "'\n" << kUsage;
         return 2;
-    } catch (const SceneError& e) {
-        std::cerr << "frostvdb: error: " << shortMessage(e.what()) << "\n";
-        return 2;
-    } catch (const CheckpointError& e) {
-        std::cerr << "frostvdb: checkpoint: " << e.what() << "\n";
-        return 2;
-    } catch (const SimulationError& e) {
-        std::cerr << "frostvdb: simulation stopped: " << shortMessage(e.what()) << "\n";
-        return 3;
-    } catch (const WriteError& e) {
-        std::cerr << "frostvdb: output failed: " << shortMessage(e.what()) << "\n";
-        return 4;
     } catch (const po::error& e) {
         std::cerr << "frostvdb: " << cmd << ": " << shortMessage(e.what()) << " (see frostvdb " << cmd << " --help)\n";
         return 2;
-    } catch (const std::bad_alloc&) {
-        std::cerr << "frostvdb: error: out of memory (an allocation failed; lower the scene's sizes or "
-                     "run.memory_limit)\n";
-        return 1;
     } catch (const std::exception& e) {
-        std::cerr << "frostvdb: error: " << shortMessage(e.what()) << "\n";
-        return 1;
+        // one line, and one exit code per failure class (exitCodeOf; README "Exit codes")
+        const int code = exitCodeOf(e);
+        if (dynamic_cast<const std::bad_alloc*>(&e))
+            std::cerr << "frostvdb: error: out of memory (an allocation failed; lower the scene's sizes or "
+                         "run.memory_limit)\n";
+        else if (code == 2 && dynamic_cast<const CheckpointError*>(&e))
+            std::cerr << "frostvdb: checkpoint: " << shortMessage(e.what()) << "\n";
+        else if (code == 3)
+            std::cerr << "frostvdb: simulation stopped: " << shortMessage(e.what()) << "\n";
+        else if (code == 4)
+            std::cerr << "frostvdb: output failed: " << shortMessage(e.what()) << "\n";
+        else if (code == 5)
+            std::cerr << "frostvdb: output folder busy: " << shortMessage(e.what()) << "\n";
+        else
+            std::cerr << "frostvdb: error: " << shortMessage(e.what()) << "\n";
+        return code;
     }
 }
