@@ -241,18 +241,18 @@ std::string TriangleMesh::collapseProblem(const MeshPlacement& placement, double
     const openvdb::BBoxd box = bbox();
     const double extent = box.extents().length();
     const double area = totalArea();
-    if (!(area > 0.0) || !(extent > 0.0))
-        return "the placed mesh has zero area (every triangle is degenerate, or the scale collapses it: extent " +
-               fmt(extent) + " m)";
     // Vertices are single-precision floats: far from the origin their spacing is coarse and the
-    // mesh loses its shape (a 0.3 m plate moved 1e6 m is quantised to 6 cm steps).
+    // mesh loses its shape (a 0.3 m plate moved 1e6 m is quantised to 12 cm steps, or to a point).
     const double far = std::max({std::fabs(box.min().x()), std::fabs(box.min().y()), std::fabs(box.min().z()),
                                  std::fabs(box.max().x()), std::fabs(box.max().y()), std::fabs(box.max().z())});
     const double ulp = far * std::ldexp(1.0, -23); // float spacing at the farthest coordinate
-    if (ulp > 1e-3 * extent)
+    if (far > 0.0 && ulp > 1e-3 * extent)
         return "placed " + fmt(far) + " m from the origin, the mesh's single-precision vertices are " + fmt(ulp) +
                " m apart, too coarse for its size of " + fmt(extent) +
-               " m (allowed: a spacing below 1/1000 of the size; translate the scene instead)";
+               " m (allowed: a spacing below 1/1000 of the size; move the mesh nearer the origin)";
+    if (!(area > 0.0) || !(extent > 0.0))
+        return "the placed mesh has zero area (every triangle is degenerate, or the scale collapses it: extent " +
+               fmt(extent) + " m)";
     if (voxelSize > 0.0) {
         if (extent < voxelSize)
             return "the placed mesh (" + fmt(extent) + " m across) is smaller than one voxel (" + fmt(voxelSize) +
