@@ -3,6 +3,7 @@
 // clashes, collapsed meshes, FIFOs, misleading messages, capped fluid solves, exit codes and
 // signals, and how the summary prints its counts.
 #include "test_util.h"
+#include <frostvdb/BuildPaths.h>
 
 #include <frostvdb/core/Error.h>
 #include <frostvdb/dla3d/Branches.h>
@@ -17,6 +18,7 @@
 
 #include <chrono>
 #include <csignal>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <thread>
@@ -228,8 +230,9 @@ TEST_CASE("Probe 25.5: [dla3d] output larger than max_voxels is refused before r
     CHECK(huge.find("max_voxels") != std::string::npos);
     // thick branches found only once the aggregate exists: refused at the frame, before a voxel
     const std::string dir = tempDir("p25_dla3d");
+    // (the keys' lower bound, 100 boxes of 42^3 voxels, passes; the grown branches do not)
     auto sim = makeSim(kDla3dSmall, {"dla3d.max_thickness=100", "dla3d.half_width=20", "dla3d.taper=1",
-                                     "dla3d.particles=40", "dla3d.max_voxels=2e7"});
+                                     "dla3d.particles=100", "dla3d.max_voxels=1e7"});
     RunOptions ro;
     ro.progress = false;
     ro.outDir = dir;
@@ -449,7 +452,7 @@ TEST_CASE("Probe 25.13: a full disk while writing a checkpoint is a write failur
         return p.size() > 11 && p.substr(p.size() - 11) == ".checkpoint" ? ENOSPC : 0;
     });
     auto sim = makeSim("[scene]\nname = \"full\"\nframes = 2\nsteps_per_frame = 2\n[domain]\nsize = [16, 16]\n"
-                       "[output]\npreview = \"none\"\n[phase_field]\n");
+                       "[output]\npreview = \"none\"\n[region]\nrebuild_every = 1\n[phase_field]\n");
     RunOptions ro;
     ro.progress = false;
     ro.outDir = dir;
@@ -477,10 +480,10 @@ TEST_CASE("Probe 25.13: SIGTERM, SIGINT and SIGHUP are recorded in run.json", "[
         INFO(name);
         const std::string out = dir + "/out_" + name;
         const pid_t pid = spawnBinary({"run", scene, "--out", out, "--quiet"}, dir + "/log_" + name);
-        // wait for the first frame, so the run is well inside its steps
-        for (int i = 0; i < 600 && !std::filesystem::exists(out + "/sig.0001.vdb"); ++i)
+        // wait for the second frame: the run is inside its steps and frame 1 is recorded complete
+        for (int i = 0; i < 1200 && !std::filesystem::exists(out + "/sig.0002.vdb"); ++i)
             std::this_thread::sleep_for(std::chrono::milliseconds(50));
-        REQUIRE(std::filesystem::exists(out + "/sig.0001.vdb"));
+        REQUIRE(std::filesystem::exists(out + "/sig.0002.vdb"));
         kill(pid, sig);
         CHECK(waitFor(pid) == -sig);
         const std::string json = readFile(out + "/run.json");
