@@ -452,8 +452,8 @@ TEST_CASE("Command line: frames and seeds and names are strict", "[fast][robust]
         CHECK(std::count(text.begin(), text.end(), '\n') == 1);
     }
     CHECK(!std::filesystem::exists(dir + "/out/tiny.0001.vdb"));
-    // info on a damaged file: one short line and exit 1, at once.
+    // info on a damaged file: one short line and exit 2 (bad input), at once.
     std::ofstream(dir + "/ten.vdb") << "0123456789";
-    CHECK(runCommand(std::string(FROSTVDB_BINARY) + " info " + dir + "/ten.vdb", dir + "/info") == 1);
+    CHECK(runCommand(std::string(FROSTVDB_BINARY) + " info " + dir + "/ten.vdb", dir + "/info") == 2);
     CHECK(readFile(dir + "/info").find("not a readable VDB file") != std::string::npos);
 }

@@ -1,7 +1,7 @@
 /// frostvdb: grows ice, frost and snowflakes and makes procedural steam as OpenVDB volumes.
 ///   frostvdb run [SCENE] [--out DIR] [--set K=V]... [--threads N] [--seed S] [--frames A-B] [--keep-lattice]
 ///                [--overwrite] [--progress human|json|none] [--estimate[=SECONDS]]
-///                [--checkpoint-every N|Nm] [--resume DIR]
+///                [--checkpoint-every N|Nm] [--resume DIR] [--wait-lock]
 ///   frostvdb info FILE.vdb
 ///   frostvdb preview FILE.vdb -o FILE.png [--grid NAME]
 ///   frostvdb bench NAME [--threads N] [--quick]
@@ -112,6 +112,8 @@ int cmdRun(const std::vector<std::string>& args)
          "come out bit-identical to an uninterrupted run")
         ("keep-lattice", "hexagonal domains: write grids on the sheared lattice transform instead of resampling "
                          "them to square voxels (output.keep_lattice = true)")
+        ("wait-lock", "another run holds the output folder's lock on these frames: wait for it to end instead of "
+                      "refusing (exit code 5)")
         ("quiet,q", "no progress output (same as --progress none)")
         ("progress", po::value<std::string>()->default_value("human"),
          "human: a bar on a terminal, a line every 10% in logs; json: one JSON object per line on stderr "
@@ -158,6 +160,7 @@ int cmdRun(const std::vector<std::string>& args)
     ro.progress = style != ProgressStyle::None;
     ro.progressJson = style == ProgressStyle::Json;
     ro.overwrite = vm.count("overwrite") > 0;
+    ro.waitLock = vm.count("wait-lock") > 0;
     ro.commandLine = gCommandLine;
     if (!frames.empty()) parseFrames(frames, ro.firstFrame, ro.lastFrame);
     applyCheckpointOptions(vm, ro);
@@ -285,7 +288,15 @@ int cmdPreview(const std::vector<std::string>& args)
     if (!pick && gridName.empty())
         for (auto& g : *grids)
             if (!pick && g->isType<openvdb::FloatGrid>()) pick = g;
-    if (!pick) throw SceneError(vm["file"].as<std::string>(), 0, "--grid", "no grid named '" + gridName + "'");
+    if (!pick) {
+        std::string names;
+        for (auto& g : *grids) names += (names.empty() ? "" : ", ") + g->getName() + " (" + g->valueType() + ")";
+        if (gridName.empty())
+            throw SceneError(vm["file"].as<std::string>(), 0, "",
+                             "no float grid to draw (grids: " + (names.empty() ? std::string("none") : names) + ")");
+        throw SceneError(vm["file"].as<std::string>(), 0, "--grid",
+                         "no grid named '" + gridName + "' (grids: " + (names.empty() ? std::string("none") : names) + ")");
+    }
     PreviewOptions po;
     po.width = width;
     writePreview(*pick, out, po);
@@ -355,20 +366,19 @@ int main(int argc, char** argv)
         if (cmd == "keys") return cmdKeys(args);
         std::cerr << "frostvdb: unknown command '" << cmd << "'\n" << kUsage;
         return 2;
-    } catch (const SceneError& e) {
-        return fail(std::string() + "frostvdb: error: " + shortMessage(e.what()), 2);
-    } catch (const CheckpointError& e) {
-        return fail(std::string() + "frostvdb: checkpoint: " + e.what(), 2);
-    } catch (const SimulationError& e) {
-        return fail(std::string() + "frostvdb: simulation stopped: " + shortMessage(e.what()), 3);
-    } catch (const WriteError& e) {
-        return fail(std::string() + "frostvdb: output failed: " + shortMessage(e.what()), 4);
     } catch (const po::error& e) {
         return fail(std::string() + "frostvdb: " + cmd + ": " + shortMessage(e.what()) + " (see frostvdb " + cmd + " --help)", 2);
-    } catch (const std::bad_alloc&) {
-        return fail(std::string() + "frostvdb: error: out of memory (an allocation failed; lower the scene's sizes or "
-                     "run.memory_limit)", 1);
     } catch (const std::exception& e) {
-        return fail(std::string() + "frostvdb: error: " + shortMessage(e.what()), 1);
+        // one line, and one exit code per failure class (exitCodeOf; README "Exit codes")
+        const int code = exitCodeOf(e);
+        if (dynamic_cast<const std::bad_alloc*>(&e))
+            return fail("frostvdb: error: out of memory (an allocation failed; lower the scene's sizes or "
+                        "run.memory_limit)", code);
+        if (code == 2 && dynamic_cast<const CheckpointError*>(&e))
+            return fail(std::string() + "frostvdb: checkpoint: " + shortMessage(e.what()), code);
+        if (code == 3) return fail(std::string() + "frostvdb: simulation stopped: " + shortMessage(e.what()), code);
+        if (code == 4) return fail(std::string() + "frostvdb: output failed: " + shortMessage(e.what()), code);
+        if (code == 5) return fail(std::string() + "frostvdb: output folder busy: " + shortMessage(e.what()), code);
+        return fail(std::string() + "frostvdb: error: " + shortMessage(e.what()), code);
     }
 }

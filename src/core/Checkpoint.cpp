@@ -14,6 +14,7 @@
 #include <sstream>
 
 #include <fcntl.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 namespace frostvdb {
@@ -56,15 +57,19 @@ void writeCheckpointFile(const std::string& path, const StateArchive& archive)
     // io/AtomicFile: temporary, every return checked, fsync, rename, fsync of the folder
     const std::string dir = std::filesystem::path(path).parent_path().string();
     if (!dir.empty()) makeDirectories(dir);
-    try {
-        writeFileAtomic(path, archive.serialise());
-    } catch (const WriteError& e) {
-        throw CheckpointError(std::string("cannot write checkpoint: ") + e.what());
-    }
+    // a failed write is a WriteError like any other output (exit code 4), naming the checkpoint
+    writeFileAtomic(path, archive.serialise());
 }
 
 StateArchive readCheckpointFile(const std::string& path)
 {
+    struct stat st {};
+    if (::stat(path.c_str(), &st) != 0)
+        throw CheckpointError(path + ": no checkpoint here (was the run started with --checkpoint-every?)");
+    if (!S_ISREG(st.st_mode)) // a FIFO would block the read forever
+        throw CheckpointError(path + ": not a regular file (" +
+                              (S_ISDIR(st.st_mode) ? "a directory" : S_ISFIFO(st.st_mode) ? "a FIFO" : "a device") +
+                              "); a checkpoint is a file written by --checkpoint-every");
     std::ifstream in(path, std::ios::binary);
     if (!in) throw CheckpointError(path + ": no checkpoint here (was the run started with --checkpoint-every?)");
     std::stringstream ss;

@@ -1,3 +1,4 @@
+#include <frostvdb/io/InputFiles.h>
 #include <frostvdb/core/Scene.h>
 #include <frostvdb/core/Error.h>
 
@@ -84,6 +85,12 @@ std::string Scene::effectiveText() const
 
 Scene Scene::load(const std::string& path)
 {
+    try {
+        requireRegularFile(path); // a FIFO would block the read forever
+    } catch (const std::runtime_error& e) {
+        const std::string m = e.what();
+        throw SceneError(path, 0, "", m.substr(std::min(m.size(), path.size() + 2)));
+    }
     std::ifstream in(path);
     if (!in) throw SceneError(path, 0, "", "cannot open scene file");
     std::stringstream ss;

@@ -4,6 +4,8 @@
 #include <frostvdb/core/Progress.h>
 #include <frostvdb/io/AtomicFile.h>
 #include <frostvdb/io/Export.h>
+#include <frostvdb/io/InputFiles.h>
+#include <frostvdb/io/OutputLock.h>
 #include <frostvdb/io/Preview.h>
 #include <frostvdb/io/VdbIO.h>
 
@@ -12,6 +14,7 @@
 #include <algorithm>
 #include <cctype>
 #include <chrono>
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 #ifdef __GLIBC__
@@ -22,6 +25,7 @@
 #include <regex>
 #include <set>
 #include <sstream>
+#include <csignal>
 #include <sys/resource.h>
 
 namespace frostvdb {
@@ -214,6 +218,11 @@ Simulation::Simulation(Scene scene) : mScene(std::move(scene))
     std::replace_if(fallback.begin(), fallback.end(),
                     [](char c) { return !(std::isalnum(static_cast<unsigned char>(c)) || c == '_' || c == '-'); }, '_');
     readSceneSection(mScene.section("scene"), mWorld, fallback);
+    // The budget first: input images (a domain's textures, maps) are held to it as they are read.
+    mWorld.memoryLimitBytes = readRunSettings(mScene.section("run"));
+    InputFileLog& inputs = mWorld.state<InputFileLog>();
+    inputs.memoryLimitBytes = mWorld.memoryLimitBytes;
+    InputFileScope inputScope(&inputs); // every mesh, texture and map read from here is recorded
     try {
         mWorld.domain = Domain::fromParams(mScene.section("domain"));
     } catch (const openvdb::Exception& e) {
@@ -222,7 +231,6 @@ Simulation::Simulation(Scene scene) : mScene(std::move(scene))
     }
     readRegionSection(mScene.section("region"), mWorld.region);
     readOutputSection(mScene.section("output"), mOutput, &mWorld.worldScale);
-    mWorld.memoryLimitBytes = readRunSettings(mScene.section("run"));
     mWorld.sceneLabel = mScene.label();
     mWorld.sceneText = mScene.text();
     try {
@@ -252,6 +260,7 @@ Simulation::Simulation(Scene scene) : mScene(std::move(scene))
     std::vector<DeclaredEffect> declared;
     for (auto& e : mEffects) declared.push_back({e->name(), e->declaration()});
     mOrder = deriveEffectOrder(declared, mScene.label());
+    refuseOutputClashes(declared);
     FieldWriters& writers = mWorld.state<FieldWriters>();
     writers.count.clear();
     for (const auto& d : declared)
@@ -264,6 +273,36 @@ Simulation::Simulation(Scene scene) : mScene(std::move(scene))
                 mWrittenFields.push_back(u.key->name);
     mEffectSeconds.assign(mEffects.size(), 0.0);
     checkMemoryBudget();
+}
+
+/// Two effects that both put a grid of one name into every frame cannot be written (a frame file
+/// holds one grid of a name): refused here, before anything runs, naming both sections. Output
+/// grids the ice effects share (they are added once, by ice::addIceOutputs) and the summed gas
+/// grids are not clashes; the grids an effect builds on its own lattice are.
+void Simulation::refuseOutputClashes(const std::vector<DeclaredEffect>& declared) const
+{
+    static const std::vector<const FieldKey*> ownGrids = {&out::kCells, &out::kAutomatonIce, &out::kFreezeStep,
+                                                          &out::kVapour, &out::kPoints,     &out::kAggregateIce};
+    auto usesIceClock = [](const FieldDeclaration& d) {
+        for (const auto& u : d.uses)
+            if (u.key == &ice::kClock) return true;
+        return false;
+    };
+    for (size_t b = 0; b < declared.size(); ++b)
+        for (size_t a = 0; a < b; ++a)
+            for (const FieldKey* kb : declared[b].declaration.outputs)
+                for (const FieldKey* ka : declared[a].declaration.outputs) {
+                    if (std::string(ka->name) != kb->name) continue;
+                    bool shared = ka == kb && std::find(ownGrids.begin(), ownGrids.end(), ka) == ownGrids.end();
+                    if (ka == &out::kIceSdf && kb == &out::kIceSdf) // the ice effects add one frost level set
+                        shared = usesIceClock(declared[a].declaration) && usesIceClock(declared[b].declaration);
+                    if (shared) continue;
+                    throw SceneError(mScene.label(), mScene.sectionLine(declared[b].section),
+                                     "[" + declared[a].section + "] and [" + declared[b].section + "]",
+                                     std::string("both write a grid named '") + kb->name +
+                                         "' to every frame, and a frame file holds one grid of a name (run them "
+                                         "as two scenes, or drop one of the sections)");
+                }
 }
 
 void Simulation::checkMemoryBudget() const
@@ -304,10 +343,12 @@ void Simulation::atSection(const std::string& section, const char* phase, F&& ca
         throw;
     } catch (const WriteError&) {
         throw;
+    } catch (const OutputBusyError&) {
+        throw;
     } catch (const std::bad_alloc&) {
-        throw SceneError(mWorld.sceneLabel, mScene.sectionLine(section), "[" + section + "]",
-                         std::string("out of memory during ") + phase +
-                             " (no estimate foresaw it; lower this section's sizes)");
+        throw OutOfMemoryError(mWorld.sceneLabel, mScene.sectionLine(section), "[" + section + "]",
+                               std::string("out of memory during ") + phase +
+                                   " (no estimate foresaw it; lower this section's sizes)");
     } catch (const openvdb::Exception& x) {
         throw SceneError(mWorld.sceneLabel, mScene.sectionLine(section), "[" + section + "]",
                          std::string("OpenVDB refused the ") + phase + ": " + shortMessage(x.what(), 200));
@@ -333,6 +374,7 @@ Effect* Simulation::effect(const std::string& section) const
 void Simulation::initialize()
 {
     if (mInitialized) return;
+    InputFileScope inputScope(&mWorld.state<InputFileLog>()); // maps and meshes effects read now
     for (size_t i : mOrder.initialize) {
         Effect* e = mEffects[i].get();
         atEffect(*e, "initialisation", [&] { e->initialize(mWorld); });
@@ -479,6 +521,7 @@ void Simulation::saveCheckpoint(const std::string& path)
     w.putString("sim/version", FROSTVDB_VERSION);
     w.putString("sim/parameters", checkpointParameters());
     w.putString("sim/scene_text", mWorld.sceneText);
+    w.putString("sim/inputs", mWorld.state<InputFileLog>().text()); // digests of meshes, textures, maps
     w.putInt("sim/step", mStep);
     publishFields();
     std::string names;
@@ -515,6 +558,7 @@ void Simulation::loadCheckpoint(const std::string& path)
     }
     initialize();
     refuseUncheckpointable("resumed");
+    refuseChangedInputs(r.has("sim/inputs") ? r.getString("sim/inputs") : std::string(), path);
     std::istringstream names(r.getString("sim/fields"));
     for (std::string n; std::getline(names, n);) {
         auto g = r.getGridBase("field/" + n);
@@ -524,6 +568,27 @@ void Simulation::loadCheckpoint(const std::string& path)
     const StateReader effects = r.scope("effect");
     for (auto& e : mEffects) e->loadState(mWorld, effects.scope(e->name()));
     mStep = r.getInt("sim/step");
+}
+
+/// The checkpoint's run and this one must have read the same bytes from every input file (the
+/// scene text alone does not say that a mesh or a map was edited in between).
+void Simulation::refuseChangedInputs(const std::string& saved, const std::string& checkpoint)
+{
+    const auto theirs = InputFileLog::parse(saved);
+    const auto& mine = mWorld.state<InputFileLog>().files;
+    for (size_t i = 0; i < std::max(theirs.size(), mine.size()); ++i) {
+        if (i >= theirs.size())
+            throw CheckpointError(checkpoint + ": this run reads " + mine[i].path +
+                                  ", which the checkpoint's run did not read; resume with the inputs of the first run");
+        if (i >= mine.size())
+            throw CheckpointError(checkpoint + ": the checkpoint's run read " + theirs[i].path +
+                                  ", which this run does not; resume with the inputs of the first run");
+        if (theirs[i].digest != mine[i].digest || theirs[i].bytes != mine[i].bytes)
+            throw CheckpointError(mine[i].path + ": changed since the checkpoint was written (" +
+                                  std::to_string(theirs[i].bytes) + " bytes, digest " + theirs[i].digest + "; now " +
+                                  std::to_string(mine[i].bytes) + " bytes, digest " + mine[i].digest +
+                                  "); restore it, or start the run again without --resume");
+    }
 }
 
 int64_t Simulation::resumeForRun(const RunOptions& opt, const std::string& dir, int64_t first, int64_t last)
@@ -569,6 +634,7 @@ void Simulation::checkpointIfDue(const RunOptions& opt, const std::string& dir, 
     clock.lastStep = mStep;
     clock.last = Clock::now();
     ++sum.checkpoints;
+    updateSignalRecord(dir, sum);
 }
 
 void Simulation::checkFrameRange(int64_t first, int64_t last) const
@@ -632,6 +698,25 @@ void Simulation::prepareOutputFolder(const std::string& dir, const RunOptions& o
                   << mWorld.sceneName << "' in " << dir << "\n";
     }
     writeRunJson(dir, sum);
+    updateSignalRecord(dir, sum);
+}
+
+void Simulation::updateSignalRecord(const std::string& dir, const RunSummary& sum) const
+{
+    std::string text[3];
+    const int sigs[3] = {SIGINT, SIGTERM, SIGHUP};
+    const char* names[3] = {"SIGINT", "SIGTERM", "SIGHUP"};
+    for (int i = 0; i < 3; ++i) {
+        RunSummary s = sum;
+        s.status = "interrupted";
+        s.signal = names[i];
+        s.exitCode = 128 + sigs[i];
+        s.error = std::string("stopped by ") + names[i];
+        s.steps = mStep;
+        s.peakRssBytes = peakRss();
+        text[i] = s.toJson();
+    }
+    setSignalRecord(dir + "/" + sum.summaryFile, text[0], text[1], text[2]);
 }
 
 std::string Simulation::writeFramePreview(const Frame& frame, int64_t f, const std::string& dir)
@@ -678,6 +763,7 @@ void Simulation::writeFrameOutputs(int64_t f, int64_t last, const std::string& d
     for (const auto& png : displacement) sum.files.push_back(png);
     ++sum.framesWritten;
     if (!preview.empty()) sum.files.push_back(preview);
+    updateSignalRecord(dir, sum);
 }
 
 void Simulation::simulateFrames(int64_t first, int64_t last, const RunOptions& opt, const std::string& dir,
@@ -860,26 +946,53 @@ RunSummary Simulation::run(const RunOptions& opt)
     checkFrameRange(first, last);
     mCommandLine = opt.commandLine;
     RunSummary sum = startSummary(opt, first, last);
-    if (opt.writeFiles) prepareOutputFolder(dir, opt, sum);
+    // The folder's lock on these frames, held until this run returns (the kernel drops it on any
+    // exit): a second run into the same frames is refused, or waits with --wait-lock.
+    std::unique_ptr<OutputFolderLock> lock;
+    struct ClearSignalRecord {
+        ~ClearSignalRecord() { setSignalRecord({}, {}, {}, {}); }
+    } clearSignalRecord;
+    if (opt.writeFiles) {
+        makeDirectories(dir);
+        lock = std::make_unique<OutputFolderLock>(dir, first, last, opt.waitLock, [&](const std::string& line) {
+            std::cerr << "frostvdb: " << line << std::endl;
+        });
+        prepareOutputFolder(dir, opt, sum);
+    }
     try {
         simulateFrames(first, last, opt, dir, sum);
     } catch (const std::exception& e) {
         // Record what is complete and why the run stopped; if even that cannot be written (a full
         // disk), the run.json written at the start still says "running", never "complete".
         if (opt.writeFiles) {
+            setSignalRecord({}, {}, {}, {});
             sum.status = "failed";
             sum.error = shortMessage(e.what());
+            sum.exitCode = exitCodeOf(e);
             finishSummary(sum);
             sum.totalSeconds = seconds(tStart, Clock::now());
             try { writeRunJson(dir, sum); } catch (const std::exception&) {}
         }
         throw;
     }
+    setSignalRecord({}, {}, {}, {}); // from here run.json says "complete"
     sum.status = "complete";
     finishSummary(sum);
     sum.totalSeconds = seconds(tStart, Clock::now());
     if (opt.writeFiles) writeRunJson(dir, sum);
     return sum;
+}
+
+int exitCodeOf(const std::exception& e)
+{
+    if (dynamic_cast<const OutOfMemoryError*>(&e) || dynamic_cast<const std::bad_alloc*>(&e)) return 6;
+    if (dynamic_cast<const SceneError*>(&e) || dynamic_cast<const CheckpointError*>(&e) ||
+        dynamic_cast<const VdbFileError*>(&e))
+        return 2;
+    if (dynamic_cast<const SimulationError*>(&e)) return 3;
+    if (dynamic_cast<const WriteError*>(&e)) return 4;
+    if (dynamic_cast<const OutputBusyError*>(&e)) return 5;
+    return 1;
 }
 
 std::string RunSummary::toJson() const
@@ -889,6 +1002,8 @@ std::string RunSummary::toJson() const
     os << "{\n  \"scene\": \"" << jsonEscape(scene) << "\",\n  \"version\": \"" << FROSTVDB_VERSION << "\",\n";
     os << "  \"status\": \"" << status << "\",\n";
     if (!error.empty()) os << "  \"error\": \"" << jsonEscape(error) << "\",\n";
+    if (!signal.empty()) os << "  \"signal\": \"" << signal << "\",\n";
+    if (exitCode >= 0) os << "  \"exit_code\": " << exitCode << ",\n";
     os << "  \"scene_hash\": \"" << sceneHash << "\",\n";
     os << "  \"command_line\": \"" << jsonEscape(commandLine) << "\",\n  \"overrides\": [";
     for (size_t i = 0; i < overrides.size(); ++i) os << (i ? ", " : "") << "\"" << jsonEscape(overrides[i]) << "\"";
@@ -917,6 +1032,18 @@ std::string RunSummary::toJson() const
     return os.str();
 }
 
+/// A counter as a person reads it: whole numbers as integers (600, 2537447480), others with six
+/// significant digits (0.000417, 12.5).
+static std::string countText(double v)
+{
+    char buf[64];
+    if (std::isfinite(v) && v == std::floor(v) && std::fabs(v) < 9.0e15)
+        std::snprintf(buf, sizeof buf, "%lld", static_cast<long long>(v));
+    else
+        std::snprintf(buf, sizeof buf, "%.6g", v);
+    return buf;
+}
+
 std::string RunSummary::toText() const
 {
     std::ostringstream os;
@@ -930,7 +1057,7 @@ std::string RunSummary::toText() const
     os << "\n";
     for (auto& [k, v] : effectSeconds) os << "  " << k << ": " << v << " s\n";
     for (auto& [k, v] : detailSeconds) os << "    " << k << ": " << v << " s\n";
-    for (auto& [k, v] : detailCounts) os << "    " << k << ": " << std::defaultfloat << v << std::fixed << "\n";
+    for (auto& [k, v] : detailCounts) os << "    " << k << ": " << countText(v) << "\n";
     os << "  output: " << outputSeconds << " s\n";
     if (resumedFromStep >= 0) os << "  resumed from the checkpoint at step " << resumedFromStep << "\n";
     if (checkpoints > 0) os << "  checkpoints written: " << checkpoints << "\n";

@@ -112,12 +112,21 @@ struct CapsuleRaster {
 } // namespace
 
 openvdb::FloatGrid::Ptr rasterizeBranches(const std::vector<Vec3d>& positions, const std::vector<int32_t>& parents,
-                                          const std::vector<float>& radii, double voxelSize, double halfWidth)
+                                          const std::vector<float>& radii, double voxelSize, double halfWidth,
+                                          const std::function<void(size_t, size_t)>& progress)
 {
     auto xform = openvdb::math::Transform::createLinearTransform(voxelSize);
     const float bg = float(halfWidth * voxelSize);
     CapsuleRaster body(positions, parents, radii, *xform, bg);
-    tbb::parallel_reduce(tbb::blocked_range<size_t>(0, positions.size(), 64), body);
+    if (!progress) {
+        tbb::parallel_reduce(tbb::blocked_range<size_t>(0, positions.size(), 64), body);
+    } else { // chunks, each reduced into the same body: the voxel-wise minimum is order-independent
+        const size_t n = positions.size(), chunk = std::max<size_t>(64, n / 100);
+        for (size_t b = 0; b < n; b += chunk) {
+            tbb::parallel_reduce(tbb::blocked_range<size_t>(b, std::min(n, b + chunk), 64), body);
+            progress(std::min(n, b + chunk), n);
+        }
+    }
     auto grid = openvdb::FloatGrid::create(bg);
     grid->setTransform(xform);
     grid->setTree(std::make_shared<openvdb::FloatTree>(body.tree));
@@ -126,6 +135,27 @@ openvdb::FloatGrid::Ptr rasterizeBranches(const std::vector<Vec3d>& positions, c
     openvdb::tools::pruneLevelSet(grid->tree());
     grid->setName("ice_sdf");
     return grid;
+}
+
+double branchVoxelVisits(const std::vector<Vec3d>& pos, const std::vector<int32_t>& parents,
+                         const std::vector<float>& radii, double voxelSize, double halfWidth)
+{
+    // the same boxes as CapsuleRaster::operator(), in double (a box may pass int's range)
+    const double dx = voxelSize, background = float(halfWidth * voxelSize);
+    double visits = 0;
+    for (size_t i = 0; i < pos.size(); ++i) {
+        const Vec3d b = pos[i];
+        const double rb = std::max<double>(radii[i], 0.5 * dx);
+        const Vec3d a = parents[i] >= 0 ? pos[size_t(parents[i])] : b;
+        const double ra = parents[i] >= 0 ? std::max<double>(radii[size_t(parents[i])], 0.5 * dx) : rb;
+        const double reach = std::max(ra, rb) + background;
+        const Vec3d lo = (openvdb::math::minComponent(a, b) - Vec3d(reach)) / dx;
+        const Vec3d hi = (openvdb::math::maxComponent(a, b) + Vec3d(reach)) / dx;
+        double box = 1;
+        for (int k = 0; k < 3; ++k) box *= std::max(0.0, std::ceil(hi[k]) - std::floor(lo[k]) + 1.0);
+        visits += box;
+    }
+    return visits;
 }
 
 } // namespace frostvdb::dla3d

@@ -3,6 +3,7 @@
 #include <frostvdb/dla3d/Dla3dEffect.h>
 
 #include <frostvdb/core/Error.h>
+#include <frostvdb/core/Progress.h>
 #include <frostvdb/core/Random.h>
 #include <frostvdb/io/Preview.h>
 
@@ -13,11 +14,15 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <functional>
+#include <memory>
 
 namespace frostvdb::dla3d {
 
 using openvdb::Vec3d;
 using Clock = std::chrono::steady_clock;
+/// Rasterisations above this many voxel visits (about a second of one core) report progress.
+constexpr double kProgressVisits = 1e8;
 
 namespace {
 
@@ -140,19 +145,61 @@ std::unique_ptr<Effect> Dla3dEffect::create(ParamDict& d, const World& world)
                                "branch radius grows as (particles carried)^taper from the tips to the root");
     o.style.maxScale = d.getFloat("max_thickness", 4.0, 1.0, 100.0, "", "cap on root radius / tip radius");
     o.halfWidth = d.getFloat("half_width", 3.0, 1.0, 20.0, "voxels", "narrow-band half width of ice_sdf");
+    o.maxVoxels = d.getFloat("max_voxels", 2e9, 1e3, 1e15, "voxels",
+                             "refuse a frame whose ice_sdf and ice would visit more voxels than this (each branch's "
+                             "box at voxel_size, summed; counted before a voxel is touched, and a lower bound from "
+                             "the keys alone is checked when the scene loads); one core visits about 5e7 per second, so 2e9 is about 40 "
+                             "CPU-seconds");
     o.points = d.getBool("write_points", true, "write the PointDataGrid `points`");
     o.sdf = d.getBool("write_sdf", true, "write the level set `ice_sdf`");
     o.fog = d.getBool("write_fog", true, "write the fog volume `ice` (from ice_sdf)");
     o.mesh = d.getString("mesh", "none", {"none", "obj", "ply"},
                          "also write ice_sdf as a polygon mesh beside the last preview (<scene>.<frame>.obj/ply)");
     s.seed = world.seed;
+    fx->checkOutputKeys(d);
     return fx;
+}
+
+/// The output's voxel size (voxel_size, or the particle radius) must be one OpenVDB can build a
+/// transform for, and the branches must fit max_voxels even at their thinnest: each particle's
+/// capsule box spans at least 2 (tip radius + half_width voxels) on every axis. Refused while
+/// loading, before any step.
+void Dla3dEffect::checkOutputKeys(ParamDict& d) const
+{
+    const auto& o = mOptions;
+    if (!o.sdf && !o.fog && o.mesh == "none" && !o.points) return;
+    const double vox = o.voxelSize > 0 ? o.voxelSize : mSettings.radius;
+    const std::string voxKey = o.voxelSize > 0 ? "voxel_size" : "radius";
+    // OpenVDB's ScaleMap refuses a determinant below 3e-15 ("Non-zero scale values required")
+    if (vox * vox * vox < 3.0001e-15) {
+        char buf[240];
+        std::snprintf(buf, sizeof buf,
+                      "the output voxel of %.3g m is below OpenVDB's smallest (1.45e-05 m: a transform needs a voxel "
+                      "volume of 3e-15 m^3)%s",
+                      vox, o.voxelSize > 0 ? "" : " (voxel_size = 0 uses the radius)");
+        d.fail(voxKey, buf);
+    }
+    if (!o.sdf && !o.fog && o.mesh == "none") return;
+    const double tip = std::max(o.style.tipRadius > 0 ? o.style.tipRadius : mSettings.radius, 0.5 * vox);
+    const double side = std::floor(2.0 * (tip + o.halfWidth * vox) / vox);
+    const double lower = double(o.particles) * side * side * side;
+    if (lower > o.maxVoxels) {
+        char buf[400];
+        std::snprintf(buf, sizeof buf,
+                      "the last frame's branches visit at least %.3g voxels (%lld particles, each a box of at least "
+                      "%.0f^3 voxels: branch radius %.3g m plus half_width %.3g voxels at voxel_size %.3g m), more "
+                      "than dla3d.max_voxels = %.3g allows: raise voxel_size, lower the radii or particles, or raise "
+                      "max_voxels",
+                      lower, static_cast<long long>(o.particles), side, tip, o.halfWidth, vox, o.maxVoxels);
+        d.fail(o.voxelSize > 0 ? "voxel_size" : "radius", buf);
+    }
 }
 
 void Dla3dEffect::initialize(World& world)
 {
     auto& s = mSettings;
     auto& o = mOptions;
+    o.progress = world.progress;
     if (o.style.tipRadius <= 0) o.style.tipRadius = s.radius;
     if (o.voxelSize <= 0) o.voxelSize = s.radius;
     std::shared_ptr<TriangleMesh> constraintMesh;
@@ -232,7 +279,30 @@ void Dla3dEffect::addToFrame(World& world, Frame& frame)
         frame.add(makePointGrid(agg.positions(), radii, agg.parents(), agg.generations(), mAttach, mOptions.voxelSize));
     mSdf.reset();
     if (mOptions.sdf || mOptions.fog || mOptions.mesh != "none") {
-        mSdf = rasterizeBranches(agg.positions(), agg.parents(), radii, mOptions.voxelSize, mOptions.halfWidth);
+        // Counted before a voxel is touched: a frame over max_voxels is refused, a long one reports progress.
+        const double visits = branchVoxelVisits(agg.positions(), agg.parents(), radii, mOptions.voxelSize,
+                                                mOptions.halfWidth);
+        if (visits > mOptions.maxVoxels) {
+            char buf[400];
+            std::snprintf(buf, sizeof buf,
+                          "frame %lld: the branches of %zu particles visit about %.3g voxels at voxel_size %.3g m "
+                          "(thickest branch %.3g m), more than dla3d.max_voxels = %.3g allows: raise voxel_size, "
+                          "lower branch_radius or max_thickness, or raise max_voxels",
+                          static_cast<long long>(frame.frame), agg.size(), visits, mOptions.voxelSize,
+                          radii.empty() ? 0.0 : double(*std::max_element(radii.begin(), radii.end())),
+                          mOptions.maxVoxels);
+            throw SceneError(mOptions.sceneLabel, 0, mOptions.voxelSize > 0 ? "dla3d.voxel_size" : "dla3d.radius", buf);
+        }
+        std::unique_ptr<Progress> progress;
+        std::function<void(size_t, size_t)> report;
+        if (mOptions.progress && visits > kProgressVisits) {
+            progress = std::make_unique<Progress>("dla3d frame " + std::to_string(frame.frame) + " ice_sdf",
+                                                  int64_t(agg.size()), "particles", true);
+            report = [&](size_t done, size_t) { progress->update(int64_t(done)); };
+        }
+        mSdf = rasterizeBranches(agg.positions(), agg.parents(), radii, mOptions.voxelSize, mOptions.halfWidth,
+                                 report);
+        if (progress) progress->finish();
         mSdf->insertMeta("frostvdb_dla3d_particles", openvdb::Int64Metadata(int64_t(agg.size())));
         if (mOptions.sdf) frame.add(mSdf);
         if (mOptions.fog) {

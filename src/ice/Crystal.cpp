@@ -1,3 +1,4 @@
+#include <frostvdb/io/InputFiles.h>
 #include <frostvdb/ice/Crystal.h>
 #include <frostvdb/io/VdbIO.h>
 #include <frostvdb/core/Error.h>
@@ -411,6 +412,11 @@ void sampleMap(const Domain& dom, const MapSource& src, bool requireUnit,
 {
     namespace fs = std::filesystem;
     if (!fs::exists(src.path)) mapFail(src, "cannot find '" + src.path + "'");
+    try {
+        requireRegularFile(src.path); // a FIFO would block the read forever
+    } catch (const std::exception& e) {
+        mapFail(src, e.what());
+    }
     if (src.isPng()) {
         int W = 0, H = 0;
         std::vector<float> img;

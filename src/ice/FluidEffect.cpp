@@ -18,6 +18,7 @@
 #include <chrono>
 #include <cmath>
 #include <map>
+#include <iostream>
 #include <sstream>
 
 namespace frostvdb {
@@ -163,7 +164,27 @@ void FluidEffect::initialize(World& world)
     updateObstacles(world);
     mFluid->setFreeStream();
     mFluid->project();
+    notePressureSolve(mFluid->stats().pressureConverged, mFluid->stats().pressureIterations,
+                      mFluid->stats().pressureResidual, -1);
     writeVelocityField(world);
+}
+
+void FluidEffect::notePressureSolve(bool converged, int iterations, double residual, int64_t step)
+{
+    mMostIterations = std::max(mMostIterations, iterations);
+    if (converged) return;
+    if (mCappedSolves++ == 0)
+        std::cerr << "frostvdb: [fluid] warning: the pressure solve " << (step < 0 ? std::string("at initialisation")
+                                                                               : "of step " + std::to_string(step))
+                  << " stopped at fluid.max_iterations = " << mParams.maxIterations << " (residual " << residual
+                  << ", tolerance " << mParams.tolerance
+                  << "); the flow is not divergence-free. Capped solves are counted in the summary "
+                     "(fluid.capped_solves)\n";
+}
+
+std::vector<std::pair<std::string, double>> FluidEffect::counters() const
+{
+    return {{"capped_solves", double(mCappedSolves)}, {"max_pressure_iterations", double(mMostIterations)}};
 }
 
 void FluidEffect::updateObstacles(World& world)
@@ -271,6 +292,7 @@ void FluidEffect::step(World& world, const StepInfo& info)
     updateObstacles(world);
     mFluid->step(dt);
     const auto& st = mFluid->stats();
+    notePressureSolve(st.pressureConverged, st.pressureIterations, st.pressureResidual, info.step);
     for (int j = 0; j < mFluid->ny(); ++j)
         for (int i = 0; i <= mFluid->nx(); ++i)
             if (!std::isfinite(mFluid->u(i, j))) {

@@ -42,6 +42,8 @@ void FluidEffect::initializeSparse(World& world)
     updateObstaclesSparse(world);
     mSparse->setFreeStream();
     mSparse->project();
+    notePressureSolve(mSparse->pressureStats().converged, mSparse->pressureStats().iterations,
+                      mSparse->pressureStats().relativeResidual, -1);
     writeVelocitySparse(world);
 }
 
@@ -125,11 +127,13 @@ void FluidEffect::advectTemperatureSparse(World& world, double dt)
     mAdvectTSeconds += since(t0);
 }
 
-void FluidEffect::stepSparse(World& world, const StepInfo&)
+void FluidEffect::stepSparse(World& world, const StepInfo& info)
 {
     const double dt = ice::shared(world).dt; // read every step: the phase field owns the clock
     updateObstaclesSparse(world);
     mSparse->step(dt);
+    notePressureSolve(mSparse->pressureStats().converged, mSparse->pressureStats().iterations,
+                      mSparse->pressureStats().relativeResidual, info.step);
     writeVelocitySparse(world);
     advectTemperatureSparse(world, dt);
 }

@@ -6,6 +6,7 @@
 #include <csignal>
 #include <cstring>
 #include <filesystem>
+#include <memory>
 #include <mutex>
 
 #include <fcntl.h>
@@ -46,10 +47,45 @@ void unregisterTemp(int slot)
     if (slot >= 0) gSlots[slot].state.store(0);
 }
 
+// What a signal leaves behind (setSignalRecord): published whole through one atomic pointer; the
+// previous record stays alive until the next replacement, so a handler reading it on another
+// thread never sees freed memory.
+struct SignalRecord {
+    std::string path, tmp;
+    std::string text[3]; // SIGINT, SIGTERM, SIGHUP
+};
+std::atomic<SignalRecord*> gRecord{nullptr};
+std::unique_ptr<SignalRecord> gRecordLive, gRecordRetired;
+std::mutex gRecordMutex;
+
+int signalSlot(int sig) { return sig == SIGINT ? 0 : sig == SIGTERM ? 1 : sig == SIGHUP ? 2 : -1; }
+
+/// open/write/fsync/close/rename only: async-signal-safe.
+void writeSignalRecord(int sig)
+{
+    const SignalRecord* r = gRecord.load();
+    const int slot = signalSlot(sig);
+    if (!r || slot < 0 || r->text[slot].empty()) return;
+    const int fd = ::open(r->tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+    if (fd < 0) return;
+    const char* p = r->text[slot].data();
+    size_t left = r->text[slot].size();
+    while (left > 0) {
+        const ssize_t n = ::write(fd, p, left);
+        if (n < 0 && errno == EINTR) continue;
+        if (n <= 0) { ::close(fd); ::unlink(r->tmp.c_str()); return; }
+        p += n;
+        left -= size_t(n);
+    }
+    if (::fsync(fd) != 0 || ::close(fd) != 0) { ::unlink(r->tmp.c_str()); return; }
+    if (::rename(r->tmp.c_str(), r->path.c_str()) != 0) ::unlink(r->tmp.c_str());
+}
+
 extern "C" void cleanupOnSignal(int sig)
 {
     for (auto& s : gSlots)
         if (s.state.load() == 2) ::unlink(s.path);
+    writeSignalRecord(sig);
     std::signal(sig, SIG_DFL);
     std::raise(sig);
 }
@@ -169,6 +205,25 @@ void setWriteFaultHook(WriteFaultHook hook)
 {
     std::lock_guard<std::mutex> lock(gHookMutex);
     gHook = std::move(hook);
+}
+
+void setSignalRecord(const std::string& path, const std::string& onSigint, const std::string& onSigterm,
+                     const std::string& onSighup)
+{
+    std::lock_guard<std::mutex> lock(gRecordMutex);
+    std::unique_ptr<SignalRecord> r;
+    if (!path.empty()) {
+        r = std::make_unique<SignalRecord>();
+        r->path = path;
+        // a temporary name of this process (removed by removeStaleTemporaries if a kill leaves it)
+        r->tmp = temporaryName(path);
+        r->text[0] = onSigint;
+        r->text[1] = onSigterm;
+        r->text[2] = onSighup;
+    }
+    gRecord.store(r.get());
+    gRecordRetired = std::move(gRecordLive);
+    gRecordLive = std::move(r);
 }
 
 void installTempCleanupHandlers()

@@ -1,6 +1,7 @@
 /// @file Mesh.cpp
 /// @brief Assimp-backed mesh loading and small OBJ/PLY writers.
 #include <frostvdb/io/Mesh.h>
+#include <frostvdb/io/InputFiles.h>
 
 #include <assimp/Importer.hpp>
 #include <assimp/postprocess.h>
@@ -12,6 +13,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <sstream>
 #include <stdexcept>
 
 namespace frostvdb {
@@ -166,7 +168,9 @@ TriangleMesh makePlate(double size, int n)
 
 TriangleMesh loadMesh(const std::string& path, const MeshPlacement& placement)
 {
-    if (!std::filesystem::exists(path)) throw std::runtime_error(path + ": mesh file not found");
+    requireRegularFile(path); // "mesh file not found", or a directory / FIFO refused before it is opened
+    checkPlyHeader(path);
+    noteInputFile(path);
     Assimp::Importer importer;
     const aiScene* scene = importer.ReadFile(
         path, aiProcess_Triangulate | aiProcess_JoinIdenticalVertices | aiProcess_SortByPType |
@@ -210,7 +214,108 @@ TriangleMesh loadMesh(const std::string& path, const MeshPlacement& placement)
         if (!std::isfinite(p.x()) || !std::isfinite(p.y()) || !std::isfinite(p.z()))
             throw std::runtime_error(path + ": mesh has non-finite vertex coordinates");
     mesh.transform(placement);
+    const std::string why = mesh.collapseProblem(placement);
+    if (!why.empty()) throw std::runtime_error(path + ": " + why);
     return mesh;
+}
+
+namespace {
+std::string fmt(double v)
+{
+    char b[32];
+    std::snprintf(b, sizeof b, "%.3g", v);
+    return b;
+}
+} // namespace
+
+std::string TriangleMesh::collapseProblem(const MeshPlacement& placement, double voxelSize) const
+{
+    if (triangles.empty()) return "mesh has no triangles";
+    const auto& s = placement.scale;
+    if (s.x() == 0.0 || s.y() == 0.0 || s.z() == 0.0)
+        return "the placement scale (" + fmt(s.x()) + ", " + fmt(s.y()) + ", " + fmt(s.z()) +
+               ") has a zero factor: the mesh collapses (allowed: non-zero factors)";
+    for (const auto& p : points)
+        if (!std::isfinite(p.x()) || !std::isfinite(p.y()) || !std::isfinite(p.z()))
+            return "the placed mesh has non-finite vertex coordinates (scale or translate too large)";
+    const openvdb::BBoxd box = bbox();
+    const double extent = box.extents().length();
+    const double area = totalArea();
+    // Vertices are single-precision floats: far from the origin their spacing is coarse and the
+    // mesh loses its shape (a 0.3 m plate moved 1e6 m is quantised to 12 cm steps, or to a point).
+    const double far = std::max({std::fabs(box.min().x()), std::fabs(box.min().y()), std::fabs(box.min().z()),
+                                 std::fabs(box.max().x()), std::fabs(box.max().y()), std::fabs(box.max().z())});
+    const double ulp = far * std::ldexp(1.0, -23); // float spacing at the farthest coordinate
+    if (far > 0.0 && ulp > 1e-3 * extent)
+        return "placed " + fmt(far) + " m from the origin, the mesh's single-precision vertices are " + fmt(ulp) +
+               " m apart, too coarse for its size of " + fmt(extent) +
+               " m (allowed: a spacing below 1/1000 of the size; move the mesh nearer the origin)";
+    if (!(area > 0.0) || !(extent > 0.0))
+        return "the placed mesh has zero area (every triangle is degenerate, or the scale collapses it: extent " +
+               fmt(extent) + " m)";
+    if (voxelSize > 0.0) {
+        if (extent < voxelSize)
+            return "the placed mesh (" + fmt(extent) + " m across) is smaller than one voxel (" + fmt(voxelSize) +
+                   " m): nothing can grow on it";
+        if (far / voxelSize > double(1 << 24))
+            return "placed " + fmt(far) + " m from the origin, the mesh is " + fmt(far / voxelSize) +
+                   " voxels out, where single-precision voxel positions are no longer exact (allowed: up to 1.7e7 "
+                   "voxels from the origin)";
+        if (ulp > 0.125 * voxelSize)
+            return "placed " + fmt(far) + " m from the origin, the mesh's single-precision vertices are " + fmt(ulp) +
+                   " m apart, more than 1/8 of a voxel (" + fmt(voxelSize) + " m)";
+    }
+    return {};
+}
+
+/// A PLY header states its element counts; a damaged one can claim a billion vertices that
+/// Assimp would try to allocate. Each element needs at least one byte per property (binary) or
+/// two characters per property (ASCII: a digit and a separator), so a count the file cannot
+/// hold is refused before Assimp reads it.
+void checkPlyHeader(const std::string& path)
+{
+    std::ifstream in(path, std::ios::binary);
+    std::string magic;
+    if (!std::getline(in, magic) || magic.rfind("ply", 0) != 0) return;
+    std::error_code ec;
+    const double size = double(std::filesystem::file_size(path, ec));
+    if (ec) return;
+    bool ascii = false;
+    double need = 0, count = 0;
+    std::string element;
+    std::string line;
+    int lines = 0;
+    auto close = [&](double props) { need += count * props * (ascii ? 2.0 : 1.0); };
+    double props = 0;
+    while (std::getline(in, line) && ++lines < 10000) {
+        std::istringstream ls(line);
+        std::string word;
+        ls >> word;
+        if (word == "format") {
+            std::string f;
+            ls >> f;
+            ascii = f == "ascii";
+        } else if (word == "element") {
+            close(props);
+            props = 0;
+            std::string n;
+            ls >> element >> n;
+            count = std::strtod(n.c_str(), nullptr);
+            if (!(count >= 0) || !std::isfinite(count)) count = 0;
+            if (count > 0 && count > size)
+                throw std::runtime_error(path + ": the PLY header declares " + fmt(count) + " " + element +
+                                         " elements, but the file holds only " + fmt(size) +
+                                         " bytes (damaged or truncated)");
+        } else if (word == "property") {
+            props += 1;
+        } else if (word == "end_header") {
+            close(props);
+            if (need > size)
+                throw std::runtime_error(path + ": the PLY header declares elements needing at least " + fmt(need) +
+                                         " bytes, but the file holds only " + fmt(size) + " (damaged or truncated)");
+            return;
+        }
+    }
 }
 
 namespace {

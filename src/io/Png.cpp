@@ -1,4 +1,5 @@
 #include <frostvdb/io/Png.h>
+#include <frostvdb/io/InputFiles.h>
 #include <frostvdb/io/AtomicFile.h>
 
 #include <png.h>
@@ -111,6 +112,8 @@ void writePngGray16(const std::string& path, int width, int height, const std::v
 
 std::vector<float> readPngGray(const std::string& path, int& width, int& height, int* bitDepth)
 {
+    requireRegularFile(path); // a FIFO would block libpng's fopen forever
+    noteInputFile(path);
     png_image image{};
     image.version = PNG_IMAGE_VERSION;
     if (!png_image_begin_read_from_file(&image, path.c_str()))
@@ -126,6 +129,16 @@ std::vector<float> readPngGray(const std::string& path, int& width, int& height,
     // would turn a painted 50% grey into 21%).
     const bool sixteen = (image.format & PNG_FORMAT_FLAG_LINEAR) != 0;
     if (bitDepth) *bitDepth = sixteen ? 16 : 8;
+    // What decoding holds at its peak: the decoded samples (1 or 2 bytes) and the floats (4).
+    try {
+        char what[120];
+        std::snprintf(what, sizeof what, "decoding its %u x %u pixels (%d bytes each)", image.width, image.height,
+                      sixteen ? 6 : 5);
+        checkInputMemory(path, double(image.width) * double(image.height) * (sixteen ? 6.0 : 5.0), what);
+    } catch (...) {
+        png_image_free(&image);
+        throw;
+    }
     std::vector<float> out;
     if (sixteen) {
         image.format = PNG_FORMAT_LINEAR_Y;

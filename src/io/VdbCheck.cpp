@@ -3,6 +3,7 @@
 #include <cstdint>
 #include <cstring>
 #include <fstream>
+#include <sys/stat.h>
 #include <sstream>
 #include <vector>
 
@@ -59,6 +60,8 @@ std::string vdbLengthProblem(const std::string& path)
 {
     Walker w;
     {
+        struct stat st {};
+        if (::stat(path.c_str(), &st) == 0 && !S_ISREG(st.st_mode)) return "not a regular file";
         std::ifstream in(path, std::ios::binary);
         if (!in) return {}; // OpenVDB reports it
         std::stringstream ss;

@@ -1,4 +1,5 @@
 #include <frostvdb/io/VdbIO.h>
+#include <frostvdb/io/InputFiles.h>
 #include <frostvdb/core/Error.h>
 #include <frostvdb/io/AtomicFile.h>
 
@@ -247,6 +248,12 @@ std::string readWholeFile(const std::string& path)
 {
     std::error_code ec;
     if (std::filesystem::is_directory(path, ec)) throw VdbFileError(path, "is a folder");
+    try {
+        requireRegularFile(path); // a FIFO or a device would block the read forever
+    } catch (const std::runtime_error& e) {
+        const std::string m = e.what();
+        throw VdbFileError(path, m.substr(std::min(m.size(), path.size() + 2)));
+    }
     std::ifstream in(path, std::ios::binary);
     if (!in) throw VdbFileError(path, std::string("cannot open: ") + std::strerror(errno));
     const auto size = std::filesystem::file_size(path, ec);
@@ -271,7 +278,7 @@ void makeDirectories(const std::string& dir)
 {
     std::error_code ec;
     if (!dir.empty()) std::filesystem::create_directories(dir, ec);
-    if (ec) throw std::runtime_error(dir + ": cannot create directory (" + ec.message() + ")");
+    if (ec) throw WriteError(dir, "cannot create the directory: " + ec.message());
 }
 
 namespace {
@@ -645,6 +652,7 @@ std::string checkVdbBytesInFreshProcess(const std::string& bytes)
 openvdb::GridPtrVecPtr readVdb(const std::string& path, openvdb::MetaMap::Ptr* fileMeta, bool requireGrids)
 {
     const std::string bytes = readWholeFile(path);
+    noteInputFile(path);
     const VdbLayout layout = validateVdb(path, bytes);
     if (requireGrids && layout.gridCount == 0) throw VdbFileError(path, "the file holds no grids");
     const TrialResult trial = trialParseInChild(bytes);

@@ -12,6 +12,7 @@
 /// Every other section must be a registered effect; the initialisation and step order come from
 /// the effects' declarations (core/StepOrder.h), whatever the order of the sections.
 #include <frostvdb/core/Checkpoint.h>
+#include <frostvdb/core/Error.h>
 #include <frostvdb/core/Effect.h>
 #include <frostvdb/core/Scene.h>
 #include <frostvdb/core/StepOrder.h>
@@ -23,6 +24,22 @@
 #include <vector>
 
 namespace frostvdb {
+
+/// An allocation failed that no memory estimate foresaw (the driver turns std::bad_alloc inside an
+/// effect into this, naming the section). A SceneError for callers that catch those.
+class OutOfMemoryError : public SceneError {
+public:
+    using SceneError::SceneError;
+};
+
+/// The process exit status for a failure, one per class (README, docs/guide.md):
+/// 2 bad input (SceneError, CheckpointError, VdbFileError: the scene, the command line, an input
+/// file, a checkpoint that does not fit, an estimate over run.memory_limit), 3 the simulation left
+/// its bounds (SimulationError), 4 a write failed (WriteError: frames, PNGs, run.json,
+/// checkpoints), 5 the output folder is locked by another run (OutputBusyError), 6 out of memory
+/// that no estimate foresaw (OutOfMemoryError, std::bad_alloc), 1 anything else (a bug).
+/// A signal (SIGINT, SIGTERM, SIGHUP) ends the process with 128 + its number.
+int exitCodeOf(const std::exception& e);
 
 struct RunOptions {
     std::string outDir;      ///< "" -> out/<scene name>
@@ -38,6 +55,9 @@ struct RunOptions {
     CheckpointPolicy checkpoint;
     /// Continue from the checkpoint in this folder (`--resume`): frames after it are written.
     std::string resumeDir;
+    /// Another run holds the output folder's lock on these frames (io/OutputLock.h): wait for it
+    /// (`--wait-lock`) instead of refusing with OutputBusyError.
+    bool waitLock = false;
 };
 
 struct OutputSettings {
@@ -56,8 +76,11 @@ struct OutputSettings {
 
 struct RunSummary {
     std::string scene;
-    std::string status = "complete"; ///< run.json: "running" (written at the start), "failed", "complete"
+    /// run.json: "running" (written at the start), "failed", "complete", or "interrupted" (a signal)
+    std::string status = "complete";
     std::string error;               ///< the failure, when status is "failed"
+    std::string signal;              ///< "SIGTERM", ... when status is "interrupted"
+    int exitCode = -1;               ///< the process's exit status when it is known (failed, interrupted)
     std::string commandLine;
     std::vector<std::string> overrides;  ///< --set (and --seed, --keep-lattice) as section.key=value
     std::string effectiveScene;          ///< the scene after overrides (TOML)
@@ -164,6 +187,10 @@ private:
     template <typename F>
     void atSection(const std::string& section, const char* phase, F&& call) const;
     void checkMemoryBudget() const;
+    void refuseOutputClashes(const std::vector<DeclaredEffect>& declared) const;
+    void refuseChangedInputs(const std::string& saved, const std::string& checkpoint);
+    /// Keeps what SIGINT/SIGTERM/SIGHUP would write into run.json up to date (io/AtomicFile.h).
+    void updateSignalRecord(const std::string& dir, const RunSummary& sum) const;
     void checkFrameRange(int64_t first, int64_t last) const;
     RunSummary startSummary(const RunOptions& opt, int64_t first, int64_t last) const;
     void prepareOutputFolder(const std::string& dir, const RunOptions& opt, RunSummary& sum) const;

@@ -12,6 +12,7 @@
 #include <openvdb/openvdb.h>
 #include <openvdb/points/PointDataGrid.h>
 
+#include <functional>
 #include <vector>
 
 namespace frostvdb::dla3d {
@@ -34,8 +35,16 @@ openvdb::points::PointDataGrid::Ptr makePointGrid(const std::vector<openvdb::Vec
                                                   const std::vector<float>& attachTimes, double voxelSize);
 
 /// Narrow-band level set (half width @a halfWidth voxels) of the union of the branch capsules.
+/// @a progress, when given, is called from the calling thread after each of about 100 chunks of
+/// particles with (particles done, particles); the result does not depend on it.
 openvdb::FloatGrid::Ptr rasterizeBranches(const std::vector<openvdb::Vec3d>& positions,
                                           const std::vector<int32_t>& parents, const std::vector<float>& radii,
-                                          double voxelSize, double halfWidth = 3.0);
+                                          double voxelSize, double halfWidth = 3.0,
+                                          const std::function<void(size_t, size_t)>& progress = {});
+
+/// The voxels rasterizeBranches visits (each capsule's index box, summed: its work, and an upper
+/// bound of the voxels it stores), counted in O(particles) without touching a voxel.
+double branchVoxelVisits(const std::vector<openvdb::Vec3d>& positions, const std::vector<int32_t>& parents,
+                         const std::vector<float>& radii, double voxelSize, double halfWidth = 3.0);
 
 } // namespace frostvdb::dla3d

@@ -45,12 +45,15 @@ public:
         double voxelSize = 0;
         BranchStyle style;
         double halfWidth = 3;
+        double maxVoxels = 2e9; ///< refuse a frame whose branches would visit more voxels (max_voxels)
+        bool progress = false;  ///< the run reports progress: long rasterisations report theirs
         bool points = true, sdf = true, fog = true;
         std::string mesh = "none";
         std::string sceneLabel;
     };
 
 private:
+    void checkOutputKeys(ParamDict& d) const;
     DlaSettings mSettings;
     Options mOptions;
     std::unique_ptr<Aggregate> mAggregate;

@@ -133,6 +133,9 @@ public:
     void addToFrame(World& world, Frame& frame) override;
     bool writePreview(World& world, const Frame& frame, const std::string& pngPath) override;
     std::vector<std::pair<std::string, double>> timings() const override;
+    /// capped_solves: pressure solves that stopped at max_iterations before the tolerance (the
+    /// first one is also reported on stderr); max_pressure_iterations: the most any solve took.
+    std::vector<std::pair<std::string, double>> counters() const override;
     /// The stable-fluid arrays (u, v, pressure, solid, temperature) over the plane; the band solver
     /// stores faces and the multigrid only where the band is, but the band may grow to fill the
     /// box, so its worst case is charged (measured: 3027 MiB at 256^3, about 190 B per cell,
@@ -175,6 +178,10 @@ private:
     openvdb::Coord mOrigin{0, 0, 0}; ///< the domain's first cell (aux cell (0, 0))
     double mObstacleSeconds = 0, mVelOutSeconds = 0, mAdvectTSeconds = 0;
     bool mSparseMode = false;
+    int64_t mCappedSolves = 0;
+    int mMostIterations = 0;
+    /// Counts a pressure solve that hit max_iterations (reported once on stderr).
+    void notePressureSolve(bool converged, int iterations, double residual, int64_t step);
     fluid::SparseFluidParams mSparseParams;
     std::unique_ptr<fluid::SparseFluid> mSparse;
 };

@@ -76,6 +76,12 @@ void setWriteFaultHook(WriteFaultHook hook);
 /// let the signal terminate the process as it would have.
 void installTempCleanupHandlers();
 
+/// What SIGINT, SIGTERM or SIGHUP leave behind: after removing the temporaries, the handler
+/// writes the text for that signal to @a path (through a temporary and a rename, with
+/// async-signal-safe calls only) before the signal ends the process. A run keeps its run.json
+/// here with "status": "interrupted" and the signal. An empty @a path clears it.
+void setSignalRecord(const std::string& path, const std::string& onSigint, const std::string& onSigterm,
+                     const std::string& onSighup);
 /// Removes temporaries in @a dir left by processes that no longer run; returns their names.
 /// Temporaries of live processes are left alone.
 std::vector<std::string> removeStaleTemporaries(const std::string& dir);

@@ -46,7 +46,16 @@ struct TriangleMesh {
     std::vector<std::pair<uint32_t, uint32_t>> boundaryEdges() const;
     /// For each vertex, the triangles that use it (sorted).
     std::vector<std::vector<uint32_t>> vertexTriangles() const;
+    /// Why this mesh, placed by @a placement, has collapsed ("" when it has not): no triangles, a
+    /// zero scale factor, non-finite or zero-area geometry, or single-precision vertices too coarse
+    /// for its size where it was moved to. With @a voxelSize > 0 also a mesh smaller than one voxel
+    /// or placed beyond exact single-precision voxel positions (2^24 voxels out).
+    std::string collapseProblem(const MeshPlacement& placement, double voxelSize = 0.0) const;
 };
+
+/// Refuses (std::runtime_error naming the file) a PLY whose header declares more elements than
+/// the file's size can hold; other formats pass.
+void checkPlyHeader(const std::string& path);
 
 /// A closed icosphere of @a radius about the origin, @a subdivisions times subdivided (20 * 4^s
 /// triangles), outward winding. The shell domain's default mesh and the tests' sphere.
@@ -56,7 +65,9 @@ TriangleMesh makeIcosphere(double radius, int subdivisions);
 TriangleMesh makePlate(double size, int n);
 
 /// Reads a triangle mesh and applies @a placement. Throws std::runtime_error with one line
-/// naming the file when it is missing, unreadable or has no triangles.
+/// naming the file when it is missing, not a regular file, unreadable, has no triangles or
+/// collapses where it is placed (TriangleMesh::collapseProblem without a voxel size). The file is
+/// recorded in the current InputFileScope (io/InputFiles.h).
 TriangleMesh loadMesh(const std::string& path, const MeshPlacement& placement = {});
 
 /// Writes a triangle (and optional quad) mesh as Wavefront OBJ (used for optional geometry output).

@@ -1,0 +1,527 @@
+// Issue 25: the findings of the fault probe of 46b7948, each held at its cause. Inputs that
+// change under a checkpoint, two runs into one folder, the [dla3d] output stage, grid-name
+// clashes, collapsed meshes, FIFOs, misleading messages, capped fluid solves, exit codes and
+// signals, and how the summary prints its counts.
+#include "test_util.h"
+#include <frostvdb/BuildPaths.h>
+
+#include <frostvdb/core/Error.h>
+#include <frostvdb/dla3d/Branches.h>
+#include <frostvdb/io/AtomicFile.h>
+#include <frostvdb/io/InputFiles.h>
+#include <frostvdb/io/Mesh.h>
+#include <frostvdb/io/OutputLock.h>
+#include <frostvdb/io/Png.h>
+#include <frostvdb/io/VdbIO.h>
+
+#include <catch2/catch.hpp>
+
+#include <chrono>
+#include <csignal>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <thread>
+
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+using namespace frostvdb;
+using namespace frostvdb::test;
+
+namespace {
+
+/// A small plane phase field whose melt map is @a png (stretched over the plane).
+std::string meltMapScene(const std::string& png, const std::string& extra = "")
+{
+    return R"([scene]
+name = "mapped"
+frames = 3
+steps_per_frame = 2
+[domain]
+size = [32, 32]
+voxel_size = 0.001
+[output]
+preview = "none"
+displacement_png = false
+[crystal]
+melt_map = ")" + png + R"("
+map_stretch = true
+[phase_field]
+)" + extra;
+}
+
+void writeGrayPng(const std::string& path, int w, int h, float value)
+{
+    writePngGray(path, w, h, std::vector<float>(size_t(w) * size_t(h), value), 8);
+}
+
+pid_t spawnBinary(const std::vector<std::string>& args, const std::string& log)
+{
+    const pid_t pid = fork();
+    if (pid == 0) {
+        const int fd = open(log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+        dup2(fd, 1);
+        dup2(fd, 2);
+        std::vector<char*> argv;
+        argv.push_back(const_cast<char*>(FROSTVDB_BINARY));
+        for (auto& a : args) argv.push_back(const_cast<char*>(a.c_str()));
+        argv.push_back(nullptr);
+        execv(FROSTVDB_BINARY, argv.data());
+        _exit(127);
+    }
+    return pid;
+}
+
+/// Waits for @a pid; returns its exit code, or -signal when a signal ended it.
+int waitFor(pid_t pid)
+{
+    int st = 0;
+    waitpid(pid, &st, 0);
+    return WIFEXITED(st) ? WEXITSTATUS(st) : -WTERMSIG(st);
+}
+
+size_t lines(const std::string& s) { return size_t(std::count(s.begin(), s.end(), '\n')); }
+
+} // namespace
+
+// ---- finding 3 --------------------------------------------------------------------------------
+
+TEST_CASE("Probe 25.3: resuming after an input file changed is refused, naming the file", "[fast][probe][checkpoint]")
+{
+    const std::string dir = tempDir("p25_inputs");
+    const std::string png = dir + "/melt.png";
+    writeGrayPng(png, 32, 32, 0.8f);
+    const std::string text = meltMapScene(png);
+    {
+        auto sim = makeSim(text);
+        RunOptions ro;
+        ro.progress = false;
+        ro.outDir = dir + "/out";
+        ro.lastFrame = 2;
+        ro.checkpoint = CheckpointPolicy::parse("2");
+        REQUIRE(sim.run(ro).status == "complete");
+    }
+    const std::string ckpt = checkpointPath(dir + "/out", "mapped");
+    REQUIRE(std::filesystem::exists(ckpt));
+    // unchanged inputs resume
+    CHECK_NOTHROW(makeSim(text).loadCheckpoint(ckpt));
+    // the map edited in between (same size, other values): refused in one line naming it
+    writeGrayPng(png, 32, 32, 0.3f);
+    std::string message;
+    try {
+        makeSim(text).loadCheckpoint(ckpt);
+    } catch (const CheckpointError& e) {
+        message = e.what();
+    }
+    INFO(message);
+    CHECK(message.find(png) != std::string::npos);
+    CHECK(message.find("changed since the checkpoint") != std::string::npos);
+    CHECK(message.find('\n') == std::string::npos);
+    // the run's log holds the digest, and the digest follows the bytes
+    InputFileLog log;
+    {
+        InputFileScope scope(&log);
+        noteInputFile(png);
+    }
+    REQUIRE(log.files.size() == 1);
+    CHECK(log.files[0].digest == fileDigest(png));
+    CHECK(InputFileLog::parse(log.text()).at(0).path == png);
+}
+
+// ---- finding 4 --------------------------------------------------------------------------------
+
+TEST_CASE("Probe 25.4: a second run into a locked output folder is refused, or waits with --wait-lock",
+          "[fast][probe][lock]")
+{
+    const std::string dir = tempDir("p25_lock");
+    int ready[2], release[2];
+    REQUIRE(pipe(ready) == 0);
+    REQUIRE(pipe(release) == 0);
+    const pid_t holder = fork();
+    if (holder == 0) { // another run: holds frames 1-8 until the parent says so
+        close(ready[0]);
+        close(release[1]);
+        try {
+            OutputFolderLock lock(dir, 1, 8, false);
+            char c = 'x';
+            if (write(ready[1], &c, 1) != 1) _exit(3);
+            if (read(release[0], &c, 1) != 1) _exit(4);
+        } catch (...) {
+            _exit(2);
+        }
+        _exit(0);
+    }
+    close(ready[1]);
+    close(release[0]);
+    char c = 0;
+    REQUIRE(read(ready[0], &c, 1) == 1);
+    close(ready[0]);
+    // overlapping frames: refused at once, naming the folder and the holder
+    std::string message;
+    try {
+        OutputFolderLock again(dir, 5, 12, false);
+    } catch (const OutputBusyError& e) {
+        message = e.what();
+    }
+    INFO(message);
+    CHECK(message.find(dir) != std::string::npos);
+    CHECK(message.find("pid " + std::to_string(holder)) != std::string::npos);
+    CHECK(message.find("frames 1-8") != std::string::npos);
+    // disjoint frames (farm chunks into one folder) are not held up
+    CHECK_NOTHROW(OutputFolderLock(dir, 9, 12, false));
+    // the real binary: refused with exit code 5 and one line, nothing written
+    const std::string scene = dir + "/s.toml";
+    std::ofstream(scene) << "[scene]\nname = \"locked\"\nframes = 2\nsteps_per_frame = 2\n[domain]\nsize = [16, 16]\n"
+                            "[phase_field]\n";
+    const std::string log = dir + "/busy.log";
+    CHECK(waitFor(spawnBinary({"run", scene, "--out", dir, "--quiet"}, log)) == 5);
+    const std::string text = readFile(log);
+    INFO(text);
+    CHECK(lines(text) == 1);
+    CHECK(text.find("output folder busy") != std::string::npos);
+    CHECK(!std::filesystem::exists(dir + "/run.json"));
+    // --wait-lock says whom it waits for, waits, then runs once the holder is gone
+    const pid_t waiter = spawnBinary({"run", scene, "--out", dir, "--quiet", "--wait-lock"}, dir + "/wait.log");
+    for (int i = 0; i < 1200 && readFile(dir + "/wait.log").find("waiting for") == std::string::npos; ++i)
+        std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    CHECK(readFile(dir + "/wait.log").find("waiting for") != std::string::npos);
+    CHECK(!std::filesystem::exists(dir + "/run.json"));
+    c = 'x';
+    CHECK(write(release[1], &c, 1) == 1);
+    close(release[1]);
+    CHECK(waitFor(holder) == 0);
+    CHECK(waitFor(waiter) == 0);
+    CHECK(std::filesystem::exists(dir + "/locked.0002.vdb"));
+}
+
+// ---- finding 5 --------------------------------------------------------------------------------
+
+namespace {
+const char* kDla3dSmall = R"([scene]
+name = "d3"
+frames = 1
+steps_per_frame = 1
+seed = 3
+[output]
+preview = "none"
+[dla3d]
+particles = 300
+radius = 0.002
+stick_distance = 0.001
+seeds = [0, 0, 0]
+voxel_size = 0.0015
+branch_radius = 0.0015
+taper = 0.3
+max_thickness = 3
+)";
+} // namespace
+
+TEST_CASE("Probe 25.5: [dla3d] output larger than max_voxels is refused before rasterising",
+          "[fast][probe][dla3d]")
+{
+    // radius 1000 m at 1.5 mm voxels: refused while loading, from the keys alone
+    const std::string huge = errorOf(kDla3dSmall, {"dla3d.radius=1000", "dla3d.stick_distance=1000",
+                                                   "dla3d.branch_radius=0"});
+    INFO(huge);
+    CHECK(huge.find("dla3d.voxel_size") != std::string::npos);
+    CHECK(huge.find("max_voxels") != std::string::npos);
+    // thick branches found only once the aggregate exists: refused at the frame, before a voxel
+    const std::string dir = tempDir("p25_dla3d");
+    // (the keys' lower bound, 100 boxes of 42^3 voxels, passes; the grown branches do not)
+    auto sim = makeSim(kDla3dSmall, {"dla3d.max_thickness=100", "dla3d.half_width=20", "dla3d.taper=1",
+                                     "dla3d.particles=100", "dla3d.max_voxels=1e7"});
+    RunOptions ro;
+    ro.progress = false;
+    ro.outDir = dir;
+    const auto t0 = std::chrono::steady_clock::now();
+    CHECK_THROWS_WITH(sim.run(ro), Catch::Contains("dla3d.max_voxels") && Catch::Contains("frame 1"));
+    CHECK(std::chrono::steady_clock::now() - t0 < std::chrono::seconds(10));
+}
+
+TEST_CASE("Probe 25.5: a [dla3d] voxel below OpenVDB's smallest is refused at its key", "[fast][probe][dla3d]")
+{
+    const std::string e = errorOf(kDla3dSmall, {"dla3d.voxel_size=0.00001"});
+    INFO(e);
+    CHECK(e.find("dla3d.voxel_size") != std::string::npos);
+    CHECK(e.find("smallest") != std::string::npos);
+    CHECK(e.find("ArithmeticError") == std::string::npos);
+    const std::string r = errorOf(kDla3dSmall, {"dla3d.voxel_size=0", "dla3d.radius=0.00001"});
+    CHECK(r.find("dla3d.radius") != std::string::npos);
+}
+
+TEST_CASE("Probe 25.5: branch voxel visits bound the level set, and progress does not change it",
+          "[fast][probe][dla3d]")
+{
+    std::vector<openvdb::Vec3d> pos;
+    std::vector<int32_t> parents;
+    for (int i = 0; i < 400; ++i) {
+        pos.emplace_back(0.004 * std::cos(0.3 * i) * (1 + i / 50.0), 0.004 * std::sin(0.3 * i) * (1 + i / 50.0),
+                         0.001 * i);
+        parents.push_back(i - 1);
+    }
+    const auto radii = dla3d::branchRadii(parents, dla3d::BranchStyle{0.002, 0.4, 4.0});
+    const double visits = dla3d::branchVoxelVisits(pos, parents, radii, 0.001, 3.0);
+    auto plain = dla3d::rasterizeBranches(pos, parents, radii, 0.001, 3.0);
+    size_t calls = 0;
+    auto reported = dla3d::rasterizeBranches(pos, parents, radii, 0.001, 3.0, [&](size_t done, size_t total) {
+        ++calls;
+        CHECK(done <= total);
+    });
+    CHECK(calls > 1);
+    CHECK(double(plain->activeVoxelCount()) <= visits);
+    CHECK(plain->tree().hasSameTopology(reported->tree()));
+    auto acc = reported->getConstAccessor();
+    size_t differ = 0;
+    for (auto it = plain->cbeginValueAll(); it; ++it)
+        differ += std::memcmp(&*it, &static_cast<const float&>(acc.getValue(it.getCoord())), sizeof(float)) != 0;
+    CHECK(differ == 0);
+}
+
+// ---- finding 6 --------------------------------------------------------------------------------
+
+TEST_CASE("Probe 25.6: two effects writing one grid name are refused at load, naming both sections",
+          "[fast][probe]")
+{
+    const std::string text = R"([scene]
+name = "clash"
+frames = 1
+steps_per_frame = 1
+[domain]
+size = [21, 21]
+voxel_size = 0.0001
+[gravner_griffeath]
+[gravner_griffeath_3d]
+domain_radius = 10
+layers = 9
+)";
+    const std::string e = errorOf(text);
+    INFO(e);
+    CHECK(e.find("[gravner_griffeath] and [gravner_griffeath_3d]") != std::string::npos);
+    CHECK(e.find("'cells'") != std::string::npos);
+    CHECK(e.find("test.toml:") == 0);
+    // the ice effects share their grids: the phase field with DLA still loads
+    CHECK(errorOf("[domain]\nsize = [32, 32]\n[phase_field]\n[dla]\n") == "");
+}
+
+// ---- finding 7 --------------------------------------------------------------------------------
+
+TEST_CASE("Probe 25.7: collapsed meshes are refused in one line", "[fast][probe][mesh]")
+{
+    const std::string dir = tempDir("p25_mesh");
+    const std::string plate = dir + "/plate.obj";
+    const TriangleMesh p = makePlate(0.3, 2);
+    writeObj(plate, p.points, p.triangles);
+    auto why = [&](const std::string& path, const MeshPlacement& m) -> std::string {
+        try {
+            loadMesh(path, m);
+        } catch (const std::exception& e) {
+            return e.what();
+        }
+        return "";
+    };
+    CHECK(why(plate, {}) == "");
+    MeshPlacement zero;
+    zero.scale = openvdb::Vec3d(0.0);
+    CHECK(why(plate, zero).find("zero factor") != std::string::npos);
+    MeshPlacement tiny;
+    tiny.scale = openvdb::Vec3d(1e-300);
+    CHECK(why(plate, tiny).find("zero area") != std::string::npos);
+    MeshPlacement far;
+    far.translate = openvdb::Vec3d(1e6, 1e6, 1e6);
+    CHECK(why(plate, far).find("single-precision") != std::string::npos);
+    const std::string flat = dir + "/flat.obj"; // every triangle degenerate
+    std::ofstream(flat) << "v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n";
+    CHECK(why(flat, {}).find("zero area") != std::string::npos);
+    // with a voxel size: a plate smaller than one voxel, or placed beyond exact voxel positions
+    CHECK(p.collapseProblem({}, 1.0).find("smaller than one voxel") != std::string::npos);
+    CHECK(p.collapseProblem({}, 0.001) == "");
+}
+
+// ---- finding 8 --------------------------------------------------------------------------------
+
+TEST_CASE("Probe 25.8: a FIFO as mesh, texture, map, scene or checkpoint is refused, not read",
+          "[fast][probe][io]")
+{
+    const std::string dir = tempDir("p25_fifo");
+    const std::string fifo = dir + "/pipe";
+    REQUIRE(mkfifo(fifo.c_str(), 0644) == 0);
+    CHECK_THROWS_WITH(loadMesh(fifo), Catch::Contains("not a regular file (a FIFO"));
+    int w = 0, h = 0;
+    CHECK_THROWS_WITH(readPngGray(fifo, w, h), Catch::Contains("not a regular file"));
+    CHECK_THROWS_WITH(readVdb(fifo), Catch::Contains("not a regular file"));
+    CHECK_THROWS_WITH(Scene::load(fifo), Catch::Contains("not a regular file"));
+    std::filesystem::rename(fifo, dir + "/s.checkpoint");
+    CHECK_THROWS_AS(readCheckpointFile(dir + "/s.checkpoint"), CheckpointError);
+    CHECK_THROWS_WITH(readCheckpointFile(dir + "/s.checkpoint"), Catch::Contains("not a regular file"));
+    std::filesystem::rename(dir + "/s.checkpoint", dir + "/map.png");
+    const std::string e = refusalOf(meltMapScene(dir + "/map.png"));
+    INFO(e);
+    CHECK(e.find("crystal.melt_map") != std::string::npos);
+    CHECK(e.find("not a regular file") != std::string::npos);
+}
+
+// ---- finding 10 -------------------------------------------------------------------------------
+
+TEST_CASE("Probe 25.10: messages say what is wrong (preview without a float grid, PLY counts, a folder as mesh)",
+          "[fast][probe][io]")
+{
+    const std::string dir = tempDir("p25_msgs");
+    auto vel = openvdb::Vec3SGrid::create();
+    vel->setName("vel");
+    vel->tree().setValueOn(openvdb::Coord(0), openvdb::Vec3s(1.f));
+    openvdb::io::File(dir + "/vec.vdb").write({vel});
+    const int rc = runCommand(std::string(FROSTVDB_BINARY) + " preview " + dir + "/vec.vdb -o " + dir + "/p.png",
+                              dir + "/preview.log");
+    const std::string text = readFile(dir + "/preview.log");
+    INFO(text);
+    CHECK(rc == 2);
+    CHECK(text.find("no float grid to draw") != std::string::npos);
+    CHECK(text.find("vel") != std::string::npos);
+    CHECK(text.find("--grid") == std::string::npos);
+    // a PLY header claiming a billion vertices
+    const std::string ply = dir + "/big.ply";
+    std::ofstream(ply) << "ply\nformat ascii 1.0\nelement vertex 1000000000\nproperty float x\nproperty float y\n"
+                          "property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
+                          "0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n";
+    CHECK_THROWS_WITH(loadMesh(ply), Catch::Contains("declares") && !Catch::Contains("bad_alloc"));
+    // a folder given as the mesh
+    CHECK_THROWS_WITH(loadMesh(dir), Catch::Contains("not a regular file (a directory)"));
+}
+
+// ---- finding 11 -------------------------------------------------------------------------------
+
+TEST_CASE("Probe 25.11: a capped pressure solve of the sparse 3D fluid is reported", "[fast][probe][fluid]")
+{
+    auto sim = makeSim(R"([scene]
+name = "capped"
+frames = 1
+steps_per_frame = 2
+[domain]
+kind = "box"
+size = [16, 16, 12]
+voxel_size = 0.0002
+[[crystal.seed]]
+shape = "point"
+position = [0.5, 0.5, 0.2]
+radius = 3.0
+[phase_field]
+dt = 0.0001
+[fluid]
+solver = "sparse"
+inflow_edge = "back"
+inflow_speed = 3.5
+walls = "outflow"
+max_iterations = 1
+)");
+    RunOptions ro;
+    ro.progress = false;
+    ro.writeFiles = false;
+    const RunSummary sum = sim.run(ro);
+    double capped = -1;
+    for (auto& [k, v] : sum.detailCounts)
+        if (k == "fluid.capped_solves") capped = v;
+    CHECK(capped > 0);
+    CHECK(sum.toText().find("fluid.capped_solves") != std::string::npos);
+}
+
+// ---- finding 13 -------------------------------------------------------------------------------
+
+TEST_CASE("Probe 25.13: one exit code per failure class", "[fast][probe]")
+{
+    CHECK(exitCodeOf(SceneError("s.toml", 3, "k", "bad")) == 2);
+    CHECK(exitCodeOf(CheckpointError("damaged")) == 2);
+    CHECK(exitCodeOf(VdbFileError("x.vdb", "damaged")) == 2);
+    CHECK(exitCodeOf(SimulationError("nan")) == 3);
+    CHECK(exitCodeOf(WriteError("f", "No space left on device")) == 4);
+    CHECK(exitCodeOf(OutputBusyError("busy")) == 5);
+    CHECK(exitCodeOf(OutOfMemoryError("s.toml", 1, "[x]", "out of memory")) == 6);
+    CHECK(exitCodeOf(std::bad_alloc()) == 6);
+    CHECK(exitCodeOf(std::logic_error("bug")) == 1);
+}
+
+TEST_CASE("Probe 25.13: a full disk while writing a checkpoint is a write failure", "[fast][probe][checkpoint]")
+{
+    struct Guard {
+        ~Guard() { setWriteFaultHook(nullptr); }
+    } guard;
+    const std::string dir = tempDir("p25_fullckpt");
+    setWriteFaultHook([](const std::string& p, size_t) {
+        return p.size() > 11 && p.substr(p.size() - 11) == ".checkpoint" ? ENOSPC : 0;
+    });
+    auto sim = makeSim("[scene]\nname = \"full\"\nframes = 2\nsteps_per_frame = 2\n[domain]\nsize = [16, 16]\n"
+                       "[output]\npreview = \"none\"\n[region]\nrebuild_every = 1\n[phase_field]\n");
+    RunOptions ro;
+    ro.progress = false;
+    ro.outDir = dir;
+    ro.checkpoint = CheckpointPolicy::parse("1");
+    int code = -1;
+    try {
+        sim.run(ro);
+    } catch (const std::exception& e) {
+        code = exitCodeOf(e);
+        CHECK(std::string(e.what()).find(".checkpoint") != std::string::npos);
+    }
+    CHECK(code == 4);
+    CHECK(readFile(dir + "/run.json").find("\"exit_code\": 4") != std::string::npos);
+}
+
+TEST_CASE("Probe 25.13: SIGTERM, SIGINT and SIGHUP are recorded in run.json", "[fast][probe][signal]")
+{
+    const std::string dir = tempDir("p25_signal");
+    const std::string scene = dir + "/s.toml";
+    // long enough to be interrupted: about a minute unless stopped
+    std::ofstream(scene) << "[scene]\nname = \"sig\"\nframes = 400\nsteps_per_frame = 200\n[domain]\nsize = [96, 96]\n"
+                            "[output]\npreview = \"none\"\ndisplacement_png = false\n[phase_field]\n";
+    const std::pair<int, const char*> sigs[] = {{SIGTERM, "SIGTERM"}, {SIGINT, "SIGINT"}, {SIGHUP, "SIGHUP"}};
+    for (const auto& [sig, name] : sigs) {
+        INFO(name);
+        const std::string out = dir + "/out_" + name;
+        const pid_t pid = spawnBinary({"run", scene, "--out", out, "--quiet"}, dir + "/log_" + name);
+        // wait for the second frame: the run is inside its steps and frame 1 is recorded complete
+        for (int i = 0; i < 1200 && !std::filesystem::exists(out + "/sig.0002.vdb"); ++i)
+            std::this_thread::sleep_for(std::chrono::milliseconds(50));
+        REQUIRE(std::filesystem::exists(out + "/sig.0002.vdb"));
+        kill(pid, sig);
+        CHECK(waitFor(pid) == -sig);
+        const std::string json = readFile(out + "/run.json");
+        CHECK(json.find("\"status\": \"interrupted\"") != std::string::npos);
+        CHECK(json.find(std::string("\"signal\": \"") + name + "\"") != std::string::npos);
+        CHECK(json.find("\"exit_code\": " + std::to_string(128 + sig)) != std::string::npos);
+        CHECK(json.find("sig.0001.vdb") != std::string::npos); // the frames that are complete
+        for (auto& e : std::filesystem::directory_iterator(out)) CHECK(!isTemporaryName(e.path().filename().string()));
+    }
+}
+
+// ---- finding 14 -------------------------------------------------------------------------------
+
+TEST_CASE("Probe 25.14: the run summary prints counts as counts", "[fast][probe]")
+{
+    RunSummary sum;
+    sum.detailCounts = {{"phase_field.region_rebuilds", 600.0},
+                        {"phase_field.voxel_updates", 2537447480.0},
+                        {"phase_field.stability_limit_dt", 0.000416667}};
+    const std::string text = sum.toText();
+    INFO(text);
+    CHECK(text.find("region_rebuilds: 600\n") != std::string::npos);
+    CHECK(text.find("voxel_updates: 2537447480\n") != std::string::npos);
+    CHECK(text.find("stability_limit_dt: 0.000416667\n") != std::string::npos);
+    CHECK(text.find("e+") == std::string::npos);
+}
+
+// ---- finding 2 (planes; shells are the shell rewrite's) ------------------------------------------
+
+TEST_CASE("Probe 25.2: a map image larger than run.memory_limit is refused before it is decoded",
+          "[fast][probe][memory]")
+{
+    const std::string dir = tempDir("p25_bigpng");
+    const std::string png = dir + "/big.png";
+    writeGrayPng(png, 2048, 2048, 0.5f); // decoding holds about 21 MB
+    const std::string e = refusalOf(meltMapScene(png, "[run]\nmemory_limit = 0.005\n"));
+    INFO(e);
+    CHECK(e.find("crystal.melt_map") != std::string::npos);
+    CHECK(e.find("memory_limit") != std::string::npos);
+    CHECK(refusalOf(meltMapScene(png, "[run]\nmemory_limit = 0.1\n")) == "");
+}
