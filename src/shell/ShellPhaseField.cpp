@@ -70,6 +70,21 @@ inline double reactionAt(const KobayashiParams& k, const ShellBand& b, const std
     }
     return p0 * (1.0 - p0) * (p0 - 0.5 + m + k.noise * chi);
 }
+/// The accumulated growth (positive dp) and the time p first exceeded 1/2, after a step.
+inline void recordGrowth(float& growth, float& freeze, float dp, float p, float time)
+{
+    if (dp > 0.f) growth += dp;
+    if (freeze == 0.f && p > 0.5f) freeze = time;
+}
+
+/// The explicit steps' timings: kernel [t0, t1), then the extension (or copy-back) until now.
+inline void addExplicitStats(ShellStepStats* stats, Clock::time_point t0, Clock::time_point t1, uint64_t updates)
+{
+    if (!stats) return;
+    stats->kernelSeconds += std::chrono::duration<double>(t1 - t0).count();
+    stats->extendSeconds += since(t1);
+    stats->voxelUpdates += updates;
+}
 } // namespace
 
 void heatStep(const ShellBand& band, std::vector<float>& u, double dt, double h, std::vector<float>& scratch)
@@ -425,15 +440,9 @@ void ShellPhaseField::step(double time, int64_t stepIndex, uint64_t seed, ShellS
     b.extend(mTn, mT, false, float(k.farTemperature), &mStepped);
     const float tNext = float(time);
     b.forEachVoxel(&mStepped, [&](size_t i) {
-        const float d = mP[i] - mPOld[i];
-        if (d > 0.f) mGrowth[i] += d;
-        if (mFreeze[i] == 0.f && mP[i] > 0.5f) mFreeze[i] = tNext;
+        recordGrowth(mGrowth[i], mFreeze[i], mP[i] - mPOld[i], mP[i], tNext);
     });
-    if (stats) {
-        stats->kernelSeconds += std::chrono::duration<double>(t1 - t0).count();
-        stats->extendSeconds += since(t1);
-        stats->voxelUpdates += mUpdateCount;
-    }
+    addExplicitStats(stats, t0, t1, mUpdateCount);
 }
 
 void ShellPhaseField::stepSurface(double time, int64_t stepIndex, uint64_t seed, ShellStepStats* stats)
@@ -502,14 +511,9 @@ void ShellPhaseField::stepSurface(double time, int64_t stepIndex, uint64_t seed,
         const float d = mPn[i] - mP[i];
         mP[i] = mPn[i];
         mT[i] = mTn[i];
-        if (d > 0.f) mGrowth[i] += d;
-        if (mFreeze[i] == 0.f && mP[i] > 0.5f) mFreeze[i] = tNext;
+        recordGrowth(mGrowth[i], mFreeze[i], d, mP[i], tNext);
     });
-    if (stats) {
-        stats->kernelSeconds += std::chrono::duration<double>(t1 - t0).count();
-        stats->extendSeconds += since(t1);
-        stats->voxelUpdates += mUpdateCount;
-    }
+    addExplicitStats(stats, t0, t1, mUpdateCount);
 }
 
 namespace {
