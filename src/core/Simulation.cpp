@@ -266,11 +266,6 @@ Simulation::Simulation(Scene scene) : mScene(std::move(scene))
     for (const auto& d : declared)
         for (const auto& u : d.declaration.uses)
             if (u.key->role == FieldRole::Field && (u.access & kWrites)) writers.count[u.key->name] += 1;
-    for (const auto& d : declared)
-        for (const auto& u : d.declaration.uses)
-            if (u.key->role == FieldRole::Field && (u.access & kWrites) &&
-                std::find(mWrittenFields.begin(), mWrittenFields.end(), u.key->name) == mWrittenFields.end())
-                mWrittenFields.push_back(u.key->name);
     mEffectSeconds.assign(mEffects.size(), 0.0);
     checkMemoryBudget();
 }
@@ -393,9 +388,6 @@ void Simulation::step()
         atEffect(*mEffects[i], "step", [&] { mEffects[i]->step(mWorld, info); });
         mEffectSeconds[i] += seconds(t0, Clock::now());
     }
-    if (mWorld.domain.hasPostStep()) // e.g. a shell's closest-point re-extension
-        for (const auto& name : mWrittenFields)
-            if (auto g = mWorld.fields.base(name)) mWorld.domain.postStep(*g);
     ++mStep;
 }
 

@@ -3,12 +3,10 @@
 /// and applies their sticks (hits, freezing, heat, growth) in walker order.
 #include <frostvdb/core/FieldEdits.h>
 #include <frostvdb/core/Progress.h>
-#include <frostvdb/ice/Dla.h>
 #include <frostvdb/core/Error.h>
 #include <frostvdb/core/Random.h>
 #include <frostvdb/ice/IceState.h>
-#include <frostvdb/shell/ShellDla.h>
-#include <frostvdb/shell/ShellDomain.h>
+#include <frostvdb/ice/DlaBackend.h>
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
@@ -16,6 +14,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <map>
 #include <sstream>
 
 namespace frostvdb {
@@ -33,8 +32,7 @@ constexpr uint64_t kResumeSalt = 0x5E5D3E11ull;
 
 std::unique_ptr<Effect> DlaEffect::create(ParamDict& d, const World& world)
 {
-    auto fx = std::make_unique<DlaEffect>();
-    DlaParams& p = fx->mParams;
+    DlaParams p;
     p.humidity = d.getInt("humidity", 300, 0, int64_t(1) << 32, "walkers/step",
                           "H: walkers released per step (all of them, not only those that stick; paper 4.1)");
     const auto sched = d.getFloatArray("humidity_schedule", {}, {}, 0, 1e15, "[step, walkers/step, ...]",
@@ -91,13 +89,45 @@ std::unique_ptr<Effect> DlaEffect::create(ParamDict& d, const World& world)
     d.onlyWhen(p.jumps, "jump_max_radius", "jumps = false");
     if (p.jumpMaxRadius > 0 && p.jumpMaxRadius < p.jumpMinRadius)
         d.fail("jump_max_radius", "must be 0 or >= jump_min_radius");
-    if (world.domain && shell::bandOf(world.domain)) // walkers on the surface: shell/ShellDla.h
-        return shell::makeShellDla(p, d, world);
+    // the walkers the domain's discretisation asks for (ice/DlaBackend.h)
+    const std::string discretisation = world.domain ? world.domain.discretisation() : "lattice";
+    const DlaBackendFactory* make = DlaBackends::find(discretisation);
+    if (!make)
+        throw SceneError(world.sceneLabel, 0, "domain.kind",
+                         "[dla] has no walkers for the domain's discretisation \"" + discretisation + "\"");
+    return (*make)(p, d, world);
+}
+
+namespace {
+
+std::unique_ptr<Effect> makeLatticeDla(const DlaParams& p, ParamDict&, const World& world)
+{
     if (world.domain && world.domain.bbox().min() != openvdb::Coord(0)) // the dense walker arrays index from 0
         throw SceneError(world.sceneLabel, 0, "domain.origin",
                          "[dla] needs a domain whose first cell is at the world origin (origin = [0, 0, 0])");
-    return fx;
+    return std::make_unique<DlaEffect>(p);
 }
+
+std::map<std::string, DlaBackendFactory>& dlaBackendRegistry()
+{
+    static std::map<std::string, DlaBackendFactory> r;
+    return r;
+}
+
+} // namespace
+
+void DlaBackends::add(const std::vector<std::string>& discretisations, DlaBackendFactory make)
+{
+    for (const auto& name : discretisations) dlaBackendRegistry()[name] = make;
+}
+
+const DlaBackendFactory* DlaBackends::find(const std::string& discretisation)
+{
+    const auto it = dlaBackendRegistry().find(discretisation);
+    return it == dlaBackendRegistry().end() ? nullptr : &it->second;
+}
+
+FROSTVDB_REGISTER_DLA_BACKEND(lattice, {"lattice"}, makeLatticeDla);
 
 FieldDeclaration DlaEffect::declaration() const
 {

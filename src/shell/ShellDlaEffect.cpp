@@ -1,8 +1,15 @@
 /// @file ShellDlaEffect.cpp
-/// @brief `[dla]` on a shell domain (see ShellDla.h): releases the walkers of each step in
-/// deterministic batches (shell/ShellWalkers.h) and applies their sticks in walker order to the
-/// band's p, T, growth and freeze_time, which the phase field then reads back.
-#include <frostvdb/shell/ShellDla.h>
+/// @brief `[dla]` on a shell domain, the back end of discretisations "surface" and
+/// "closest_point" (ice/DlaBackend.h): the plane's keys and semantics (humidity H and its
+/// schedule, hits n, heat_release L, melt map as sticking probability, max_steps, jumps, batch,
+/// flow_drift) with walkers on the surface (shell/ShellWalkers.h). release = "uniform" picks
+/// surface points uniformly by area, "perimeter" the open mesh's border. Steam humidity is not
+/// available on shells. The drift is the tangential wind of `[phase_field]` (key surface_wind).
+/// Each step releases the walkers in deterministic batches and applies their sticks in walker
+/// order to the band's p, T, growth and freeze_time (key surface_fields). Runs at the Walkers
+/// stage, before the phase field. Walkers roam the whole surface, so makeShellDla builds the
+/// (lazy) band whole when the scene is read.
+#include <frostvdb/ice/DlaBackend.h>
 
 #include <frostvdb/core/Budget.h>
 #include <frostvdb/core/Error.h>
@@ -357,6 +364,9 @@ void ShellDlaEffect::addToFrame(World& world, Frame& frame)
 
 } // namespace
 
+namespace {
+
+/// [dla] on a shell domain (DlaEffect::create hands over through ice/DlaBackend.h).
 std::unique_ptr<Effect> makeShellDla(const ice::DlaParams& params, ParamDict& d, const World& world)
 {
     if (params.release == ice::DlaRelease::Perimeter) {
@@ -378,5 +388,9 @@ std::unique_ptr<Effect> makeShellDla(const ice::DlaParams& params, ParamDict& d,
     }
     return std::make_unique<ShellDlaEffect>(params);
 }
+
+} // namespace
+
+FROSTVDB_REGISTER_DLA_BACKEND(shell, (std::vector<std::string>{"surface", "closest_point"}), makeShellDla);
 
 } // namespace frostvdb::shell

@@ -4,22 +4,34 @@
 /// belong to it; the active region is clipped to it), its lattice with the stencils and
 /// neighbourhoods over it, per-voxel geometry where it has one (normal, tangent frame), its world
 /// placement (the index bounds need not start at 0), a parameterisation for seeds and maps, named
-/// boundary parts, and an optional hook after each step (a shell re-extends its fields off the
-/// surface there: the closest-point method).
+/// border parts, and the name of its discretisation.
 ///
-/// Effects and solvers see only this interface; none of them asks which kind of domain it is.
-/// The built-in kinds are `plane` (src/core/domains/PlaneDomain.cpp) and `box`
-/// (src/core/domains/BoxDomain.cpp). Adding a kind is one implementation file:
+/// Effects see only this interface; none of them asks which kind of domain it is. An effect whose
+/// numerics differ by discretisation (the phase field, the walkers) asks a registry for the back
+/// end registered under discretisation() (ice/PhaseFieldBackend.h, ice/DlaBackend.h).
+/// Three kinds are built in:
+/// - `plane` (src/core/domains/PlaneDomain.cpp) and `box` (BoxDomain.cpp): discretisation
+///   "lattice", the regular grid every effect runs on;
+/// - `shell` (src/core/domains/ShellDomain.cpp): a layer of voxels around a mesh, discretisation
+///   "surface" (surface nodes) or "closest_point" (the thick band), with its own back ends in
+///   src/shell.
+/// Adding a kind is one implementation file:
 /// @code
-///   class ShellDomain : public DomainImpl { ... };          // the interface below
-///   static Domain readShell(ParamDict& d, const DomainCommon& c) { ... return Domain(impl); }
-///   FROSTVDB_REGISTER_DOMAIN(shell, "shell", "narrow band around a mesh", readShell);
+///   class MyDomain : public DomainImpl { ... };            // the interface below
+///   static Domain readMine(ParamDict& d, const DomainCommon& c) { ... return Domain(impl); }
+///   FROSTVDB_REGISTER_DOMAIN(mine, "mine", "what it is", readMine);
 /// @endcode
-/// `[domain] kind = "shell"` then selects it; its keys are read by its reader and listed in
-/// docs/scene-reference.md.
+/// `[domain] kind = "mine"` then selects it; its keys are read by its reader and listed in
+/// docs/scene-reference.md. A kind with discretisation "lattice" runs every effect unchanged
+/// (tests/domain_test.cpp adds one); a new discretisation registers its back ends beside it.
 ///
-/// A Domain is a cheap, copyable handle to an immutable DomainImpl (shared, never modified after
-/// construction), so solvers and engines may keep a copy.
+/// The border: the support's edge (a plane's four sides, a box's six faces, an open mesh's
+/// rim), named by boundaryNames(); effects grow edge bands from it and walkers may leave there.
+///
+/// A Domain is a cheap, copyable handle to a DomainImpl shared by every effect. What it answers
+/// through this interface (support, frames, parameterisation, border) is fixed at construction.
+/// A shell's band is built lazily, leaf by leaf, as its back ends ask (the surface the support
+/// describes does not change; only how much of it is held in memory does).
 #include <frostvdb/core/Lattice.h>
 #include <frostvdb/core/Params.h>
 
@@ -91,7 +103,7 @@ public:
     virtual int parameterDimension() const = 0;
     /// Index-space position of fractions @a u (missing trailing components: 0.5).
     virtual openvdb::Vec3d parameterToIndex(const std::vector<double>& u) const = 0;
-    /// Names of the boundary parts edge bands can be grown from ("left", ..., "front", "back";
+    /// Names of the border parts edge bands can be grown from ("left", ..., "front", "back";
     /// a shell: "rim").
     virtual std::vector<std::string> boundaryNames() const = 0;
     /// Calls @a fn for every member voxel within @a width cells of boundary part @a name.
@@ -103,12 +115,10 @@ public:
     /// count. Default: uniform fractions through parameterToIndex, uv = the first two fractions.
     virtual std::vector<SupportSample> sampleSupport(size_t n, uint64_t seed) const;
 
-    // ---- after each step ---------------------------------------------------------------------
-    /// True when the driver must call postStep() on the fields written in a step.
-    virtual bool hasPostStep() const { return false; }
-    /// Restores the domain's invariant on a field after a step (a shell extends values off the
-    /// surface by closest point). Default: nothing.
-    virtual void postStep(openvdb::GridBase& field) const { (void)field; }
+    // ---- discretisation --------------------------------------------------------------------------
+    /// The numerics effects pick their back end by: "lattice" (the regular grid of lattice() and
+    /// stencil(); planes, boxes) unless the kind overrides it ("surface", "closest_point").
+    virtual std::string discretisation() const { return "lattice"; }
 
     // ---- common data ---------------------------------------------------------------------------
     const Lattice& lattice() const { return mLattice; }
@@ -176,8 +186,7 @@ public:
                               const std::function<void(const openvdb::Coord&)>& fn) const
     { mImpl->forEachBoundaryVoxel(name, width, fn); }
     std::vector<SupportSample> sampleSupport(size_t n, uint64_t seed) const { return mImpl->sampleSupport(n, seed); }
-    bool hasPostStep() const { return mImpl->hasPostStep(); }
-    void postStep(openvdb::GridBase& field) const { mImpl->postStep(field); }
+    std::string discretisation() const { return mImpl->discretisation(); }
     /// Index-space centre of the bounds (cell centre, may be fractional).
     openvdb::Vec3d centre() const;
 

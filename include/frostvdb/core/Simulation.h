@@ -214,7 +214,6 @@ private:
     OutputSettings mOutput;
     std::vector<std::unique_ptr<Effect>> mEffects;
     EffectOrder mOrder;                    ///< derived from the effects' declarations
-    std::vector<std::string> mWrittenFields; ///< fields some effect writes: the domain's post-step hook sees them
     std::vector<double> mEffectSeconds;
     int64_t mStep = 0;
     bool mInitialized = false;

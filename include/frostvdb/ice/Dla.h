@@ -260,10 +260,13 @@ public:
     static constexpr int kBrickLog2 = 3;
 };
 
-/// The [dla] effect.
+/// The [dla] effect on a lattice (plane, box). create() reads the keys every discretisation
+/// shares and returns the back end the domain asks for (ice/DlaBackend.h): this class on a
+/// lattice, the surface walkers on a shell.
 class DlaEffect : public Effect {
 public:
     static std::unique_ptr<Effect> create(ParamDict& params, const World& world);
+    explicit DlaEffect(const DlaParams& params) : mParams(params) {}
 
     std::string name() const override { return "dla"; }
     FieldDeclaration declaration() const override;

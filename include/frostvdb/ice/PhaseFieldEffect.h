@@ -5,9 +5,11 @@
 /// Writes the fields p, T, growth_acc, freeze_time and the output grids `ice` (fog volume,
 /// p clamped to [0,1]), `ice_temperature`, `growth` (accumulated positive dp normalised to [0,1],
 /// the paper's displacement map) and `freeze_time` (time p first exceeded 1/2).
+/// The effect reads the physics; the discretisation is the back end the domain asks for
+/// (ice/PhaseFieldBackend.h): the VDB lattice solver on planes and boxes, surface nodes or the
+/// closest-point band on shells.
 #include <frostvdb/core/Effect.h>
-#include <frostvdb/ice/PhaseFieldSolver.h>
-#include <frostvdb/shell/ShellPhaseField.h>
+#include <frostvdb/ice/PhaseFieldBackend.h>
 
 #include <memory>
 
@@ -28,13 +30,13 @@ public:
     double time() const override { return mTime; }
     std::vector<std::pair<std::string, double>> timings() const override;
     std::vector<std::pair<std::string, double>> counters() const override;
-    /// PhaseFieldSolver keeps about 21 float arrays over the active region: the whole domain in
-    /// region.dense mode; the sparse region's size is not known before the run. On a shell: the
-    /// band and the solver's arrays per surface cell when the band is built whole (dense, or
-    /// [dla] built it), else nothing is known before the ice grows.
+    /// The back end's: on a lattice about 21 float arrays over the active region (the whole
+    /// domain in region.dense mode; the sparse region's size is not known before the run); on a
+    /// shell the band and the solver's arrays per surface cell when the band is built whole
+    /// (dense, or [dla] built it), else nothing is known before the ice grows.
     MemoryEstimate memoryEstimate(const World& world) const override;
     bool supportsCheckpoint() const override { return true; }
-    /// Checkpoints fall where the region cadence rebuilds (see PhaseFieldSolver::CadenceState).
+    /// On a lattice, checkpoints fall where the region cadence rebuilds (PhaseFieldSolver::CadenceState).
     bool atCheckpointBoundary() const override;
     void saveState(const World& world, StateWriter& out) const override;
     void loadState(World& world, const StateReader& in) override;
@@ -46,20 +48,7 @@ private:
     double mTime = 0.0;
     double mStabilityLimit = 0.0;
     int mSubsteps = 1; ///< solver steps per scene step (substeps = auto above the limit)
-    std::unique_ptr<PhaseFieldSolver> mSolver;
-    PhaseFieldStepStats mStats;
-    /// On a shell domain (a band around a mesh) the closest-point solver runs instead.
-    std::unique_ptr<shell::ShellPhaseField> mShell;
-    bool mOnShell = false;
-    std::string mFrostMesh = "none"; ///< shells: none, obj or ply
-    openvdb::Vec3d mWind{0, 0, 0};   ///< shells: prescribed wind advecting the heat
-    bool mPotentialWind = false;     ///< shells: wind_model = "potential" (shell/ShellWind.h)
-    /// The p and T grids scatterShell last wrote (held, so a new grid never reuses the address).
-    openvdb::FloatGrid::Ptr mShellP, mShellT;
-    shell::ShellStepStats mShellStats;
-    void gatherShell(World& world);
-    void printShellEstimate(const shell::ShellBand& band, const World& world) const;
-    void scatterShell(World& world);
+    std::unique_ptr<PhaseFieldBackend> mBackend;
 };
 
 } // namespace frostvdb

@@ -69,6 +69,8 @@ public:
     const std::shared_ptr<const shell::ShellBand>& band() const { return mBand; }
 
     std::string kind() const override { return "shell"; }
+    /// The phase field and the walkers pick their shell back ends by it (ice/PhaseFieldBackend.h).
+    std::string discretisation() const override { return mBand->surfaceNodes() ? "surface" : "closest_point"; }
     bool contains(const openvdb::Coord& c) const override { return mBand->contains(c); }
     /// The voxels built so far: the whole band, or (sparse region) the band around the ice.
     uint64_t voxelCount() const override { return mBand->size(); }

@@ -1,0 +1,146 @@
+/// @file PhaseFieldLattice.cpp
+/// @brief [phase_field] on a lattice domain (plane, box): the sparse VDB solver of
+/// ice/PhaseFieldSolver.h stepping World's grids in place, its region cadence checkpointed.
+#include <frostvdb/core/FieldEdits.h>
+#include <frostvdb/core/FieldWriters.h>
+#include <frostvdb/ice/IceState.h>
+#include <frostvdb/ice/PhaseFieldBackend.h>
+#include <frostvdb/ice/PhaseFieldSolver.h>
+
+namespace frostvdb {
+namespace {
+
+class LatticePhaseField final : public PhaseFieldBackend {
+public:
+    explicit LatticePhaseField(const PhaseFieldSetup& setup) : mSetup(setup) {}
+
+    MemoryEstimate memoryEstimate(const World& world) const override
+    {
+        if (!world.region.dense) return {};
+        return perVoxelEstimate(double(world.domain.bbox().volume()), 96.0, "domain.size", "dense phase-field arrays");
+    }
+
+    void initialize(World& world) override
+    {
+        KobayashiParams solverParams = mSetup.params;
+        solverParams.dt = mSetup.params.dt / mSetup.substeps;
+        mSolver = std::make_unique<PhaseFieldSolver>(solverParams, world.domain, world.region);
+        if (world.hasState<FieldWriters>()) {
+            const FieldWriters& w = world.state<FieldWriters>();
+            mSolver->setSoleWriter(w.of(ice::kPhase.name) == 1 && w.of(ice::kTemperature.name) == 1);
+        }
+        // walkers that list the cells they freeze let the region stand between rebuilds (step())
+        FieldEdits& edits = world.state<FieldEdits>();
+        edits.listen(ice::kPhase.name);
+        edits.listen(ice::kTemperature.name);
+    }
+
+    void step(World& world, int64_t step, double time) override
+    {
+        auto p = world.fields.get<openvdb::FloatGrid>(ice::kPhase);
+        auto T = world.fields.get<openvdb::FloatGrid>(ice::kTemperature);
+        auto growth = world.fields.get<openvdb::FloatGrid>(ice::kGrowth);
+        auto freeze = world.fields.get<openvdb::FloatGrid>(ice::kFreezeTime);
+        mSolver->setMeltMap(world.fields.get<openvdb::FloatGrid>(ice::kMelt).get());
+        useEditLogs(world);
+        const double subDt = mSetup.params.dt / mSetup.substeps;
+        for (int s = 0; s < mSetup.substeps; ++s) {
+            // Substeps key the noise by their own index so that each draws fresh values.
+            const int64_t index = step * mSetup.substeps + s;
+            mSolver->step(p, T, growth.get(), freeze.get(), index, time + s * subDt, world.seed, &mStats);
+        }
+        world.fields.replace(ice::kPhase, p);
+        world.fields.replace(ice::kTemperature, T);
+    }
+
+    void addToFrame(World& world, Frame& frame) override
+    {
+        // A frame is about to be written: the solver's per-step scratch is given back for the
+        // output's copies (remade at the next step; once per frame, not per step).
+        mSolver->releaseScratch();
+        ice::addIceOutputs(world, frame);
+    }
+
+    bool atCheckpointBoundary() const override { return mSolver->cadenceStepsLeft() <= 0; }
+
+    // The scheme's history grids and the region cadence are ours; p, T, growth_acc and
+    // freeze_time are World fields (saved by the driver).
+    void saveState(const World& world, StateWriter& out) const override
+    {
+        for (auto& [name, grid] : mSolver->historyGrids()) out.putGrid(name, *grid);
+        out.putDouble("last_step_dt", mSolver->lastStepDt());
+        const auto cadence = mSolver->cadenceState(*world.fields.get<openvdb::FloatGrid>(ice::kPhase),
+                                                   *world.fields.get<openvdb::FloatGrid>(ice::kTemperature));
+        out.putGrid("region", cadence.region);
+        out.putInt("region_steps_left", cadence.stepsLeft);
+        out.putInt("region_inputs_truncated", cadence.inputsTruncated ? 1 : 0);
+        out.putInt("region_inputs_ours", cadence.inputsOurs ? 1 : 0);
+    }
+
+    void loadState(World& world, const StateReader& in) override
+    {
+        for (auto& [name, grid] : mSolver->historyGrids()) *grid = in.getGrid<openvdb::FloatGrid>(name);
+        mSolver->lastStepDt() = in.getDouble("last_step_dt");
+        PhaseFieldSolver::CadenceState cadence;
+        cadence.region = in.getGrid<openvdb::MaskGrid>("region");
+        cadence.stepsLeft = int(in.getInt("region_steps_left"));
+        cadence.inputsTruncated = in.getInt("region_inputs_truncated") != 0;
+        cadence.inputsOurs = in.getInt("region_inputs_ours") != 0;
+        mSolver->restoreCadence(cadence, *world.fields.get<openvdb::FloatGrid>(ice::kPhase),
+                                *world.fields.get<openvdb::FloatGrid>(ice::kTemperature));
+    }
+
+    std::vector<std::pair<std::string, double>> timings() const override
+    {
+        std::vector<std::pair<std::string, double>> t{
+            {"region", mStats.regionSeconds}, {"kernel", mStats.kernelSeconds}, {"truncate", mStats.truncateSeconds}};
+        if (secondOrder()) {
+            t.push_back({"solve", mStats.solveSeconds});
+            t.push_back({"heat", mStats.heatSeconds});
+        }
+        return t;
+    }
+
+    std::vector<std::pair<std::string, double>> counters() const override
+    {
+        std::vector<std::pair<std::string, double>> t{{"region_rebuilds", double(mStats.rebuilds)},
+                                                      {"region_growths", double(mStats.regionGrowths)}};
+        if (secondOrder()) {
+            const double n = double(std::max<int64_t>(1, mStats.solves));
+            t.push_back({"mean_iterations_p", mStats.solverIterationsP / n});
+            t.push_back({"mean_iterations_T", mStats.solverIterationsT / n});
+            t.push_back({"unconverged_solves", double(mStats.unconverged)});
+            t.push_back({"clipped_voxels", double(mStats.clippedVoxels)});
+        }
+        return t;
+    }
+
+private:
+    PhaseFieldSetup mSetup;
+    std::unique_ptr<PhaseFieldSolver> mSolver;
+    PhaseFieldStepStats mStats;
+
+    bool secondOrder() const { return mSetup.params.scheme == PhaseFieldScheme::SecondOrder; }
+
+    /// Trusts the walkers' edit lists only when every other writer of p and T fills them.
+    void useEditLogs(World& world)
+    {
+        FieldEdits& edits = world.state<FieldEdits>();
+        const FieldWriters* w = world.hasState<FieldWriters>() ? &world.state<FieldWriters>() : nullptr;
+        auto listed = [&](const std::string& f) { return w && w->of(f) - 1 == edits.reporters(f); };
+        const bool all = listed(ice::kPhase.name) && listed(ice::kTemperature.name);
+        mSolver->setEditLogs(all ? &edits.cells(ice::kPhase.name) : nullptr,
+                             all ? &edits.cells(ice::kTemperature.name) : nullptr);
+    }
+};
+
+PhaseFieldBackendFactory readLatticeKeys(ParamDict&, PhaseFieldSetup& setup, const World&, bool)
+{
+    return [&setup] { return std::make_unique<LatticePhaseField>(setup); };
+}
+
+} // namespace
+
+FROSTVDB_REGISTER_PHASE_FIELD_BACKEND(lattice, {"lattice"}, readLatticeKeys);
+
+} // namespace frostvdb
