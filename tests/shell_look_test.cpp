@@ -1,7 +1,8 @@
 // The look of frost on a shell against the plane engine (issue 23 item 4): the hero recipe
 // (walkers + phase field from the border) on a flat plate mesh and on a plane of the same cells
 // and seed layout must frost the same area and the same fractal texture. The walks differ (the
-// shell's walkers are off-lattice), so the comparison is statistical: sums over seeds.
+// shell's walkers step on the node graph and jump off-lattice), so the comparison is statistical:
+// means over seeds.
 #include "test_util.h"
 
 #include <frostvdb/shell/ShellDomain.h>
@@ -68,31 +69,44 @@ TEST_CASE("Shell look: a flat plate frosts the plane's area and fractal dimensio
         f << "v " << a << " " << a << " 0\nv " << b << " " << a << " 0\nv " << b << " " << b << " 0\nv " << a << " " << b
           << " 0\nf 1 2 3\nf 1 3 4\n";
     }
-    const std::string common = "[scene]\nframes = 1\nsteps_per_frame = " + std::to_string(steps) + "\n"
-                               "[dla]\nhumidity = 100\nhits = 2\n"
-                               "[phase_field]\nanisotropy_mode = 6\ndelta = 0.05\n";
     const std::string plane = "[domain]\nkind = \"plane\"\nlattice = \"square\"\nsize = [" + std::to_string(L) + ", " +
                               std::to_string(L) + "]\nvoxel_size = 0.001\n"
                               "[[crystal.seed]]\nshape = \"edge\"\nedges = \"all\"\nwidth = 1\n";
     const std::string shell = "[domain]\nkind = \"shell\"\nmesh = \"" + obj + "\"\nvoxel_size = 0.001\n"
                               "[[crystal.seed]]\nshape = \"edge\"\nedges = \"border\"\nwidth = 1\n";
-    double area[2] = {0, 0}, dim[2] = {0, 0};
-    const int seeds = 3;
-    for (int s = 1; s <= seeds; ++s)
-        for (int k = 0; k < 2; ++k) {
-            auto sim = test::makeSim(common + (k == 0 ? plane : shell), {"scene.seed=" + std::to_string(s)});
-            for (int step = 0; step < steps; ++step) sim.step();
-            const auto cells = iceCells(sim);
-            area[k] += double(cells.size()) / seeds;
-            dim[k] += boxDimension(cells) / seeds;
-        }
-    WARN("ice area: plane " << area[0] << ", shell " << area[1] << " (" << 100.0 * (area[1] / area[0] - 1.0)
-                            << " %); box-counting dimension: plane " << dim[0] << ", shell " << dim[1]);
-    // Issue 23 asks for 3 %; measured -10 % (docs/shells.md "The look, measured": the phase field
-    // alone grows 19 % more from an open border, whose one-sided stencils let no heat or phase
-    // out where the plane's edge reads the background; the walkers add 24 % less ice). Held at
-    // 15 % here so that a regression still fails; the 3 % is open work.
-    CHECK(std::fabs(area[1] / area[0] - 1.0) < 0.15);
+    const std::string walkers = "[dla]\nhumidity = 100\nhits = 2\n";
+    const std::string phaseField = "[phase_field]\nanisotropy_mode = 6\ndelta = 0.05\n";
+    // mean ice area (cells with p > 1/2) and box-counting dimension over seeds 1 .. seeds
+    auto measure = [&](const std::string& effects, int seeds, double area[2], double dim[2]) {
+        const std::string common = "[scene]\nframes = 1\nsteps_per_frame = " + std::to_string(steps) + "\n" + effects;
+        area[0] = area[1] = dim[0] = dim[1] = 0;
+        for (int s = 1; s <= seeds; ++s)
+            for (int k = 0; k < 2; ++k) {
+                auto sim = test::makeSim(common + (k == 0 ? plane : shell), {"scene.seed=" + std::to_string(s)});
+                for (int step = 0; step < steps; ++step) sim.step();
+                const auto cells = iceCells(sim);
+                area[k] += double(cells.size()) / seeds;
+                dim[k] += boxDimension(cells) / seeds;
+            }
+    };
+    double area[2], dim[2];
+    measure(walkers + phaseField, 3, area, dim);
+    WARN("hybrid: ice area plane " << area[0] << ", shell " << area[1] << " (" << 100.0 * (area[1] / area[0] - 1.0)
+                                   << " %); box-counting dimension: plane " << dim[0] << ", shell " << dim[1]);
+    // issue 23: the hero recipe's frost within 3 % of the plane's area (measured +0.7 %)
+    CHECK(std::fabs(area[1] / area[0] - 1.0) < 0.03);
     CHECK(std::fabs(dim[1] - dim[0]) < 0.05);
+
+    // and each half on its own, so that two errors cannot cancel: the phase field alone (no noise:
+    // deterministic) matches the plane's cells, the open border's ghost ring reading the
+    // background as the plane's edge does (without it: +19 %) ...
+    measure(phaseField, 1, area, dim);
+    WARN("phase field alone: plane " << area[0] << ", shell " << area[1]);
+    CHECK(std::fabs(area[1] / area[0] - 1.0) < 0.005);
+    // ... and the walkers alone (measured -0.7 % over these seeds; the node-graph walk)
+    measure(walkers, 3, area, dim);
+    WARN("walkers alone: plane " << area[0] << ", shell " << area[1] << " (" << 100.0 * (area[1] / area[0] - 1.0)
+                                 << " %)");
+    CHECK(std::fabs(area[1] / area[0] - 1.0) < 0.03);
     std::filesystem::remove(obj);
 }

@@ -248,6 +248,7 @@ void ShellBand::init(const TriangleMesh& mesh, const BandSettings& settings)
     if (mesh.colours.size() == mesh.points.size()) mVColour = mesh.colours;
     mSurfaceVoxels = mesh.totalArea() / (h * h);
     mBvh = TriangleBvh(mPts, mTris);
+    mGhosts = mSurface && !mesh.boundaryEdges().empty();
     BBoxd box(mPts[0], mPts[0]);
     for (const auto& p : mPts) box.expand(p);
     mBounds = coordBox(box.min() - Vec3d(halfWidth()), box.max() + Vec3d(halfWidth()));
@@ -315,8 +316,9 @@ void ShellBand::computeLeaf(const Coord& origin, LeafData& out) const
                 const double s = off.dot(fr.normal), lateral = (off - fr.normal * s).length();
                 // surface nodes: the slab -1/2 < s <= 1/2 (one voxel thick: one node per surface
                 // cell; half-open so a surface through voxel faces keeps one layer), and at most
-                // half a voxel beyond an open border (a plane's cells whose centre is inside)
-                if (mSurface && (s <= -0.5 || s > 0.5 || lateral > 0.5)) continue;
+                // half a voxel beyond an open border (a plane's cells whose centre is inside),
+                // plus one ring of ghost nodes beyond it (held at the background: ghost())
+                if (mSurface && (s <= -0.5 || s > 0.5 || lateral > (mGhosts ? kGhostLateral : 0.5))) continue;
                 out.coords.push_back(c);
                 out.cp.push_back(cp);
                 out.tri.push_back(t);
@@ -711,7 +713,7 @@ std::vector<size_t> ShellBand::nearBorder(double width) const
     std::vector<char> hit(size(), 0);
     tbb::parallel_for(tbb::blocked_range<size_t>(0, size()), [&](const tbb::blocked_range<size_t>& r) {
         for (size_t i = r.begin(); i < r.end(); ++i)
-            for (size_t e = 0; e < mBorderA.size() && !hit[i]; ++e)
+            for (size_t e = 0; e < mBorderA.size() && !hit[i] && !ghost(i); ++e)
                 if (pointSegmentDistance(mCp[i], mBorderA[e], mBorderB[e]) <= width) hit[i] = 1;
     });
     std::vector<size_t> out;

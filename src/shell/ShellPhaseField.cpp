@@ -507,7 +507,13 @@ void ShellPhaseField::stepSurface(double time, int64_t stepIndex, uint64_t seed,
     });
     const auto t1 = Clock::now();
     const float tNext = float(time);
+    const float tInf = float(k.farTemperature);
     b.forEachVoxel(&mStepped, [&](size_t i) {
+        if (b.ghost(i)) { // beyond an open border: the background, as outside a plane
+            mP[i] = 0.f;
+            mT[i] = tInf;
+            return;
+        }
         const float d = mPn[i] - mP[i];
         mP[i] = mPn[i];
         mT[i] = mTn[i];

@@ -82,20 +82,18 @@ int32_t nodeNear(const ShellBand& b, IndexAccessor& acc, const Vec3d& y)
 /// node's closest point (one node per surface cell); @a lateral is the distance beyond that, so a
 /// point more than about half a voxel past an open border reads lateral > 0.5, as on the
 /// closest-point band.
-bool projectOnNodes(const ShellBand& b, IndexAccessor& acc, const Vec3d& y, Vec3d& out, double* lateral)
+bool projectOnNodes(const ShellBand& b, IndexAccessor& acc, const Vec3d& y, Vec3d& out, double* lateral,
+                    int32_t* node = nullptr)
 {
-    Vec3d q = y;
-    int32_t id = -1;
-    for (int pass = 0; pass < 2; ++pass) {
-        const int32_t k = nodeNear(b, acc, q);
-        if (k < 0) return pass > 0 && (out = q, true);
-        id = k;
-        const Vec3d& cp = b.closestPoint(size_t(k));
-        const Vec3d& n = b.frame(size_t(k)).normal;
-        q -= n * (q - cp).dot(n);
-    }
-    out = q;
-    if (lateral) *lateral = std::max(0.0, (q - b.closestPoint(size_t(id))).length() - 0.7);
+    // One pass: the tangent plane of the node nearest y lies within O(kappa h^2) of the surface
+    // (a second pass moved points by about 1e-3 voxels and cost a third of the walk).
+    const int32_t k = nodeNear(b, acc, y);
+    if (k < 0) return false;
+    const Vec3d& cp = b.closestPoint(size_t(k));
+    const Vec3d& n = b.frame(size_t(k)).normal;
+    out = y - n * (y - cp).dot(n);
+    if (lateral) *lateral = std::max(0.0, (out - cp).length() - 0.7);
+    if (node) *node = k;
     return true;
 }
 
@@ -127,8 +125,11 @@ bool shootWith(const ShellBand& b, IndexAccessor& acc, Vec3d& x, Vec3d dir, doub
         const double s = std::min(kShootStep, left);
         Vec3d q;
         double lat = 0;
-        if (!projectWith(b, acc, x + dir * s, q, &lat) || (open && lat > 0.5)) return false;
-        const VoxelFrame* f = frameWith(b, acc, q);
+        int32_t node = -1; // surface nodes: the node whose tangent plane q lies on gives the frame
+        if (b.surfaceNodes() ? !projectOnNodes(b, acc, x + dir * s, q, &lat, &node) : !projectWith(b, acc, x + dir * s, q, &lat))
+            return false;
+        if (open && lat > 0.5) return false;
+        const VoxelFrame* f = node >= 0 ? &b.frame(size_t(node)) : frameWith(b, acc, q);
         if (!f) return false;
         Vec3d nd = q - x;
         nd -= f->normal * nd.dot(f->normal);
@@ -288,29 +289,95 @@ ShellWalkers::ShellWalkers(std::shared_ptr<const ShellBand> band, const ice::Dla
     if (mBorder.size() > 0)
         for (size_t i : mLayer)
             if (mBorder.distance(b.closestPoint(i)) <= 1.5) mBorderLayer.push_back(i);
+    if (b.surfaceNodes()) mIceNode.assign(b.size(), 0);
 }
 
 void ShellWalkers::sync(const std::vector<float>& p)
 {
     mIce.clear();
+    std::fill(mIceNode.begin(), mIceNode.end(), uint8_t(0));
     for (size_t i : mLayer)
-        if (p[i] > 0.5f) mIce.insert(mBand->closestPoint(i));
+        if (p[i] > 0.5f) {
+            mIce.insert(mBand->closestPoint(i));
+            if (!mIceNode.empty()) mIceNode[i] = 1;
+        }
 }
 
-void ShellWalkers::addIce(const Vec3d& x) { mIce.insert(x); }
+void ShellWalkers::markNode(const Vec3d& x, uint8_t value)
+{
+    if (mIceNode.empty()) return;
+    auto acc = mBand->indexGrid().getConstAccessor();
+    const int32_t k = nodeNear(*mBand, acc, x);
+    if (k >= 0 && (mBand->closestPoint(size_t(k)) - x).lengthSqr() < 0.25) mIceNode[size_t(k)] = value;
+}
+
+void ShellWalkers::addIce(const Vec3d& x)
+{
+    mIce.insert(x);
+    markNode(x, 1);
+}
+
+void ShellWalkers::restoreIce(const std::vector<double>& xyz)
+{
+    mIce.clear();
+    std::fill(mIceNode.begin(), mIceNode.end(), uint8_t(0));
+    for (size_t k = 0; k + 2 < xyz.size(); k += 3) addIce(Vec3d(xyz[k], xyz[k + 1], xyz[k + 2]));
+}
 
 void ShellWalkers::removeIceVoxels(const std::vector<size_t>& voxels)
 {
     for (size_t i : voxels)
-        if (std::fabs(mBand->normalOffset(i)) <= 0.5f && mBand->lateralOffset(i) <= 0.25f)
+        if (std::fabs(mBand->normalOffset(i)) <= 0.5f && mBand->lateralOffset(i) <= 0.25f) {
             mIce.erase(mBand->closestPoint(i));
+            if (!mIceNode.empty()) mIceNode[i] = 0;
+        }
 }
 
 void ShellWalkers::addIceVoxels(const std::vector<size_t>& voxels)
 {
     for (size_t i : voxels)
-        if (std::fabs(mBand->normalOffset(i)) <= 0.5f && mBand->lateralOffset(i) <= 0.25f)
+        if (std::fabs(mBand->normalOffset(i)) <= 0.5f && mBand->lateralOffset(i) <= 0.25f) {
             mIce.insert(mBand->closestPoint(i));
+            if (!mIceNode.empty()) mIceNode[i] = 1;
+        }
+}
+
+/// Graph steps between two distance queries (sticking is checked at every step, on the nodes).
+constexpr int kGraphBurst = 8;
+
+ShellWalkers::GraphStep ShellWalkers::graphStep(int32_t node, ice::WalkerRng& rng, bool checkIce) const
+{
+    GraphStep out;
+    out.node = node;
+    const SurfaceTap* first = mBand->tapsBegin(size_t(node));
+    const SurfaceTap* last = mBand->tapsEnd(size_t(node));
+    float sum = 0.f, strongest = 0.f;
+    for (const SurfaceTap* t = first; t != last; ++t)
+        if (t->node != node && t->lap > 0.f) {
+            sum += t->lap;
+            strongest = std::max(strongest, t->lap);
+        }
+    if (!(sum > 0.f)) return out; // NoStencil: the caller takes a projected step
+    for (const SurfaceTap* t = first; checkIce && t != last; ++t)
+        if (t->node != node && t->lap >= 0.5f * strongest && mIceNode[size_t(t->node)]) {
+            out.kind = GraphStep::NextToIce;
+            return out;
+        }
+    out.latticeSteps = 4.0 / double(sum); // E|step|^2 = sum w r^2 / sum w = 4 / sum w (exact on r^2)
+    float u = float(rng.uniform()) * sum;
+    const SurfaceTap* pick = nullptr;
+    for (const SurfaceTap* t = first; t != last; ++t)
+        if (t->node != node && t->lap > 0.f) {
+            pick = t;
+            if ((u -= t->lap) < 0.f) break;
+        }
+    if (mIceNode[size_t(pick->node)]) {
+        out.kind = GraphStep::Blocked; // ice cannot be entered: the walker stays
+        return out;
+    }
+    out.kind = GraphStep::Moved;
+    out.node = pick->node;
+    return out;
 }
 
 int32_t ShellWalkers::siteOf(const Vec3d& x) const
@@ -336,7 +403,7 @@ int32_t ShellWalkers::freeNodeNear(const Vec3d& x, const std::vector<float>& p) 
         for (int dy = -1; dy <= 1; ++dy)
             for (int dx = -1; dx <= 1; ++dx) {
                 const int32_t k = acc.getValue(c + Coord(dx, dy, dz));
-                if (k < 0 || p[size_t(k)] > 0.5f) continue;
+                if (k < 0 || p[size_t(k)] > 0.5f || mBand->ghost(size_t(k))) continue;
                 const double d = (mBand->closestPoint(size_t(k)) - x).lengthSqr();
                 if (d < best || (d == best && k < id)) { best = d; id = k; }
             }
@@ -414,32 +481,44 @@ ShellWalkEnd ShellWalkers::walk(int64_t step, uint64_t walker, uint64_t salt, co
         return id < 0 ? Vec3d(0.0) : Vec3d((*in.drift)[size_t(id)]);
     };
     SurfacePointIndex::Cursor ice(mIce), border(mBorder);
+    // Surface nodes: the node whose tangent plane x was last projected on gives its frame (no
+    // look-up per step); the closest-point band reads the frame of the voxel holding x.
+    const bool onNodes = b.surfaceNodes();
+    int32_t node = onNodes ? nodeNear(b, acc, x) : -1;
+    auto frameAt = [&](const Vec3d& p) { return onNodes ? (node < 0 ? nullptr : &b.frame(size_t(node))) : frameWith(b, acc, p); };
+    auto projectStep = [&](const Vec3d& y, Vec3d& q, double* lat) {
+        return onNodes ? projectOnNodes(b, acc, y, q, lat, &node) : projectWith(b, acc, y, q, lat);
+    };
     double steps = 0;
+    double d = ice.distance(x);
     for (;;) {
-        const double d = ice.distance(x);
-        if (d <= kStickRadius) { // next to ice: the sticking roll
+        // next to ice: the sticking roll (the melt map's probability at the walker's site)
+        auto sticks = [&] {
             double s = 1.0;
             if (in.melt) {
-                const int32_t id = acc.getValue(Coord::round(x));
+                const int32_t id = onNodes ? node : acc.getValue(Coord::round(x));
                 if (id >= 0) s = double((*in.melt)[size_t(id)]);
             }
-            if (s >= 1.0 || (s > 0.0 && rng.uniform() < s)) {
-                end.kind = ShellWalkEnd::Stuck;
-                end.point = x;
-                end.latticeSteps = steps;
-                return end;
-            }
-        }
+            return s >= 1.0 || (s > 0.0 && rng.uniform() < s);
+        };
+        auto stuck = [&] {
+            end.kind = ShellWalkEnd::Stuck;
+            end.point = x;
+            end.latticeSteps = steps;
+            return end;
+        };
+        if (d <= kStickRadius && sticks()) return stuck();
         if (mParams.maxSteps > 0 && steps >= double(mParams.maxSteps)) {
             end.kind = ShellWalkEnd::Exhausted;
             end.latticeSteps = steps;
             return end;
         }
         ++end.moves;
-        const VoxelFrame* f = frameWith(b, acc, x);
+        const VoxelFrame* f = frameAt(x);
         if (!f) break;
         const Vec3d v = driftAt(x);
-        if (mParams.jumps) { // walk on spheres: a uniform point of the free geodesic circle
+        if (mParams.jumps && d - 2.0 >= double(mParams.jumpMinRadius)) {
+            // walk on spheres: a uniform point of the free geodesic circle
             double r = std::min({d - 2.0, border.distance(x) - 1.0, double(mMaxJump)});
             const double vm = v.length();
             if (vm > 0) r = std::min(r, std::sqrt(0.5 / vm)); // the drift over the jump stays < 1/2
@@ -455,6 +534,40 @@ ShellWalkEnd ShellWalkers::walk(int64_t step, uint64_t walker, uint64_t salt, co
                     if (!projectWith(b, acc, x + v * (r * r), q, &lat) || (mOpen && lat > 0.5)) break;
                     x = q;
                 }
+                if (onNodes) node = nodeNear(b, acc, x);
+                d = ice.distance(x);
+                continue;
+            }
+        }
+        // on surface nodes without drift: a burst of node-graph steps, then one distance query
+        if (onNodes && node >= 0 && !in.drift) {
+            bool graph = true, left = false;
+            for (int n = 0; n < kGraphBurst; ++n) {
+                GraphStep g = graphStep(node, rng, true);
+                if (g.kind == GraphStep::NextToIce) {
+                    if (sticks()) return stuck();
+                    g = graphStep(node, rng, false); // the roll failed: it walks on
+                }
+                if (g.kind == GraphStep::NoStencil) {
+                    graph = n > 0;
+                    break;
+                }
+                steps += g.latticeSteps;
+                if (n > 0) ++end.moves;
+                if (g.kind != GraphStep::Moved) continue;
+                if (mOpen && b.lateralOffset(size_t(g.node)) > 0.25f) { // past the border: it leaves
+                    left = true;
+                    break;
+                }
+                end.prev = x;
+                end.hasPrev = true;
+                node = g.node;
+                x = b.closestPoint(size_t(node));
+                if (mParams.maxSteps > 0 && steps >= double(mParams.maxSteps)) break;
+            }
+            if (left) break;
+            if (graph) {
+                d = ice.distance(x);
                 continue;
             }
         }
@@ -462,13 +575,17 @@ ShellWalkEnd ShellWalkers::walk(int64_t step, uint64_t walker, uint64_t salt, co
         const unsigned k = unsigned((static_cast<unsigned __int128>(rng.next()) * 6u) >> 64);
         const double a = double(k) * (M_PI / 3.0);
         const Vec3d y = x + f->tangent * std::cos(a) + f->bitangent * std::sin(a) + v;
+        const int32_t nodeBefore = node;
         Vec3d q;
         double lat = 0;
-        if (!projectWith(b, acc, y, q, &lat) || (mOpen && lat > 0.5)) break; // left the mesh's border
+        if (!projectStep(y, q, &lat) || (mOpen && lat > 0.5)) break; // left the mesh's border
         steps += 1;
-        const double dq = ice.distance(q);
+        double dq = ice.distance(q);
         // ice cannot be entered: a walker next to ice whose step lands on it stays
-        if (d <= kStickRadius && dq < 0.5) continue;
+        if (d <= kStickRadius && dq < 0.5) {
+            node = nodeBefore;
+            continue;
+        }
         if (d > kStickRadius && dq <= kStickRadius) {
             // contact: the walker stops where its step first comes within one spacing of the ice
             // (bisection on the step), so stuck points sit one spacing from the ice, as the
@@ -479,11 +596,18 @@ ShellWalkEnd ShellWalkers::walk(int64_t step, uint64_t walker, uint64_t salt, co
                 (ice.distance(x + (q - x) * mid) <= kStickRadius ? hi : lo) = mid;
             }
             Vec3d c;
-            if (projectWith(b, acc, x + (q - x) * hi, c, nullptr) && ice.distance(c) <= kStickRadius) q = c;
+            const int32_t nodeAtQ = node;
+            if (projectStep(x + (q - x) * hi, c, nullptr) && ice.distance(c) <= kStickRadius) {
+                q = c;
+                dq = ice.distance(q);
+            } else {
+                node = nodeAtQ;
+            }
         }
         end.prev = x;
         end.hasPrev = true;
         x = q;
+        d = dq;
     }
     end.kind = ShellWalkEnd::Killed;
     end.latticeSteps = steps;

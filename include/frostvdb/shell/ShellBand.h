@@ -52,6 +52,12 @@ constexpr double kHalfWidth = 5.5;
 /// Surface nodes: voxels whose centre lies within 1/2 along the normal and 1/2 beyond an open
 /// border, so within sqrt(1/2) of the surface.
 constexpr double kLayerReach = 0.7072;
+/// Surface nodes on an open mesh: one ring of ghost nodes beyond the border (lateral offset in
+/// (0.5, kGhostLateral]), within kGhostReach of the mesh, that the phase field holds at the
+/// background (p = 0, T = T_inf): the plane's Dirichlet edge, so a border node's stencil is not
+/// one-sided and frost grown from the border looks as it does on a plane.
+constexpr double kGhostLateral = 1.5;
+constexpr double kGhostReach = 1.59;
 /// Radius of the update set U in voxels: it must hold every tricubic node (2 sqrt 3 = 3.46).
 constexpr double kUpdateRadius = 3.5;
 /// Radius of the set where the phase field's coefficients are evaluated (the neighbours of U).
@@ -151,8 +157,10 @@ public:
     bool inCoefficientSet(size_t i) const { return mSurface || mDistance[i] <= kCoefficientRadius; }
     /// True for a surface-node band (BandSettings::Discretisation::SurfaceNodes).
     bool surfaceNodes() const { return mSurface; }
-    /// The band's half-width in voxels (kHalfWidth, or kLayerReach for surface nodes).
-    double halfWidth() const { return mSurface ? kLayerReach : kHalfWidth; }
+    /// The band's half-width in voxels (kHalfWidth; surface nodes: kLayerReach, kGhostReach on an open mesh).
+    double halfWidth() const { return mSurface ? (mGhosts ? kGhostReach : kLayerReach) : kHalfWidth; }
+    /// Surface nodes: true for a ghost node beyond an open border (see kGhostLateral).
+    bool ghost(size_t i) const { return mGhosts && mLateral[i] > 0.5f; }
     /// Surface nodes: the stencil of node @a i (valid once its leaf is prepared), taps in a fixed
     /// order (neighbour offsets z, y, x ascending), so every sum over it is one fixed sum.
     const SurfaceTap* tapsBegin(size_t i) const { return mTaps.data() + mTapStart[i]; }
@@ -177,7 +185,7 @@ public:
     openvdb::CoordBBox bounds() const { return mBounds; }
     /// The triangle cp(x) lies on.
     uint32_t triangle(size_t i) const { return mTriangle[i]; }
-    /// Voxels within @a width voxels of the mesh's boundary edges (an open mesh's border); builds
+    /// Voxels within @a width voxels of the mesh's boundary edges (an open mesh's border), ghosts excluded; builds
     /// the leaves along the border first.
     std::vector<size_t> nearBorder(double width) const;
     /// Voxels whose closest point is within @a radius voxels of the index position @a centre
@@ -315,6 +323,7 @@ private:
     mutable std::vector<uint32_t> mTriangle;
     mutable std::vector<int32_t> mNeighbours;             ///< 6 per voxel
     bool mSurface = false;                                ///< surface nodes (else closest point)
+    bool mGhosts = false;                                 ///< surface nodes on an open mesh: a ghost ring
     mutable std::vector<SurfaceTap> mTaps;                ///< surface nodes: every prepared node's taps
     mutable std::vector<uint32_t> mTapStart;              ///< per voxel: first tap in mTaps
     mutable std::vector<uint8_t> mTapCount;               ///< per voxel: number of taps

@@ -133,11 +133,7 @@ public:
     /// The walkers' ice as x, y, z triples (bucket by bucket in key order; for checkpoints), and
     /// the same set restored (distances are minima: the order does not change any result).
     std::vector<double> icePointList() const { return mIce.pointList(); }
-    void restoreIce(const std::vector<double>& xyz)
-    {
-        mIce.clear();
-        for (size_t k = 0; k + 2 < xyz.size(); k += 3) mIce.insert(openvdb::Vec3d(xyz[k], xyz[k + 1], xyz[k + 2]));
-    }
+    void restoreIce(const std::vector<double>& xyz);
     /// Band voxels whose closest point lies within kMarkRadius of @a x (ascending band index);
     /// on surface nodes, the node nearest @a x (one per surface cell, as a plane's stick freezes one cell).
     std::vector<size_t> markDisc(const openvdb::Vec3d& x) const;
@@ -184,6 +180,18 @@ private:
     bool mOpen; ///< the mesh has a border (walkers beyond it are removed)
     std::vector<size_t> mLayer, mBorderLayer;
     SurfacePointIndex mIce, mBorder;
+    /// Surface nodes: 1 where the node is ice (its closest point is in mIce), for the graph step.
+    std::vector<uint8_t> mIceNode;
+    void markNode(const openvdb::Vec3d& x, uint8_t value);
+
+    /// Surface nodes: one step of the node-graph walk from @a node (walkOnGraph in the .cpp).
+    struct GraphStep {
+        enum Kind : uint8_t { Moved, Blocked, NextToIce, NoStencil } kind = NoStencil;
+        int32_t node = -1;
+        double latticeSteps = 0;
+    };
+    /// @a checkIce: report NextToIce (no move) when a strong neighbour is ice.
+    GraphStep graphStep(int32_t node, ice::WalkerRng& rng, bool checkIce) const;
 };
 
 } // namespace frostvdb::shell

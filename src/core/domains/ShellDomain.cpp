@@ -71,7 +71,12 @@ public:
     std::string kind() const override { return "shell"; }
     /// The phase field and the walkers pick their shell back ends by it (ice/PhaseFieldBackend.h).
     std::string discretisation() const override { return mBand->surfaceNodes() ? "surface" : "closest_point"; }
-    bool contains(const openvdb::Coord& c) const override { return mBand->contains(c); }
+    /// Band voxels, except the ghost ring beyond an open border (ShellBand::ghost).
+    bool contains(const openvdb::Coord& c) const override
+    {
+        const int32_t i = mBand->indexOf(c);
+        return i >= 0 ? !mBand->ghost(size_t(i)) : mBand->contains(c);
+    }
     /// The voxels built so far: the whole band, or (sparse region) the band around the ice.
     uint64_t voxelCount() const override { return mBand->size(); }
     void clipToSupport(openvdb::MaskTree& mask) const override { mask.topologyIntersection(mBand->mask().tree()); }
