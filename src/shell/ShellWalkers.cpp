@@ -113,21 +113,31 @@ const VoxelFrame* frameWith(const ShellBand& b, IndexAccessor& acc, const Vec3d&
     return id < 0 ? nullptr : &b.frame(size_t(id));
 }
 
-/// Moves @a x by @a length along the tangent direction @a dir: sub-steps of at most kShootStep
-/// voxels, each projected back to the surface, the direction carried to the new tangent plane (a
-/// discrete geodesic). A sub-step leaves the surface by s^2 / 2R (0.9 voxels at a curvature
-/// radius of 5 voxels), well inside the band.
-constexpr double kShootStep = 3.0;
+/// Moves @a x by @a length along the tangent direction @a dir: sub-steps each projected back to
+/// the surface, the direction carried to the new tangent plane (a discrete geodesic). A sub-step
+/// of s leaves the surface by about s^2 kappa / 2: its length follows the curvature kappa measured
+/// by the last sub-step's turn of the normal, so that this stays below half a voxel (from
+/// kShootStep voxels up to kShootStepMax where the surface is flat; a sub-step that finds no
+/// surface, across a crease, is taken again at kShootStep).
+constexpr double kShootStep = 3.0, kShootStepMax = 24.0;
 bool shootWith(const ShellBand& b, IndexAccessor& acc, Vec3d& x, Vec3d dir, double length, bool open)
 {
-    double left = length;
+    double left = length, next = kShootStep;
+    const VoxelFrame* last = frameWith(b, acc, x);
     while (left > 1e-12) {
-        const double s = std::min(kShootStep, left);
+        double s = std::min(next, left);
         Vec3d q;
         double lat = 0;
         int32_t node = -1; // surface nodes: the node whose tangent plane q lies on gives the frame
-        if (b.surfaceNodes() ? !projectOnNodes(b, acc, x + dir * s, q, &lat, &node) : !projectWith(b, acc, x + dir * s, q, &lat))
-            return false;
+        auto project = [&] {
+            return b.surfaceNodes() ? projectOnNodes(b, acc, x + dir * s, q, &lat, &node)
+                                    : projectWith(b, acc, x + dir * s, q, &lat);
+        };
+        if (!project()) {
+            if (s <= kShootStep) return false;
+            s = std::min(kShootStep, left);
+            if (!project()) return false;
+        }
         if (open && lat > 0.5) return false;
         const VoxelFrame* f = node >= 0 ? &b.frame(size_t(node)) : frameWith(b, acc, q);
         if (!f) return false;
@@ -138,6 +148,10 @@ bool shootWith(const ShellBand& b, IndexAccessor& acc, Vec3d& x, Vec3d dir, doub
         dir = nd.unit();
         x = q;
         left -= s;
+        // kappa ~ the normal's turn over this sub-step; the next keeps s^2 kappa / 2 <= 1/2
+        const double turn = last ? std::acos(std::clamp(last->normal.dot(f->normal), -1.0, 1.0)) : 1.0;
+        next = turn > 1e-9 ? std::clamp(std::sqrt(s / turn), kShootStep, kShootStepMax) : kShootStepMax;
+        last = f;
     }
     return true;
 }
