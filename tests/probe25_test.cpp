@@ -338,6 +338,26 @@ TEST_CASE("Probe 25.7: collapsed meshes are refused in one line", "[fast][probe]
     // with a voxel size: a plate smaller than one voxel, or placed beyond exact voxel positions
     CHECK(p.collapseProblem({}, 1.0).find("smaller than one voxel") != std::string::npos);
     CHECK(p.collapseProblem({}, 0.001) == "");
+    // and a shell scene says so at its key, before building anything
+    const std::string head = "[domain]\nkind = \"shell\"\nvoxel_size = 1.0\n";
+    const std::string small = errorOf(head + "mesh = \"" + plate + "\"\n[phase_field]\n");
+    CHECK(small.find("domain.mesh") != std::string::npos);
+    CHECK(small.find("smaller than one voxel") != std::string::npos);
+    const std::string ball = errorOf(head + "sphere_radius = 0.01\n[phase_field]\n");
+    CHECK(ball.find("domain.sphere_radius") != std::string::npos);
+}
+
+TEST_CASE("Probe 25.9: wind_model = potential on an open mesh is refused at its key", "[fast][probe][shell]")
+{
+    const std::string dir = tempDir("p25_potential");
+    const std::string plate = dir + "/plate.obj";
+    const TriangleMesh p = makePlate(0.01, 2);
+    writeObj(plate, p.points, p.triangles);
+    const std::string msg = errorOf("[domain]\nkind = \"shell\"\nvoxel_size = 0.0005\nmesh = \"" + plate +
+                                    "\"\ndiscretisation = \"closest_point\"\n[phase_field]\nwind = [1, 0, 0]\n"
+                                    "wind_model = \"potential\"\n");
+    CHECK(msg.find("phase_field.wind_model") != std::string::npos);
+    CHECK(msg.find("closed mesh") != std::string::npos);
 }
 
 // ---- finding 8 --------------------------------------------------------------------------------

@@ -19,6 +19,8 @@ using MaskLeaf = openvdb::MaskTree::LeafNodeType;
 
 void DomainRegistry::add(DomainInfo info) { registry()[info.kind] = std::move(info); }
 
+void DomainRegistry::remove(const std::string& kind) { registry().erase(kind); }
+
 const DomainInfo* DomainRegistry::find(const std::string& kind)
 {
     auto it = registry().find(kind);

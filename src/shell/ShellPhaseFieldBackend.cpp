@@ -282,6 +282,10 @@ PhaseFieldBackendFactory readShellKeys(ParamDict& d, PhaseFieldSetup& setup, con
             d.fail("wind_model", "the potential flow is solved on the closest-point band: set [domain] discretisation = "
                                  "\"closest_point\" (allowed here: uniform)");
     }
+    // the potential flow goes around a closed object (its solid is the inside of the mesh)
+    if (o.potentialWind && bandOf(world.domain)->borderEdgeCount() > 0)
+        d.fail("wind_model", "potential needs a closed mesh (the flow goes around the object's inside); this mesh has "
+                             "an open border (allowed here: uniform)");
     // lw_cn on a shell: the implicit closest-point system (shell/ShellImplicit.h) is not an
     // M-matrix (the extension's cubic weights are not all positive): BiCGSTAB only
     if (!euler) {

@@ -356,6 +356,9 @@ void ShellWalkers::addIceVoxels(const std::vector<size_t>& voxels)
         }
 }
 
+/// The most moves (steps and jumps) a walker makes: about 1,000 times a typical walk's.
+constexpr uint32_t kMaxMoves = 1000000;
+
 /// Graph steps between two distance queries (sticking is checked at every step, on the nodes).
 constexpr int kGraphBurst = 8;
 
@@ -522,7 +525,9 @@ ShellWalkEnd ShellWalkers::walk(int64_t step, uint64_t walker, uint64_t salt, co
             return end;
         };
         if (d <= kStickRadius && sticks()) return stuck();
-        if (mParams.maxSteps > 0 && steps >= double(mParams.maxSteps)) {
+        // max_steps, and a safety cap on the work (moves and jumps): a walker enclosed by ice it
+        // cannot stick to (a melt map of 0 all along it) would otherwise walk for ever
+        if ((mParams.maxSteps > 0 && steps >= double(mParams.maxSteps)) || end.moves >= kMaxMoves) {
             end.kind = ShellWalkEnd::Exhausted;
             end.latticeSteps = steps;
             return end;

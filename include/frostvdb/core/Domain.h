@@ -207,6 +207,8 @@ struct DomainInfo {
 class DomainRegistry {
 public:
     static void add(DomainInfo info);
+    /// Unregisters a kind (tests that register one for their own scope).
+    static void remove(const std::string& kind);
     static const DomainInfo* find(const std::string& kind);
     static std::vector<const DomainInfo*> all(); ///< sorted by kind
 };

@@ -194,6 +194,9 @@ Domain readShell(ParamDict& d, const DomainCommon& c)
         } else {
             mesh = loadMesh(path, m);
         }
+        // placed, against the voxel size: smaller than a voxel, or too far out for float positions
+        if (const std::string why = mesh.collapseProblem(MeshPlacement{}, c.voxelSize); !why.empty())
+            d.fail(file.empty() ? "sphere_radius" : "mesh", (file.empty() ? std::string() : path + ": ") + why);
         if (colours != "none" && mesh.colours.empty())
             d.fail("vertex_colours", path + ": the mesh has no vertex colours (allowed: none)");
         // Leaves are built where the ice needs them ([region] dense = true builds them all).
