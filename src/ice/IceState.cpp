@@ -33,14 +33,14 @@ void stampDisc(World& world, openvdb::FloatGrid& p, const std::vector<double>& f
             }
 }
 
-void requireIceFields(World& world)
+void requireIceFields(World& world, bool defaultCrystal)
 {
     const bool hadPhase = world.fields.has(kPhase);
     auto p = world.fields.require<openvdb::FloatGrid>(kPhase, 0.f);
     world.fields.require<openvdb::FloatGrid>(kTemperature, float(shared(world).farTemperature));
     world.fields.require<openvdb::FloatGrid>(kGrowth, 0.f);
     world.fields.require<openvdb::FloatGrid>(kFreezeTime, 0.f);
-    if (!hadPhase) stampDisc(world, *p, {0.5, 0.5, 0.5}, 3.0);
+    if (!hadPhase && defaultCrystal) stampDisc(world, *p, {0.5, 0.5, 0.5}, 3.0);
 }
 
 void recordPhaseChange(openvdb::FloatGrid::Accessor& growth, openvdb::FloatGrid::Accessor& freeze,

@@ -122,7 +122,7 @@ void PhaseFieldEffect::initialize(World& world)
     shared.latentHeat = mParams.latentHeat;
     shared.meltTemperature = mParams.meltTemperature;
     shared.temperatureEvolves = true;
-    ice::requireIceFields(world);
+    ice::requireIceFields(world, !mBackend->seedsItself(world));
     mTime = 0.0;
     mBackend->initialize(world);
 }

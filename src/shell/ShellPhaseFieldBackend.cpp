@@ -39,6 +39,12 @@ public:
         d.output(out::kIceSdf);
     }
 
+    bool seedsItself(const World& world) const override
+    {
+        const auto* tex = texturesOf(world.domain);
+        return bandOf(world.domain)->colourUse() == BandSettings::ColourUse::Seed || (tex && tex->seed);
+    }
+
     MemoryEstimate memoryEstimate(const World& world) const override
     {
         const auto band = bandOf(world.domain);

@@ -38,9 +38,9 @@ struct IceShared {
 inline IceShared& shared(World& world) { return world.state<IceShared>(); } ///< key ice::kClock
 
 /// Allocates p, T, growth_acc and freeze_time if missing. If p did not exist yet (no [crystal]
-/// section), seeds it with the default crystal: a disc (ball in a box) of radius 3 cells at
-/// the domain centre, round in the lattice's own geometry.
-void requireIceFields(World& world);
+/// section) and @a defaultCrystal, seeds it with the default crystal: a disc (ball in a box) of
+/// radius 3 cells at the domain centre, round in the lattice's own geometry.
+void requireIceFields(World& world, bool defaultCrystal = true);
 
 /// Sets p = 1 on a disc/ball of @a radius cells around @a centreFraction (fractions of the
 /// domain size; a missing z means 0.5). Used by the default crystal and [crystal] points.

@@ -33,6 +33,9 @@ struct PhaseFieldSetup {
 class PhaseFieldBackend {
 public:
     virtual ~PhaseFieldBackend() = default;
+    /// True when the domain seeds the ice itself (a shell's vertex colours or seed texture): no
+    /// default crystal is stamped then.
+    virtual bool seedsItself(const World& world) const { (void)world; return false; }
     /// What the back end adds to the effect's declaration (state keys, output grids).
     virtual void declare(FieldDeclaration& d) const { (void)d; }
     virtual void initialize(World& world) = 0;
