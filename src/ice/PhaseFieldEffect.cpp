@@ -222,6 +222,7 @@ void PhaseFieldEffect::initialize(World& world)
     FieldEdits& edits = world.state<FieldEdits>();
     edits.listen(ice::kPhase.name);
     edits.listen(ice::kTemperature.name);
+    edits.reportsCrossings(ice::kPhase.name, this); // the cells where p crosses 1/2 (walkers' distance map)
 }
 
 void PhaseFieldEffect::printShellEstimate(const shell::ShellBand& band, const World& world) const
@@ -302,6 +303,7 @@ void PhaseFieldEffect::step(World& world, const StepInfo& info)
         const bool all = listed(ice::kPhase.name) && listed(ice::kTemperature.name);
         mSolver->setEditLogs(all ? &edits.cells(ice::kPhase.name) : nullptr,
                              all ? &edits.cells(ice::kTemperature.name) : nullptr);
+        mSolver->setCrossingLog(edits.crossingSink(ice::kPhase.name));
     }
     const double subDt = mParams.dt / mSubsteps;
     for (int s = 0; s < mSubsteps; ++s) {
