@@ -104,3 +104,70 @@ TEST_CASE("Vector Euler rows give the plain rows' bits", "[fast][phase_field]")
     }
     CHECK(compared == 2 * 2 * 2 * 40 * 3);
 }
+
+TEST_CASE("Hexagonal vector Euler rows give the plain rows' bits", "[fast][phase_field]")
+{
+    // The D6 forms (j = 6, arms on lattice directions): the hexagonal plane's default, the one
+    // `bench scale` runs.
+    const int W = 48, H = 12;
+    const Lattice lat(LatticeKind::Hexagonal, 0.03);
+    std::mt19937 rng(11);
+    int compared = 0;
+    for (double theta0 : {M_PI / 2, 0.0}) {
+        KobayashiParams k;
+        k.anisotropyMode = 6;
+        k.theta0 = theta0;
+        k.delta = 0.04;
+        k.latentHeat = 1.6;
+        FlatStencil st(lat.stencil(false), W, 0);
+        const Anisotropy an(k);
+        useD6Forms(st, an);
+        REQUIRE(st.d6);
+        const EulerRows vec = fastestEulerRows(st, an), plain = plainEulerRows();
+        if (!vec.vector) {
+            WARN("no AVX2 on this CPU: the vector rows are not built here, nothing to compare");
+            return;
+        }
+        for (int withExtras = 0; withExtras < 2; ++withExtras) {
+            k.noise = withExtras ? 0.3 : 0.0;
+            const auto p = field(W, H, rng, 1.f), T = field(W, H, rng, -0.5f), melt = field(W, H, rng, 1.f);
+            std::vector<double> chi(size_t(W) * H);
+            std::uniform_real_distribution<double> u(-0.5, 0.5);
+            for (double& c : chi) c = u(rng);
+            const size_t n = size_t(W) * H;
+            std::vector<float> aux[2][6];
+            for (auto& set : aux)
+                for (auto& v : set) v.assign(n, 7.f);
+            for (int s = 0; s < 2; ++s) {
+                const EulerRows& rows = s ? vec : plain;
+                auto& A = aux[s];
+                for (int y = 1; y < H - 1; ++y)
+                    rows.aux(p.data(), size_t(y) * W + 1, size_t(y) * W + W - 1, st, an, A[0].data(), A[1].data(),
+                             A[2].data(), A[3].data(), A[4].data(), A[5].data());
+            }
+            for (int q = 0; q < 6; ++q) CHECK(std::memcmp(aux[0][q].data(), aux[1][q].data(), n * sizeof(float)) == 0);
+            const auto& A = aux[0];
+            for (int len = 1; len <= 40; ++len)
+                for (int y : {2, 5, H - 3}) {
+                    const size_t i0 = size_t(y) * W + 2 + size_t(len % 3), i1 = i0 + size_t(len);
+                    std::vector<float> pOut[2], tOut[2];
+                    std::vector<double> dp[2];
+                    for (int s = 0; s < 2; ++s) {
+                        pOut[s].assign(n, 0.f);
+                        tOut[s].assign(n, 0.f);
+                        dp[s].assign(n, 0.0);
+                        (s ? vec : plain)
+                            .euler(p.data(), T.data(), A[0].data(), A[1].data(), A[2].data(), A[3].data(), A[4].data(),
+                                   A[5].data(), i0, i1, st, k, withExtras ? melt.data() : nullptr,
+                                   withExtras ? chi.data() : nullptr, pOut[s].data(), tOut[s].data(), dp[s].data());
+                    }
+                    INFO("theta0 " << theta0 << " extras " << withExtras << " len " << len);
+                    CHECK(std::memcmp(pOut[0].data(), pOut[1].data(), n * sizeof(float)) == 0);
+                    CHECK(std::memcmp(tOut[0].data(), tOut[1].data(), n * sizeof(float)) == 0);
+                    CHECK(std::memcmp(dp[0].data(), dp[1].data(), n * sizeof(double)) == 0);
+                    ++compared;
+                }
+        }
+    }
+    CHECK(compared == 2 * 2 * 40 * 3);
+}

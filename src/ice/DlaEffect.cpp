@@ -2,6 +2,7 @@
 /// @brief Section [dla]: reads its keys, runs the walkers of each step in deterministic batches
 /// and applies their sticks (hits, freezing, heat, growth) in walker order.
 #include <frostvdb/core/FieldEdits.h>
+#include <frostvdb/core/FieldWriters.h>
 #include <frostvdb/core/Progress.h>
 #include <frostvdb/core/Error.h>
 #include <frostvdb/core/Random.h>
@@ -14,8 +15,10 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdlib>
 #include <map>
 #include <sstream>
+#include <string>
 
 namespace frostvdb {
 namespace ice {
@@ -157,6 +160,10 @@ void DlaEffect::initialize(World& world)
     FieldEdits& edits = world.state<FieldEdits>();
     edits.reports(kPhase.name, this);
     edits.reports(kTemperature.name, this);
+    // The phase field lists the cells where p crossed 1/2: the distance map reads those alone
+    // when every other writer of p lists them (step()).
+    edits.listenCrossings(kPhase.name);
+    edits.crossingCells(kPhase.name).clear(); // sync() below reads all of p
     if (mParams.hits > 1) world.fields.require<openvdb::Int32Grid>(kDlaHits, 0);
     const auto t0 = Clock::now();
     mEngine = std::make_unique<DlaEngine>(world.domain, mParams, world.seed);
@@ -264,7 +271,20 @@ void DlaEffect::step(World& world, const StepInfo& info)
     auto vel = world.fields.get<openvdb::Vec3SGrid>(kVelocity);
 
     auto t0 = Clock::now();
-    mEngine->sync(*p);
+    {
+        // The cells where p crossed 1/2 since the last step, when every other writer of p lists
+        // them (core/FieldEdits.h); else all of p is read. FROSTVDB_FULL_DISTANCE_SYNC=1 forces
+        // the full read (tests compare the two).
+        FieldEdits& edits = world.state<FieldEdits>();
+        const FieldWriters* w = world.hasState<FieldWriters>() ? &world.state<FieldWriters>() : nullptr;
+        const char* full = std::getenv("FROSTVDB_FULL_DISTANCE_SYNC");
+        const bool listed = w && w->of(kPhase.name) - 1 == edits.crossingReporters(kPhase.name) &&
+                            !(full && *full && std::string(full) != "0");
+        auto& cells = edits.crossingCells(kPhase.name);
+        if (listed) mEngine->syncCells(*p, cells);
+        else mEngine->sync(*p);
+        cells.clear();
+    }
     mStats.syncSeconds += since(t0);
 
     const int64_t H = mParams.humidityAt(info.step);
@@ -486,6 +506,7 @@ void DlaEffect::loadState(World& world, const StateReader& in)
     mStats.latticeSteps = in.getDouble("lattice_steps");
     mStats.dpDla = in.getDouble("dp_dla");
     mEngine->sync(*world.fields.get<openvdb::FloatGrid>(kPhase));
+    world.state<FieldEdits>().crossingCells(kPhase.name).clear(); // all of p was read
     if (mParams.hits > 1) {
         mHitCount.clear();
         if (auto g = world.fields.get<openvdb::Int32Grid>(kDlaHits))

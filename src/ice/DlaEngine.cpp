@@ -646,6 +646,39 @@ void DlaEngine::sync(const openvdb::FloatGrid& p)
     flushDistances();
 }
 
+void DlaEngine::syncCells(const openvdb::FloatGrid& p, const std::vector<openvdb::Coord>& cells)
+{
+    const openvdb::CoordBBox dom = mDomain.bbox();
+    std::vector<int64_t> ids;
+    ids.reserve(cells.size());
+    for (const auto& c : cells)
+        if (dom.isInside(c)) ids.push_back(index(c));
+    std::sort(ids.begin(), ids.end());
+    ids.erase(std::unique(ids.begin(), ids.end()), ids.end());
+    std::vector<int64_t> fresh, melted;
+    {
+        openvdb::tree::ValueAccessor<const openvdb::FloatTree, false> acc(p.tree());
+        for (int64_t id : ids) {
+            const bool above = acc.getValue(coord(id)) > 0.5f;
+            const bool ice = isIce(id);
+            if (above && !ice) fresh.push_back(id);
+            else if (!above && ice) melted.push_back(id);
+        }
+    }
+    if (!melted.empty()) {
+        if (melted.size() * 16 > mIceCount) { // as sync(): a rebuild is cheaper
+            ++mRebuilds;
+            rebuild(p);
+            mSyncCache.reset(); // sync() starts its per-leaf sets afresh
+            return;
+        }
+        repairMelted(melted);
+        mSyncCache.reset();
+    }
+    for (int64_t i : fresh) freezeDeferred(i);
+    flushDistances();
+}
+
 void DlaEngine::repairMelted(const std::vector<int64_t>& melted)
 {
     Sparse& S = *mSparse;

@@ -33,6 +33,7 @@ public:
         FieldEdits& edits = world.state<FieldEdits>();
         edits.listen(ice::kPhase.name);
         edits.listen(ice::kTemperature.name);
+        edits.reportsCrossings(ice::kPhase.name, this); // the cells where p crosses 1/2 (walkers' distance map)
     }
 
     void step(World& world, int64_t step, double time) override
@@ -131,6 +132,7 @@ private:
         const bool all = listed(ice::kPhase.name) && listed(ice::kTemperature.name);
         mSolver->setEditLogs(all ? &edits.cells(ice::kPhase.name) : nullptr,
                              all ? &edits.cells(ice::kTemperature.name) : nullptr);
+        mSolver->setCrossingLog(edits.crossingSink(ice::kPhase.name));
     }
 };
 

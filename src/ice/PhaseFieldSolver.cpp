@@ -18,6 +18,8 @@
 #include <memory>
 #include <optional>
 #include <cmath>
+#include <cstdlib>
+#include <string>
 #include <mutex>
 #include <sstream>
 
@@ -325,24 +327,65 @@ struct StagedValues {
     float* t(size_t li) const { return t0 + li * slots; }
 };
 
-/// Copies the staged values into the leaves' active voxels (the voxels the kernel wrote).
+/// truncateToTolerance (core/ActiveRegion.h) done by the commit on a retiring step: the same
+/// test on the same values as they are written, so the leaves are not read a second time.
+struct FusedTruncation {
+    float tol = 0, bgP = 0, bgT = 0;
+    std::atomic<bool> changedP{false}, changedT{false}, emptiedP{false}, emptiedT{false};
+};
+
+/// Copies the staged values into the leaves' active voxels (the voxels the kernel wrote); with
+/// @a trunc, values within its tolerance of the background are set to it and switched off.
 void commitStaged(openvdb::tree::LeafManager<openvdb::FloatTree>& pLeaves,
-                  openvdb::tree::LeafManager<openvdb::FloatTree>& tLeaves, const StagedValues& sv)
+                  openvdb::tree::LeafManager<openvdb::FloatTree>& tLeaves, const StagedValues& sv,
+                  FusedTruncation* trunc = nullptr)
 {
     tbb::parallel_for(tbb::blocked_range<size_t>(0, pLeaves.leafCount(), 64), [&](const tbb::blocked_range<size_t>& r) {
         for (size_t li = r.begin(); li != r.end(); ++li) {
             FloatLeaf& pl = pLeaves.leaf(li);
+            FloatLeaf& tl = tLeaves.leaf(li);
             float* pv = pl.buffer().data();
-            float* tv = tLeaves.leaf(li).buffer().data();
+            float* tv = tl.buffer().data();
             const float* sp = sv.p(li);
             const float* st = sv.t(li);
-            const auto& mask = pl.getValueMask();
-            for (openvdb::Index w = 0; w < FloatLeaf::NodeMaskType::WORD_COUNT; ++w)
-                for (uint64_t bits = mask.template getWord<uint64_t>(w); bits; bits &= bits - 1) {
-                    const openvdb::Index n = w * 64 + openvdb::Index(__builtin_ctzll(bits));
-                    pv[n] = sp[n >> sv.shift];
-                    tv[n] = st[n >> sv.shift];
+            auto& mask = pl.getValueMask();
+            if (!trunc) {
+                for (openvdb::Index w = 0; w < FloatLeaf::NodeMaskType::WORD_COUNT; ++w)
+                    for (uint64_t bits = mask.template getWord<uint64_t>(w); bits; bits &= bits - 1) {
+                        const openvdb::Index n = w * 64 + openvdb::Index(__builtin_ctzll(bits));
+                        pv[n] = sp[n >> sv.shift];
+                        tv[n] = st[n >> sv.shift];
+                    }
+                continue;
+            }
+            // p and T share the region's topology: one walk over the mask, two masks out.
+            auto& tmask = tl.getValueMask();
+            const float tol = trunc->tol, bgP = trunc->bgP, bgT = trunc->bgT;
+            bool anyP = false, anyT = false, offP = false, offT = false;
+            for (openvdb::Index w = 0; w < FloatLeaf::NodeMaskType::WORD_COUNT; ++w) {
+                uint64_t& wp = mask.template getWord<uint64_t>(w);
+                uint64_t& wt = tmask.template getWord<uint64_t>(w);
+                uint64_t clearP = 0, clearT = 0;
+                for (uint64_t bits = wp; bits; bits &= bits - 1) {
+                    const int b = __builtin_ctzll(bits);
+                    const openvdb::Index n = w * 64 + openvdb::Index(b);
+                    const float x = sp[n >> sv.shift], y = st[n >> sv.shift];
+                    if (std::fabs(x - bgP) <= tol) { pv[n] = bgP; clearP |= uint64_t(1) << b; }
+                    else pv[n] = x;
+                    if (std::fabs(y - bgT) <= tol) { tv[n] = bgT; clearT |= uint64_t(1) << b; }
+                    else tv[n] = y;
                 }
+                wp &= ~clearP;
+                wt &= ~clearT;
+                anyP = anyP || wp;
+                anyT = anyT || wt;
+                offP = offP || clearP;
+                offT = offT || clearT;
+            }
+            if (offP) trunc->changedP = true;
+            if (offT) trunc->changedT = true;
+            if (!anyP) trunc->emptiedP = true;
+            if (!anyT) trunc->emptiedT = true;
         }
     });
 }
@@ -365,6 +408,8 @@ struct LeafKernel {
     /// this domain, leaf by leaf in LeafManager order), since p and T are read while the kernel
     /// runs; null: they go straight into the output leaves (separate output grids).
     StagedValues* staged = nullptr;
+    /// Where the cells whose p crossed 1/2 go (null: nobody listens), see setCrossingLog.
+    std::vector<openvdb::Coord>* crossings = nullptr;
 
     /// Where leaf @a li's new values go: the staging slots or the leaf buffer itself, and the
     /// shift from a leaf offset to its slot (planes keep one z layer: 64 slots, offset >> 3).
@@ -435,7 +480,7 @@ struct LeafKernel {
     /// Writes one leaf of a plane block from the scratch planeRows filled: its active voxels,
     /// with the bounds check and the accumulators.
     void planeLeaf(Block& b, const openvdb::Coord& go, int z0, const FloatLeaf& pl, const Out& o,
-                   float tn1, std::vector<Accumulators::Pending>*& pending) const
+                   float tn1, std::vector<Accumulators::Pending>*& pending, std::vector<openvdb::Coord>* cross) const
     {
         const openvdb::Coord bo = b.origin(go);
         const openvdb::Coord lo = pl.origin();
@@ -457,6 +502,7 @@ struct LeafKernel {
                 const size_t i = b.index(ox + x, oy + y, 0);
                 const openvdb::Index n = openvdb::Index(x * 64 + bit);
                 const float pn = b.pe[i], tn = b.te[i];
+                if (cross && ((b.p[i] > 0.5f) != (pn > 0.5f))) cross->push_back(openvdb::Coord(lo.x() + x, lo.y() + y, lo.z() + zz));
                 if (failure && (!std::isfinite(pn) || pn < -0.05f || pn > 1.05f || !std::isfinite(tn))) {
                     const openvdb::Coord c(lo.x() + x, lo.y() + y, lo.z() + zz);
                     if (!std::isfinite(pn) || pn < -0.05f || pn > 1.05f) failure->report(c, "p (ice)", pn);
@@ -495,8 +541,10 @@ struct LeafKernel {
         const EulerRows rows = fastestEulerRows(st, an);
         const float tn1 = float(tNext);
         tbb::enumerable_thread_specific<Block> blocks([plane] { return Block(plane); });
+        tbb::enumerable_thread_specific<std::vector<openvdb::Coord>> crossed;
         tbb::parallel_for(tbb::blocked_range<size_t>(0, groups.count(), 1), [&](const tbb::blocked_range<size_t>& r) {
             Block& b = blocks.local();
+            std::vector<openvdb::Coord>* cross = crossings ? &crossed.local() : nullptr;
             // Unregistered accessors: the trees do not change while the kernel runs.
             const ConstAcc pAcc(p.tree()), tAcc(T.tree());
             std::unique_ptr<ConstAcc> mAcc;
@@ -531,7 +579,7 @@ struct LeafKernel {
                     FloatLeaf& pl = pLeaves.leaf(li);
                     const Out o = out(li, pl, tLeaves.leaf(li));
                     if (!heatOnly[q] && plane) {
-                        planeLeaf(b, go, z0, pl, o, tn1, pending);
+                        planeLeaf(b, go, z0, pl, o, tn1, pending, cross);
                         continue;
                     }
                     if (heatOnly[q]) {
@@ -556,6 +604,7 @@ struct LeafKernel {
                             if (!std::isfinite(pn) || pn < -0.05f || pn > 1.05f) failure->report(c, "p (ice)", pn);
                             if (!std::isfinite(tn)) failure->report(c, "T (temperature)", tn);
                         }
+                        if (cross && ((b.p[i] > 0.5f) != (pn > 0.5f))) cross->push_back(c);
                         o.atP(n) = pn;
                         o.atT(n) = tn;
                         if (acc) acc->record(gl, fl, n, c, dp, pn, tn1, pending);
@@ -564,6 +613,8 @@ struct LeafKernel {
             }
         });
         if (acc) acc->apply();
+        if (crossings)
+            for (auto& list : crossed) crossings->insert(crossings->end(), list.begin(), list.end());
     }
 };
 
@@ -743,6 +794,7 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
     if (k.scheme == PhaseFieldScheme::Euler) {
         staged.emplace(mStageP, mStageT, pLeaves.leafCount(), mDomain.flat());
         LeafKernel kernel{k, mDomain, *p, *T, mMelt, stepIndex, tNext, seed, &acc, &failure, &*staged};
+        kernel.crossings = mCrossings;
         kernel.run(pLeaves, tLeaves, *mGroups);
     } else {
         stepSecondOrder(*p, *T, pLeaves, tLeaves, acc, stepIndex, tNext, seed, failure, stats);
@@ -757,9 +809,21 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
            << ". Lower phase_field.dt or the anisotropy/latent heat; nothing of this step was written.";
         throw SimulationError(os.str());
     }
+    // The region retires after this step when it has one step left: the commit truncates then
+    // (p and T are in place and share the region's topology).
+    std::optional<FusedTruncation> fused;
+    // FROSTVDB_NO_FUSED_TRUNCATION=1: the separate pass (tests compare the two).
+    const char* separate = std::getenv("FROSTVDB_NO_FUSED_TRUNCATION");
+    if (staged && mCadence.stepsLeft() <= 1 && !mRegion.dense && tLeaves.leafCount() == pLeaves.leafCount() &&
+        !(separate && *separate && std::string(separate) != "0")) {
+        fused.emplace();
+        fused->tol = float(mRegion.tolerance);
+        fused->bgP = pNew->background();
+        fused->bgT = tNew->background();
+    }
     if (staged) {
         t0 = Clock::now();
-        commitStaged(pLeaves, tLeaves, *staged);
+        commitStaged(pLeaves, tLeaves, *staged, fused ? &*fused : nullptr);
         if (stats) stats->kernelSeconds += since(t0);
     }
 
@@ -768,8 +832,14 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
     const bool retire = mCadence.stepTaken();
     bool truncated = false;
     if (retire && !mRegion.dense) {
-        truncated = truncateToTolerance(*pNew, mRegion.tolerance);
-        truncated = truncateToTolerance(*tNew, mRegion.tolerance) || truncated;
+        if (fused) {
+            if (fused->emptiedP) openvdb::tools::pruneInactive(pNew->tree());
+            if (fused->emptiedT) openvdb::tools::pruneInactive(tNew->tree());
+            truncated = fused->changedP || fused->changedT;
+        } else {
+            truncated = truncateToTolerance(*pNew, mRegion.tolerance);
+            truncated = truncateToTolerance(*tNew, mRegion.tolerance) || truncated;
+        }
     }
     mInputsTruncated = retire || mRegion.dense;
     mOutP = pNew.get();
@@ -1036,8 +1106,10 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
     auto lastDt = startGrid(mLastInT, mLastInOwnedT, T.background());
     openvdb::tree::LeafManager<openvdb::FloatTree> dpLeaves(lastDp->tree()), dtLeaves(lastDt->tree());
     const float tn1 = float(tNext);
+    tbb::enumerable_thread_specific<std::vector<openvdb::Coord>> crossed;
     tbb::parallel_for(tbb::blocked_range<size_t>(0, pLeaves.leafCount(), 16), [&](const tbb::blocked_range<size_t>& r) {
         std::vector<Accumulators::Pending>* pending = nullptr;
+        std::vector<openvdb::Coord>* cross = mCrossings ? &crossed.local() : nullptr;
         for (size_t li = r.begin(); li != r.end(); ++li) {
             FloatLeaf& pl = pLeaves.leaf(li);
             float* pv = pl.buffer().data();
@@ -1060,6 +1132,7 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
                 const float pn = float(ps.x[s]), tn = float(ts.x[s]);
                 if (!std::isfinite(pn) || pn < -0.05f || pn > 1.05f) failure.report(pl.offsetToGlobalCoord(n), "p (ice)", pn);
                 if (!std::isfinite(tn)) failure.report(pl.offsetToGlobalCoord(n), "T (temperature)", tn);
+                if (cross && ((float(p0[s]) > 0.5f) != (pn > 0.5f))) cross->push_back(pl.offsetToGlobalCoord(n));
                 pv[n] = pn;
                 tv[n] = tn;
                 const double dp = ps.x[s] - p0[s];
@@ -1084,6 +1157,8 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
         }
     });
     acc.apply();
+    if (mCrossings)
+        for (auto& list : crossed) mCrossings->insert(mCrossings->end(), list.begin(), list.end());
     mLastInP = lastDp;
     mLastInT = lastDt;
     mLastInOwned = mLastInP.get();

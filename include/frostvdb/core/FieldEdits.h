@@ -46,6 +46,26 @@ struct FieldEdits {
         return it != logs.end() && it->second.listened ? &it->second.cells : nullptr;
     }
     std::vector<openvdb::Coord>& cells(const std::string& field) { return logs[field].cells; }
+
+    /// Crossings of 1/2 (the ice threshold of p): the cells whose value went from above 1/2 to at
+    /// most 1/2 or back, reported by writers that change a field a step at a time (the phase
+    /// field), so that a keeper of "where is the ice" (the walkers' distance map) reads those cells
+    /// instead of the whole field. Same protocol as the point writes above, in its own logs: the
+    /// keeper trusts them only when every other writer of the field reports its crossings.
+    std::map<std::string, Log> crossings;
+    void reportsCrossings(const std::string& field, const void* who) { crossings[field].reporters.insert(who); }
+    void listenCrossings(const std::string& field) { crossings[field].listened = true; }
+    int crossingReporters(const std::string& field) const
+    {
+        auto it = crossings.find(field);
+        return it == crossings.end() ? 0 : int(it->second.reporters.size());
+    }
+    std::vector<openvdb::Coord>* crossingSink(const std::string& field)
+    {
+        auto it = crossings.find(field);
+        return it != crossings.end() && it->second.listened ? &it->second.cells : nullptr;
+    }
+    std::vector<openvdb::Coord>& crossingCells(const std::string& field) { return crossings[field].cells; }
 };
 
 } // namespace frostvdb

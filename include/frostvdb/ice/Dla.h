@@ -163,6 +163,11 @@ public:
 
     /// Brings the ice flags in line with p > 1/2 (incremental when ice was only added).
     void sync(const openvdb::FloatGrid& p);
+    /// sync() from a list of the cells whose p may have crossed 1/2 since the last sync (in
+    /// either direction, repeats allowed), when every change of p > 1/2 other than this engine's
+    /// own freezes is in the list: only those cells are read. The distances are the same unique
+    /// capped minimum sync() gives (the order of freezing and repairing does not matter).
+    void syncCells(const openvdb::FloatGrid& p, const std::vector<openvdb::Coord>& cells);
     /// Marks a cell as ice and updates the distances.
     void freeze(int64_t cell);
     /// Marks a cell as ice at once (isIce sees it) and leaves its distances to the next

@@ -82,6 +82,11 @@ public:
         mEditsT = T;
     }
 
+    /// Where to list the cells whose p crosses 1/2 (either way) in a step, for a keeper of the
+    /// ice set (the walkers' distance map, core/FieldEdits.h crossings); null: none kept. Every
+    /// voxel the solver writes is checked, so the list holds every crossing it makes.
+    void setCrossingLog(std::vector<openvdb::Coord>* cells) { mCrossings = cells; }
+
     /// Frees the per-step scratch (the Euler staging area); the next step makes it again.
     void releaseScratch()
     {
@@ -155,6 +160,7 @@ private:
     bool mSoleWriter = false;     ///< see setSoleWriter
     std::vector<openvdb::Coord>*mEditsP = nullptr, *mEditsT = nullptr; ///< see setEditLogs
     bool editsReported() const { return mEditsP && mEditsT; }
+    std::vector<openvdb::Coord>* mCrossings = nullptr; ///< see setCrossingLog
     /// Adds the leaves around the reported cells to the standing region and clears the lists;
     /// true when the region gained leaves.
     bool growRegionAroundEdits();
