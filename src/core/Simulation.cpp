@@ -3,7 +3,7 @@
 #include <frostvdb/core/Error.h>
 #include <frostvdb/core/Progress.h>
 #include <frostvdb/io/AtomicFile.h>
-#include <frostvdb/io/Export.h>
+#include <frostvdb/core/Export.h>
 #include <frostvdb/io/InputFiles.h>
 #include <frostvdb/io/OutputLock.h>
 #include <frostvdb/io/Preview.h>
@@ -307,7 +307,7 @@ void Simulation::refuseOutputClashes(const std::vector<DeclaredEffect>& declared
 
 void Simulation::checkMemoryBudget() const
 {
-    // The displacement PNG is one raster over the whole plane (io/Export.h): 4-byte floats and
+    // The displacement PNG is one raster over the whole plane (core/Export.h): 4-byte floats and
     // 2-byte samples per cell, whatever the sparse fields hold.
     if (mOutput.displacementPng && mWorld.domain.flat())
         checkMemoryEstimate(perVoxelEstimate(double(mWorld.domain.bbox().volume()), 8.0, "domain.size",
