@@ -11,6 +11,8 @@ packages=(build-essential cmake ccache pkg-config
           libtbb-dev libeigen3-dev catch2 libtomlplusplus-dev libpng-dev
           python3-openvdb libopenvdb-tools libopenvdb-ax-tools
           libassimp-dev
+          nlohmann-json3-dev  # run.json (core/Simulation.cpp)
+          python3-matplotlib  # scripts/plot_csv.py draws the benchmark plots (docs/images) from their CSV
           blender)   # the add-on's tests run in real headless Blender (tests/blender, docs/blender.md)
 "$here/scripts/install-packages.sh" "${packages[@]}"
 

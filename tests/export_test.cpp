@@ -3,7 +3,7 @@
 #include <frostvdb/BuildPaths.h>
 #include "test_util.h"
 
-#include <frostvdb/io/Export.h>
+#include <frostvdb/core/Export.h>
 #include <frostvdb/io/Png.h>
 #include <frostvdb/io/VdbIO.h>
 

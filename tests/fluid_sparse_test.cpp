@@ -2,7 +2,7 @@
 // projection, solids at rest, 3D equal to 2D on a z-invariant set-up, the band converging to the
 // full-box solve, MacCormack bounded at CFL 5, the same bits at 1 and 2 threads.
 #include <frostvdb/fluid/SparseFluid.h>
-#include <frostvdb/ice/Fluid.h>
+#include <frostvdb/fluid/Fluid.h>
 
 #include <catch2/catch.hpp>
 

@@ -5,7 +5,7 @@
 #include "test_util.h"
 
 #include <frostvdb/core/Error.h>
-#include <frostvdb/ice/Fluid.h>
+#include <frostvdb/fluid/Fluid.h>
 #include <frostvdb/ice/IceState.h>
 
 #include <catch2/catch.hpp>

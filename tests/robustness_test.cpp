@@ -9,6 +9,7 @@
 #include <frostvdb/io/VdbIO.h>
 
 #include <catch2/catch.hpp>
+#include <nlohmann/json.hpp>
 
 #include <algorithm>
 #include <cerrno>
@@ -362,7 +363,7 @@ TEST_CASE("A folder holding another run's frames is refused unless --overwrite",
         CHECK(!std::filesystem::exists(dir + "/tiny.0004.vdb"));
         // run.json and the frame's metadata say how the frame was made.
         const std::string json = readFile(dir + "/run.json");
-        CHECK(json.find("\"overrides\": [\"scene.frames=2\"]") != std::string::npos);
+        CHECK(nlohmann::json::parse(json)["overrides"] == nlohmann::json::array({"scene.frames=2"}));
         CHECK(json.find("--overwrite") != std::string::npos);
         CHECK(json.find("\"status\": \"complete\"") != std::string::npos);
         openvdb::MetaMap::Ptr meta;

@@ -1,9 +1,11 @@
 #include <frostvdb/core/Simulation.h>
+
+#include <nlohmann/json.hpp>
 #include <frostvdb/core/FieldWriters.h>
 #include <frostvdb/core/Error.h>
 #include <frostvdb/core/Progress.h>
 #include <frostvdb/io/AtomicFile.h>
-#include <frostvdb/io/Export.h>
+#include <frostvdb/core/Export.h>
 #include <frostvdb/io/InputFiles.h>
 #include <frostvdb/io/OutputLock.h>
 #include <frostvdb/io/Preview.h>
@@ -156,19 +158,16 @@ std::string fnv1aHex(const std::string& s)
     return os.str();
 }
 
-/// The string value of "key": "..." in a run.json, or "" (no file, no key).
+/// The string value of the top-level "key" of a run.json, or "" (no file, not JSON, no such
+/// string).
 std::string runJsonString(const std::string& path, const std::string& key)
 {
     std::ifstream in(path);
     if (!in) return {};
-    std::stringstream ss;
-    ss << in.rdbuf();
-    const std::string text = ss.str();
-    const std::string pat = "\"" + key + "\": \"";
-    const auto p = text.find(pat);
-    if (p == std::string::npos) return {};
-    const auto e = text.find('"', p + pat.size());
-    return e == std::string::npos ? std::string() : text.substr(p + pat.size(), e - p - pat.size());
+    const nlohmann::json j = nlohmann::json::parse(in, nullptr, /*allow_exceptions=*/false);
+    if (!j.is_object()) return {};
+    const auto it = j.find(key);
+    return it != j.end() && it->is_string() ? it->get<std::string>() : std::string();
 }
 
 /// The names in @a dir matching @a pattern whose first group (if any) is @a group (any if empty), sorted.
@@ -302,7 +301,7 @@ void Simulation::refuseOutputClashes(const std::vector<DeclaredEffect>& declared
 
 void Simulation::checkMemoryBudget() const
 {
-    // The displacement PNG is one raster over the whole plane (io/Export.h): 4-byte floats and
+    // The displacement PNG is one raster over the whole plane (core/Export.h): 4-byte floats and
     // 2-byte samples per cell, whatever the sparse fields hold.
     if (mOutput.displacementPng && mWorld.domain.flat())
         checkMemoryEstimate(perVoxelEstimate(double(mWorld.domain.bbox().volume()), 8.0, "domain.size",
@@ -989,39 +988,38 @@ int exitCodeOf(const std::exception& e)
 
 std::string RunSummary::toJson() const
 {
-    std::ostringstream os;
-    os.precision(6);
-    os << "{\n  \"scene\": \"" << jsonEscape(scene) << "\",\n  \"version\": \"" << FROSTVDB_VERSION << "\",\n";
-    os << "  \"status\": \"" << status << "\",\n";
-    if (!error.empty()) os << "  \"error\": \"" << jsonEscape(error) << "\",\n";
-    if (!signal.empty()) os << "  \"signal\": \"" << signal << "\",\n";
-    if (exitCode >= 0) os << "  \"exit_code\": " << exitCode << ",\n";
-    os << "  \"scene_hash\": \"" << sceneHash << "\",\n";
-    os << "  \"command_line\": \"" << jsonEscape(commandLine) << "\",\n  \"overrides\": [";
-    for (size_t i = 0; i < overrides.size(); ++i) os << (i ? ", " : "") << "\"" << jsonEscape(overrides[i]) << "\"";
-    os << "],\n  \"frames\": [" << firstFrame << ", " << lastFrame << "],\n";
-    os << "  \"effective_scene\": \"" << jsonEscape(effectiveScene) << "\",\n";
-    os << "  \"effects\": [";
-    for (size_t i = 0; i < effects.size(); ++i) os << (i ? ", " : "") << "\"" << jsonEscape(effects[i]) << "\"";
-    os << "],\n  \"fields\": [";
-    for (size_t i = 0; i < fields.size(); ++i) os << (i ? ", " : "") << "\"" << jsonEscape(fields[i]) << "\"";
-    os << "],\n  \"steps\": " << steps << ",\n  \"frames_written\": " << framesWritten << ",\n";
-    os << "  \"seconds\": {\"total\": " << totalSeconds << ", \"output\": " << outputSeconds;
-    for (auto& [k, v] : effectSeconds) os << ", \"" << jsonEscape(k) << "\": " << v;
-    os << "},\n  \"detail_seconds\": {";
-    for (size_t i = 0; i < detailSeconds.size(); ++i)
-        os << (i ? ", " : "") << "\"" << jsonEscape(detailSeconds[i].first) << "\": " << detailSeconds[i].second;
-    os << "},\n  \"detail_counts\": {";
-    for (size_t i = 0; i < detailCounts.size(); ++i)
-        os << (i ? ", " : "") << "\"" << jsonEscape(detailCounts[i].first) << "\": " << detailCounts[i].second;
-    os << "},\n  \"active_voxels\": [";
-    for (size_t i = 0; i < activeVoxels.size(); ++i)
-        os << (i ? ", " : "") << "[" << activeVoxels[i].first << ", " << activeVoxels[i].second << "]";
-    os << "],\n  \"resumed_from_step\": " << resumedFromStep << ",\n  \"checkpoints\": " << checkpoints;
-    os << ",\n  \"peak_memory_bytes\": " << peakRssBytes << ",\n  \"files\": [";
-    for (size_t i = 0; i < files.size(); ++i) os << (i ? ",\n    " : "\n    ") << "\"" << jsonEscape(files[i]) << "\"";
-    os << "\n  ]\n}\n";
-    return os.str();
+    using Json = nlohmann::ordered_json; // keys in the order written
+    auto pairs = [](const std::vector<std::pair<std::string, double>>& v, Json o = Json::object()) {
+        for (const auto& [k, x] : v) o[k] = x;
+        return o;
+    };
+    Json j;
+    j["scene"] = scene;
+    j["version"] = FROSTVDB_VERSION;
+    j["status"] = status;
+    if (!error.empty()) j["error"] = error;
+    if (!signal.empty()) j["signal"] = signal;
+    if (exitCode >= 0) j["exit_code"] = exitCode;
+    j["scene_hash"] = sceneHash;
+    j["command_line"] = commandLine;
+    j["overrides"] = overrides;
+    j["frames"] = Json::array({firstFrame, lastFrame});
+    j["effective_scene"] = effectiveScene;
+    j["effects"] = effects;
+    j["fields"] = fields;
+    j["steps"] = steps;
+    j["frames_written"] = framesWritten;
+    j["seconds"] = pairs(effectSeconds, Json{{"total", totalSeconds}, {"output", outputSeconds}});
+    j["detail_seconds"] = pairs(detailSeconds);
+    j["detail_counts"] = pairs(detailCounts);
+    j["active_voxels"] = Json::array();
+    for (const auto& [step, voxels] : activeVoxels) j["active_voxels"].push_back(Json::array({step, voxels}));
+    j["resumed_from_step"] = resumedFromStep;
+    j["checkpoints"] = checkpoints;
+    j["peak_memory_bytes"] = peakRssBytes;
+    j["files"] = files;
+    // Paths and messages may hold bytes that are not UTF-8: replaced, never an exception.
+    return j.dump(2, ' ', false, Json::error_handler_t::replace) + "\n";
 }
 
 /// A counter as a person reads it: whole numbers as integers (600, 2537447480), others with six

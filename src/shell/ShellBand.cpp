@@ -4,7 +4,7 @@
 #include <frostvdb/shell/ShellBand.h>
 
 #include <frostvdb/core/Budget.h>
-#include <frostvdb/dla3d/MeshConstraint.h> // closestPointOnTriangle
+#include <frostvdb/geometry/Triangle.h>
 
 #include <tbb/parallel_for.h>
 
@@ -186,7 +186,7 @@ bool TriangleBvh::closestPointWithin(const Vec3d& p, double maxDistSqr, Vec3d& o
                 if (boxDistanceSqr(p, mBoxes[t]) > best) continue;
                 const auto& f = (*mTriangles)[t];
                 const Vec3d q =
-                    dla3d::closestPointOnTriangle(p, (*mPoints)[f[0]], (*mPoints)[f[1]], (*mPoints)[f[2]]);
+                    geometry::closestPointOnTriangle(p, (*mPoints)[f[0]], (*mPoints)[f[1]], (*mPoints)[f[2]]);
                 const double d = (q - p).lengthSqr();
                 // the lowest triangle index wins ties, whatever order the nodes are visited in
                 if (d < best || (d == best && (!found || t < tri))) { best = d; tri = t; out = q; found = true; }
@@ -613,7 +613,7 @@ void ShellBand::leavesOfTriangle(uint32_t t, std::vector<Coord>& out) const
     const double reach = halfWidth() + 0.5 * (kLeafDim - 1) * std::sqrt(3.0) + 1e-6;
     for (const Coord& o : box) {
         const Vec3d centre = Vec3d(o.x(), o.y(), o.z()) + Vec3d(0.5 * (kLeafDim - 1));
-        const Vec3d q = dla3d::closestPointOnTriangle(centre, mPts[f[0]], mPts[f[1]], mPts[f[2]]);
+        const Vec3d q = geometry::closestPointOnTriangle(centre, mPts[f[0]], mPts[f[1]], mPts[f[2]]);
         if ((q - centre).length() <= reach) out.push_back(o);
     }
 }

@@ -158,7 +158,7 @@ public:
     /// Gathers the current frame's grids without writing.
     Frame currentFrame(int64_t frameNumber);
     /// Writes a frame file (+ metadata) and returns its path. Grids of a hexagonal domain are
-    /// resampled to a square grid unless output.keep_lattice (io/Export.h).
+    /// resampled to a square grid unless output.keep_lattice (core/Export.h).
     std::string writeFrame(const Frame& frame, const std::string& dir);
     /// The same, consuming the frame: each grid is released once exported, so a hexagonal
     /// domain's frame holds one resampled copy at a time beyond what is written.

@@ -5,6 +5,7 @@
 /// to attach (never during the walk): first against a VDB unsigned distance field (one trilinear
 /// look-up rules out most attachments far from the surface), then against the exact triangles
 /// bucketed in a hashed grid.
+#include <frostvdb/geometry/Triangle.h>
 #include <frostvdb/io/Mesh.h>
 
 #include <openvdb/openvdb.h>
@@ -48,10 +49,8 @@ private:
     mutable std::atomic<uint64_t> mExact{0}; ///< statistics only
 };
 
-/// Exact geometry helpers.
-bool segmentHitsTriangle(const openvdb::Vec3d& a, const openvdb::Vec3d& b, const openvdb::Vec3d& t0,
-                         const openvdb::Vec3d& t1, const openvdb::Vec3d& t2);
-openvdb::Vec3d closestPointOnTriangle(const openvdb::Vec3d& p, const openvdb::Vec3d& a, const openvdb::Vec3d& b,
-                                      const openvdb::Vec3d& c);
+/// Exact geometry helpers (geometry/Triangle.h), under their former names.
+using geometry::closestPointOnTriangle;
+using geometry::segmentHitsTriangle;
 
 } // namespace frostvdb::dla3d

@@ -7,7 +7,7 @@
 #include <frostvdb/core/Bench.h>
 #include <frostvdb/core/Error.h>
 #include <frostvdb/core/Simulation.h>
-#include <frostvdb/io/Export.h>
+#include <frostvdb/core/Export.h>
 #include <frostvdb/io/Preview.h>
 
 #include <sys/resource.h>

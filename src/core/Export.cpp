@@ -1,4 +1,4 @@
-#include <frostvdb/io/Export.h>
+#include <frostvdb/core/Export.h>
 #include <frostvdb/io/Png.h>
 
 #include <openvdb/tools/GridTransformer.h>

@@ -6,7 +6,7 @@
 #include <frostvdb/core/Bench.h>
 #include <frostvdb/fluid/MultigridPoisson.h>
 #include <frostvdb/fluid/SparseFluid.h>
-#include <frostvdb/ice/Fluid.h>
+#include <frostvdb/fluid/Fluid.h>
 
 #include <openvdb/tools/PoissonSolver.h>
 

@@ -1,6 +1,6 @@
 // Section [fluid]: obstacles from p, the stable-fluid step, `vel` for the walkers and the
 // semi-Lagrangian advection of T (no diffusion: eq. 7 with kappa = 0).
-#include <frostvdb/ice/Fluid.h>
+#include <frostvdb/fluid/Fluid.h>
 #include <frostvdb/core/ActiveRegion.h>
 #include <frostvdb/core/Error.h>
 #include <frostvdb/ice/IceState.h>

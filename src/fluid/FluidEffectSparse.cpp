@@ -2,7 +2,7 @@
 // box domains. The ice (p > obstacle_threshold) is solid, `flow_vel` is written on the band with
 // the free stream as the grid's background (or densely for non-uniform inflow profiles), and T is
 // carried by the flow with no diffusion of its own.
-#include <frostvdb/ice/Fluid.h>
+#include <frostvdb/fluid/Fluid.h>
 #include <frostvdb/core/ActiveRegion.h>
 #include <frostvdb/core/Error.h>
 #include <frostvdb/ice/IceState.h>

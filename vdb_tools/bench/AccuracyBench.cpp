@@ -1,5 +1,6 @@
 // `frostvdb bench accuracy [--quick] [--full] [--docs DIR]`: what accuracy costs in time for the
-// Kobayashi phase field. Regenerates DIR/accuracy.md and DIR/images/accuracy_*.png from scratch:
+// Kobayashi phase field. Regenerates DIR/accuracy.md and DIR/images/accuracy_*.csv from scratch
+// (the PNGs beside them are drawn by scripts/plot_csv.py with matplotlib; PlotCsv.h):
 //  - the ice paper's Table 2 re-run (dense grids as in the paper, the same simulated time at every
 //    resolution), with the paper's figures beside ours;
 //  - every run's error against the converged solution of its own equations (same scheme and
@@ -10,7 +11,8 @@
 #include <frostvdb/core/Bench.h>
 #include <frostvdb/core/Error.h>
 #include <frostvdb/core/Simulation.h>
-#include <frostvdb/io/Plot.h>
+
+#include "PlotCsv.h"
 
 #include <openvdb/openvdb.h>
 #include <tbb/global_control.h>
@@ -32,6 +34,10 @@
 namespace frostvdb {
 
 namespace {
+
+using bench::paretoFront;
+using bench::PlotSeries;
+using bench::PlotSpec;
 
 // The 1-minute load average as text ("0.42"), or "unknown" where the OS does not give one: the report
 // states the load it was measured under instead of a sentence that goes stale.
@@ -509,6 +515,7 @@ int benchAccuracy(const BenchArgs& args)
         }
         return s;
     };
+    std::vector<std::string> plotFiles;
     auto plot = [&](const std::string& file, const std::string& title, std::vector<PlotSeries> ss) {
         PlotSpec p;
         p.title = title;
@@ -516,7 +523,9 @@ int benchAccuracy(const BenchArgs& args)
         p.yLabel = "L1 error of p";
         p.logX = p.logY = true;
         p.series = std::move(ss);
-        writePlotPng(img + "/" + file, p);
+        const std::string csv = img + "/" + file.substr(0, file.rfind('.')) + ".csv";
+        bench::writePlotCsv(csv, p);
+        plotFiles.push_back(csv);
         R.out("![" + title + "](images/" + file + ")\n\n");
     };
     R.out("### Plots (L1 error of p against time, log-log)\n\n");
@@ -709,10 +718,11 @@ int benchAccuracy(const BenchArgs& args)
     R.out("\n## 8. The fluid band against the full-domain solve\n\nMeasured by the fluid tests, not this "
           "bench: see [fluid.md](fluid.md#band-error-against-the-full-domain-solve).\n");
     {
+        bench::drawPlots(docs, plotFiles);
         std::ofstream f(docs + "/accuracy.md");
         f << R.md.str();
     }
-    std::printf("\nwrote %s/accuracy.md and %s/accuracy_*.png\n", docs.c_str(), img.c_str());
+    std::printf("\nwrote %s/accuracy.md and %s/accuracy_*.csv (.png: scripts/plot_csv.py)\n", docs.c_str(), img.c_str());
     return 0;
 }
 

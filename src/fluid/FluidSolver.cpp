@@ -4,7 +4,7 @@
 // previous step. Every reduction is summed row by row and then serially, so the result does not
 // depend on the thread count.
 #include <frostvdb/core/Stopwatch.h>
-#include <frostvdb/ice/Fluid.h>
+#include <frostvdb/fluid/Fluid.h>
 #include <frostvdb/fluid/MultigridPoisson.h>
 
 #include <tbb/blocked_range.h>
