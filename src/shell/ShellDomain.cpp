@@ -109,8 +109,8 @@ public:
         if (name != "border") return;
         for (size_t i : mBand->nearBorder(double(width))) fn(mBand->coord(i));
     }
-    // No post-step hook: the shell's phase field re-extends its own fields each step (on its
-    // band arrays, ShellPhaseField::step), so the driver has nothing left to do.
+    // Its phase field and walkers are back ends registered for "surface" and "closest_point"
+    // (ShellPhaseFieldBackend.cpp, ShellDlaEffect.cpp); they keep their own invariants.
 
     // UV texture maps (shell/ShellTexture.h)
     const shell::SurfaceTextures* textures() const { return mTextures ? mTextures.get() : nullptr; }
