@@ -46,21 +46,24 @@ uint64_t peakRss()
     return uint64_t(ru.ru_maxrss) * 1024ull;
 }
 
-std::string jsonEscape(const std::string& s)
+/// FROSTVDB_MEMORY_TRACE=1: resident and peak memory (MiB) on stderr after each effect's
+/// initialisation, step (first steps, then every 100) and output, to see where a peak comes from
+/// (docs/performance.md "Where a shell's memory goes").
+void traceMemory(const char* what, const std::string& effect, int64_t step)
 {
-    std::string o;
-    for (char c : s) {
-        switch (c) {
-        case '"': o += "\\\""; break;
-        case '\\': o += "\\\\"; break;
-        case '\n': o += "\\n"; break;
-        case '\t': o += "\\t"; break;
-        default:
-            if (static_cast<unsigned char>(c) < 0x20) { char b[8]; std::snprintf(b, 8, "\\u%04x", c); o += b; }
-            else o += c;
+    static const bool on = [] { const char* e = std::getenv("FROSTVDB_MEMORY_TRACE"); return e && *e && *e != '0'; }();
+    if (!on) return;
+    long rssKb = 0, hwmKb = 0;
+    if (FILE* f = std::fopen("/proc/self/status", "r")) {
+        char line[256];
+        while (std::fgets(line, sizeof line, f)) {
+            std::sscanf(line, "VmRSS: %ld", &rssKb);
+            std::sscanf(line, "VmHWM: %ld", &hwmKb);
         }
+        std::fclose(f);
     }
-    return o;
+    std::fprintf(stderr, "memory: %-14s %-12s step %6lld  resident %8.1f MiB  peak %8.1f MiB\n", what, effect.c_str(),
+                 (long long)step, rssKb / 1024.0, hwmKb / 1024.0);
 }
 
 /// Reads the core sections that belong to the driver.
@@ -372,6 +375,7 @@ void Simulation::initialize()
     for (size_t i : mOrder.initialize) {
         Effect* e = mEffects[i].get();
         atEffect(*e, "initialisation", [&] { e->initialize(mWorld); });
+        traceMemory("initialised", e->name(), mStep);
     }
     mInitialized = true;
 }
@@ -386,6 +390,7 @@ void Simulation::step()
         const auto t0 = Clock::now();
         atEffect(*mEffects[i], "step", [&] { mEffects[i]->step(mWorld, info); });
         mEffectSeconds[i] += seconds(t0, Clock::now());
+        if (mStep < 2 || mStep % 100 == 0) traceMemory("stepped", mEffects[i]->name(), mStep);
     }
     ++mStep;
 }
@@ -405,7 +410,10 @@ Frame Simulation::currentFrame(int64_t frameNumber)
     for (auto& e : mEffects)
         if (e->time() > 0.0) { frame.time = e->time(); break; }
     for (auto& e : mEffects) atEffect(*e, "output", [&] { e->publishFields(mWorld); });
-    for (auto& e : mEffects) atEffect(*e, "output", [&] { e->addToFrame(mWorld, frame); });
+    for (auto& e : mEffects) {
+        atEffect(*e, "output", [&] { e->addToFrame(mWorld, frame); });
+        traceMemory("output", e->name(), mStep);
+    }
     return frame;
 }
 

@@ -122,7 +122,9 @@ private:
     ice::DlaStats mStats;
     std::vector<float> mP, mT, mGrowth, mFreeze, mMelt, mStaticMelt;
     std::vector<openvdb::Vec3f> mDrift;
-    std::vector<float> mPLeft; ///< p as this effect left it last step (empty: none yet)
+    std::vector<float> mPLeft; ///< p as this effect left it last step, on the right side of 1/2 (empty: none yet)
+    std::vector<size_t> mSynced; ///< voxels whose ice syncIce added or removed this step
+    bool mFullSync = true;
     // steam humidity (the plane's rule, DlaEffect::updateSteam): per layer site, the largest
     // density x (1 - h / reach) along its outward normal up to steam_reach; rebuilt when the gas
     // publishes a new density grid
@@ -177,18 +179,43 @@ private:
     static constexpr int64_t kFullSyncSteps = 64;
     void syncIce(int64_t step)
     {
-        if (mPLeft.size() != mP.size() || step % kFullSyncSteps == 0) {
+        mSynced.clear();
+        mFullSync = mPLeft.size() != mP.size() || step % kFullSyncSteps == 0;
+        if (mFullSync) {
             mWalkers->sync(mP);
             return;
         }
+        // in parallel over fixed chunks, joined in order (the same lists at any thread count)
+        constexpr size_t kChunk = size_t(1) << 16;
+        const size_t chunks = (mP.size() + kChunk - 1) / kChunk;
+        std::vector<std::vector<size_t>> grownIn(chunks), meltedIn(chunks);
+        tbb::parallel_for(size_t(0), chunks, [&](size_t c) {
+            for (size_t i = c * kChunk, e = std::min(mP.size(), i + kChunk); i < e; ++i) {
+                const bool was = mPLeft[i] > 0.5f, is = mP[i] > 0.5f;
+                if (was && !is) meltedIn[c].push_back(i);
+                else if (is && !was) grownIn[c].push_back(i);
+            }
+        });
         std::vector<size_t> grown, melted;
-        for (size_t i = 0; i < mP.size(); ++i) {
-            const bool was = mPLeft[i] > 0.5f, is = mP[i] > 0.5f;
-            if (was && !is) melted.push_back(i);
-            else if (is && !was) grown.push_back(i);
+        for (size_t c = 0; c < chunks; ++c) {
+            grown.insert(grown.end(), grownIn[c].begin(), grownIn[c].end());
+            melted.insert(melted.end(), meltedIn[c].begin(), meltedIn[c].end());
         }
         mWalkers->removeIceVoxels(melted);
         mWalkers->addIceVoxels(grown);
+        mSynced = std::move(grown);
+        mSynced.insert(mSynced.end(), melted.begin(), melted.end());
+    }
+    /// What this step leaves for the next one's comparison: p's side of 1/2 is all syncIce reads,
+    /// so only the voxels that crossed it (synced here or frozen by walkers) are copied, not p.
+    void rememberIce(const std::vector<size_t>& written)
+    {
+        if (mFullSync) {
+            mPLeft = mP;
+            return;
+        }
+        for (size_t i : mSynced) mPLeft[i] = mP[i];
+        for (size_t i : written) mPLeft[i] = mP[i];
     }
 };
 
@@ -331,7 +358,7 @@ void ShellDlaEffect::step(World& world, const StepInfo& info)
         }
         mStats.applySeconds += since(t0);
     }
-    mPLeft = mP; // what we leave: the next step adds only ice grown by others
+    rememberIce(written); // the next step adds only ice grown by others
     if (solver) { // hand the arrays back, and the voxels written
         mP.swap(solver->pForEdit());
         if (read) {

@@ -476,7 +476,14 @@ void ShellPhaseField::stepSurface(double time, int64_t stepIndex, uint64_t seed,
         mGy[i] = float(gv);
     });
     const float* A = mA.data();
+    const float tNext = float(time);
+    const float tInf = float(k.farTemperature);
     b.forEachVoxel(&mStepped, [&](size_t i) {
+        if (b.ghost(i)) { // beyond an open border: the background, as outside a plane
+            mPn[i] = 0.f;
+            mTn[i] = tInf;
+            return;
+        }
         const VoxelFrame& f = b.frame(i);
         const double p0 = P[i], t0v = T[i], a0 = A[i];
         const openvdb::Vec3d c0(mCx[i], mCy[i], mCz[i]);
@@ -497,29 +504,39 @@ void ShellPhaseField::stepSurface(double time, int64_t stepIndex, uint64_t seed,
         const double div = (a0 * lapP) * invH2 + (dau * mGx[i] + dav * mGy[i]) * invH + divC * invH;
         const double reaction = reactionAt(k, b, mMelt, i, p0, t0v, seed, stepIndex);
         const double dp = k.dt / k.tau * (div + reaction);
-        mPn[i] = float(p0 + dp);
+        const float pNew = float(p0 + dp);
+        mPn[i] = pNew;
         double heat = lapT * invH2;
         if (!mWind.empty()) {
             const double wu = f.tangent.dot(mWind[i]), wv = f.bitangent.dot(mWind[i]);
             heat += -(wu * dtu + wv * dtv) * invH + 0.5 * std::sqrt(wu * wu + wv * wv) * lapT * invH;
         }
         mTn[i] = float(t0v + k.dt * heat + k.latentHeat * dp);
+        recordGrowth(mGrowth[i], mFreeze[i], pNew - P[i], pNew, tNext);
     });
     const auto t1 = Clock::now();
-    const float tNext = float(time);
-    const float tInf = float(k.farTemperature);
-    b.forEachVoxel(&mStepped, [&](size_t i) {
-        if (b.ghost(i)) { // beyond an open border: the background, as outside a plane
-            mP[i] = 0.f;
-            mT[i] = tInf;
-            return;
-        }
-        const float d = mPn[i] - mP[i];
-        mP[i] = mPn[i];
-        mT[i] = mTn[i];
-        recordGrowth(mGrowth[i], mFreeze[i], d, mP[i], tNext);
-    });
+    // the new values become the fields: by swapping when every leaf was stepped (a whole band,
+    // or heat everywhere), else copied back leaf by leaf
+    if (mStepped.size() == nonEmptyLeaves()) {
+        mP.swap(mPn);
+        mT.swap(mTn);
+    } else {
+        b.forEachVoxel(&mStepped, [&](size_t i) {
+            mP[i] = mPn[i];
+            mT[i] = mTn[i];
+        });
+    }
     addExplicitStats(stats, t0, t1, mUpdateCount);
+}
+
+size_t ShellPhaseField::nonEmptyLeaves() const
+{
+    const auto& leaves = mBand->leaves();
+    if (mNonEmptyFor != leaves.size()) {
+        mNonEmpty = size_t(std::count_if(leaves.begin(), leaves.end(), [](const auto& l) { return l.end > l.begin; }));
+        mNonEmptyFor = leaves.size();
+    }
+    return mNonEmpty;
 }
 
 namespace {

@@ -4,6 +4,7 @@
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
+#include <tbb/parallel_sort.h>
 
 #include <algorithm>
 #include <limits>
@@ -194,6 +195,37 @@ void SurfacePointIndex::insert(const Vec3d& q)
     ++mCount;
 }
 
+void SurfacePointIndex::assign(const std::vector<Vec3d>& points)
+{
+    clear();
+    // (fine key, position in the list): each bucket's points keep the order insert() gives them
+    std::vector<std::pair<uint64_t, uint32_t>> keyed(points.size());
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, points.size(), 4096), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t i = r.begin(); i < r.end(); ++i) keyed[i] = {packKey(points[i], kBucket), uint32_t(i)};
+    });
+    tbb::parallel_sort(keyed.begin(), keyed.end());
+    using Accessor = openvdb::tree::ValueAccessor<openvdb::Int32Tree>;
+    std::vector<Accessor> acc;
+    acc.reserve(kLevels);
+    for (auto& c : mCounts) acc.emplace_back(*c);
+    for (size_t a = 0; a < keyed.size();) {
+        size_t e = a;
+        while (e < keyed.size() && keyed[e].first == keyed[a].first) ++e;
+        auto& v = mFine[keyed[a].first];
+        v.reserve(e - a);
+        for (size_t k = a; k < e; ++k) v.push_back(points[keyed[k].second]);
+        // a level's bucket is the fine bucket's coordinates halved k times (floor: exact, as
+        // the divisions by powers of two in bucketOf are)
+        const Coord b0 = bucketOf(v.front(), 0);
+        for (int k = 0; k < kLevels; ++k) {
+            const Coord b(b0.x() >> k, b0.y() >> k, b0.z() >> k);
+            acc[size_t(k)].setValue(b, acc[size_t(k)].getValue(b) + int32_t(e - a));
+        }
+        a = e;
+    }
+    mCount = points.size();
+}
+
 bool SurfacePointIndex::erase(const Vec3d& q)
 {
     const auto it = mFine.find(packKey(q, kBucket));
@@ -308,13 +340,14 @@ ShellWalkers::ShellWalkers(std::shared_ptr<const ShellBand> band, const ice::Dla
 
 void ShellWalkers::sync(const std::vector<float>& p)
 {
-    mIce.clear();
     std::fill(mIceNode.begin(), mIceNode.end(), uint8_t(0));
+    std::vector<Vec3d> ice;
     for (size_t i : mLayer)
         if (p[i] > 0.5f) {
-            mIce.insert(mBand->closestPoint(i));
+            ice.push_back(mBand->closestPoint(i));
             if (!mIceNode.empty()) mIceNode[i] = 1;
         }
+    mIce.assign(ice);
 }
 
 void ShellWalkers::markNode(const Vec3d& x, uint8_t value)

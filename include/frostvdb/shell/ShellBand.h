@@ -151,7 +151,7 @@ public:
     float lateralOffset(size_t i) const { return mLateral[i]; }
     const VoxelFrame& frame(size_t i) const { return mFrames[i]; }
     /// Band index of face neighbour k (0: -x, 1: +x, 2: -y, 3: +y, 4: -z, 5: +z), or -1 (valid once
-    /// the voxel's leaf is prepared).
+    /// the voxel's leaf is prepared). Closest-point band only: surface nodes have their stencils.
     int32_t neighbour(size_t i, int k) const { return mNeighbours[6 * i + size_t(k)]; }
     bool inUpdateSet(size_t i) const { return mSurface || mDistance[i] <= kUpdateRadius; }
     bool inCoefficientSet(size_t i) const { return mSurface || mDistance[i] <= kCoefficientRadius; }
@@ -163,8 +163,8 @@ public:
     bool ghost(size_t i) const { return mGhosts && mLateral[i] > 0.5f; }
     /// Surface nodes: the stencil of node @a i (valid once its leaf is prepared), taps in a fixed
     /// order (neighbour offsets z, y, x ascending), so every sum over it is one fixed sum.
-    const SurfaceTap* tapsBegin(size_t i) const { return mTaps.data() + mTapStart[i]; }
-    const SurfaceTap* tapsEnd(size_t i) const { return mTaps.data() + mTapStart[i] + mTapCount[i]; }
+    const SurfaceTap* tapsBegin(size_t i) const { return mTapBegin[i]; }
+    const SurfaceTap* tapsEnd(size_t i) const { return mTapBegin[i] + mTapCount[i]; }
     /// Surface nodes: the largest voxel offset (Chebyshev) between a node and a stencil tap.
     static constexpr int kTapReach = 2;
     /// Band index of voxel @a c, or -1 (also where its leaf is not built yet).
@@ -324,8 +324,11 @@ private:
     mutable std::vector<int32_t> mNeighbours;             ///< 6 per voxel
     bool mSurface = false;                                ///< surface nodes (else closest point)
     bool mGhosts = false;                                 ///< surface nodes on an open mesh: a ghost ring
-    mutable std::vector<SurfaceTap> mTaps;                ///< surface nodes: every prepared node's taps
-    mutable std::vector<uint32_t> mTapStart;              ///< per voxel: first tap in mTaps
+    /// Surface nodes: each prepared leaf's taps, in its voxels' order. Kept per leaf (not one
+    /// array) so preparing never holds two copies of them (docs/shells.md "Memory").
+    mutable std::vector<std::vector<SurfaceTap>> mLeafTaps;
+    mutable size_t mTapTotal = 0;                        ///< taps in all leaves
+    mutable std::vector<const SurfaceTap*> mTapBegin;     ///< per voxel: its first tap
     mutable std::vector<uint8_t> mTapCount;               ///< per voxel: number of taps
     mutable std::vector<int32_t> mNodes;                  ///< 64 per voxel: x fastest, then y, then z
     mutable std::vector<std::array<float, 12>> mWeights;  ///< per axis x, y, z: 4 Lagrange weights

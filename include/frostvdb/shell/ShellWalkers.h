@@ -50,6 +50,9 @@ public:
     SurfacePointIndex() { clear(); }
     void clear();
     void insert(const openvdb::Vec3d& q);
+    /// The index of exactly these points, as clear() and insert() in this order would leave it,
+    /// built by sorting (a full sync of millions of ice nodes: 2.5 M inserts took 1.5 s).
+    void assign(const std::vector<openvdb::Vec3d>& points);
     /// Removes one point equal to @a q (false when there is none).
     bool erase(const openvdb::Vec3d& q);
     size_t size() const { return mCount; }
