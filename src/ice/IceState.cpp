@@ -101,7 +101,11 @@ void addIceOutputs(World& world, Frame& frame)
     // Copies of live fields: the writer may drop them and make them again when it writes them
     // (the fields do not change in between), so a frame being written holds one at a time.
     frame.addCopy(iceFog(*p), [p] { return iceFog(*p); });
+    addIceFieldOutputs(world, frame);
+}
 
+void addIceFieldOutputs(World& world, Frame& frame)
+{
     if (auto T = world.fields.get<openvdb::FloatGrid>(kTemperature)) {
         // Shares T's tree (the largest grid: the heat's halo): the frame is written before the
         // next step, and an in-place writer copies a shared tree first (ownTree, DlaEffect::step).

@@ -27,9 +27,14 @@ openvdb::FloatGrid::Ptr toGrid(const ShellBand& band, const std::vector<float>& 
         const auto* il = index.probeConstLeaf(leaf.origin()); // same topology, same leaves
         for (auto it = leaf.beginValueOn(); it; ++it) {
             const int32_t i = il ? il->getValue(it.pos()) : -1;
-            it.setValue(i >= 0 ? values[size_t(i)] : background);
+            const float v = i >= 0 ? values[size_t(i)] : background;
+            // nodes at the background stay off: a grid costs what its off-background values do
+            // (p, growth and freeze time away from the ice were 3 full copies of the band)
+            if (v == background) leaf.setValueOff(it.pos(), background);
+            else it.setValue(v);
         }
     });
+    openvdb::tools::pruneInactive(grid->tree());
     return grid;
 }
 

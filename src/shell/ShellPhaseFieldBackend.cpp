@@ -97,11 +97,15 @@ public:
 
     void addToFrame(World& world, Frame& frame) override
     {
-        ice::addIceOutputs(world, frame);
         // `ice` is the frost layer grown outward along the normal (not p on the band).
         auto fog = frostFog(mShell->band(), mShell->p(), mShell->growthValues());
+        bool replaced = false;
         for (auto& g : frame.grids)
-            if (g->getName() == out::kIce.name) g = fog;
+            if (g->getName() == out::kIce.name) g = fog, replaced = true;
+        if (!replaced) { // else another effect wrote the ice outputs already
+            frame.add(fog);
+            ice::addIceFieldOutputs(world, frame);
+        }
         const ShellBand& band = mShell->band();
         frame.add(band.surfaceNodes() ? frostLevelSetOnNodes(band, mShell->p(), mShell->growthValues())
                                       : frostLevelSet(*fog));

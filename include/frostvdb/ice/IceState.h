@@ -56,6 +56,9 @@ void recordPhaseChange(openvdb::FloatGrid::Accessor& growth, openvdb::FloatGrid:
 /// `growth` (growth_acc normalised to [0,1], the paper's displacement map), `freeze_time`.
 /// Idempotent: every ice effect calls it, the first call of a frame writes the grids.
 void addIceOutputs(World& world, Frame& frame);
+/// The same without `ice`, for a domain that writes its own (a shell's frost layer): computing
+/// the fog of p only to replace it cost a band-sized grid at every frame.
+void addIceFieldOutputs(World& world, Frame& frame);
 
 } // namespace ice
 } // namespace frostvdb

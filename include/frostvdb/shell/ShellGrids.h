@@ -13,7 +13,8 @@
 
 namespace frostvdb::shell {
 
-/// A grid with the band's topology holding @a values (band order), background @a background.
+/// A grid holding @a values (band order) where they differ from @a background (its background):
+/// the band's topology minus the voxels at the background.
 openvdb::FloatGrid::Ptr toGrid(const ShellBand& band, const std::vector<float>& values, float background,
                                const std::string& name);
 /// The values of @a grid at the band's voxels (its background where it has none). With

@@ -66,18 +66,30 @@ public:
     /// Repeated queries along a walk: the points of the 3x3x3 fine buckets around the last
     /// query's bucket and the coarse levels' bound are kept until the walk leaves that bucket
     /// (the index must not change meanwhile). Same results as distance().
-    /// One accessor per level's count tree (one per thread: they cache the nodes last visited).
-    using Accessors = std::vector<openvdb::tree::ValueAccessor<const openvdb::Int32Tree>>;
+    /// Bucket grids are shallow trees (root, 16^3 internal nodes, 8^3 leaves): OpenVDB's default
+    /// 32^3 top nodes cost 256 KiB each, and these 32 small grids held 20 MiB of them.
+    using CountTree = openvdb::tree::Tree3<int32_t, 4, 3>::Type;
+    /// Occupied buckets among the 3x3x3 around a bucket (at most 27: a byte per bucket).
+    using NearTree = openvdb::tree::Tree3<uint8_t, 4, 3>::Type;
+    /// One accessor per level's tree (one set per thread: they cache the nodes last visited; not
+    /// registered with the tree, which does not change during a walk).
+    using Accessors = std::vector<openvdb::tree::ValueAccessor<const CountTree, false>>;
+    using NearAccessors = std::vector<openvdb::tree::ValueAccessor<const NearTree, false>>;
+    NearAccessors nearAccessors() const;
     Accessors accessors() const;
 
     class Cursor {
     public:
-        explicit Cursor(const SurfacePointIndex& index) : mIndex(index), mAcc(index.accessors()) {}
+        explicit Cursor(const SurfacePointIndex& index)
+            : mIndex(index), mAcc(index.accessors()), mNearAcc(index.nearAccessors())
+        {
+        }
         double distance(const openvdb::Vec3d& x);
 
     private:
         const SurfacePointIndex& mIndex;
         Accessors mAcc;
+        NearAccessors mNearAcc;
         uint64_t mKey = ~uint64_t(0);
         std::vector<openvdb::Vec3d> mPoints;
         double mCoarse = -1; ///< bound from the coarse levels (-1: not computed yet)
@@ -85,12 +97,17 @@ public:
 
 private:
     /// The coarse levels' lower bound for any point of the fine bucket holding @a x.
-    double coarseBound(const openvdb::Vec3d& x, Accessors& acc) const;
+    double coarseBound(const openvdb::Vec3d& x, NearAccessors& near) const;
 
     std::unordered_map<uint64_t, std::vector<openvdb::Vec3d>> mFine;
     /// level k: points per bucket of 4 * 2^k, as a sparse grid of bucket coordinates (counts,
     /// so points can be removed; level 0 tells which fine buckets to look up in mFine)
-    std::array<openvdb::Int32Tree::Ptr, kLevels> mCounts;
+    std::array<CountTree::Ptr, kLevels> mCounts;
+    /// level k: occupied buckets among the 3x3x3 around each bucket (kept as buckets fill and
+    /// empty), so the coarse bound reads one value per level instead of 27
+    std::array<NearTree::Ptr, kLevels> mNear;
+    /// Adds @a delta to the neighbourhood counts around bucket @a b of level @a k.
+    void addNear(int k, const openvdb::Coord& b, int32_t delta);
     size_t mCount = 0;
 };
 
