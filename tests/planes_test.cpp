@@ -6,12 +6,16 @@
 //  - FROSTVDB_NO_VECTOR_ROWS=1: the plain rows instead of the vector ones (the hexagonal
 //    lattice's D6 rows are new);
 //  - FROSTVDB_NO_FUSED_TRUNCATION=1: truncation as its own pass instead of in forward Euler's commit.
+// Session 10: FROSTVDB_NO_PLANE_FOLD=1 keeps the plane layout Coord(x, y, 0) for the fields
+// core/PlaneFold.h folds (growth_acc, freeze_time, dla_hits); frames must not see the difference.
 #include <catch2/catch.hpp>
 
 #include "test_util.h"
 
 #include <frostvdb/core/FieldEdits.h>
 #include <frostvdb/core/FieldWriters.h>
+#include <frostvdb/core/PlaneFold.h>
+#include <frostvdb/core/Random.h>
 
 #include <cstdlib>
 
@@ -31,13 +35,16 @@ std::string hybridScene(const std::string& lattice, const std::string& scheme)
            (lattice == "hexagonal" ? "anisotropy_mode = 6\n" : "");
 }
 
-const char* const kOldPaths[] = {"FROSTVDB_FULL_DISTANCE_SYNC", "FROSTVDB_NO_VECTOR_ROWS", "FROSTVDB_NO_FUSED_TRUNCATION"};
+const char* const kOldPaths[] = {"FROSTVDB_FULL_DISTANCE_SYNC", "FROSTVDB_NO_VECTOR_ROWS", "FROSTVDB_NO_FUSED_TRUNCATION",
+                                 "FROSTVDB_NO_PLANE_FOLD"};
 
-/// Runs @a text writing every frame; with @a old the replaced paths (all of them).
-std::vector<std::string> runFrames(const std::string& text, bool old, const std::string& tag, int threads)
+/// Runs @a text writing every frame; with @a old the replaced paths (all of them, or only
+/// @a only when given).
+std::vector<std::string> runFrames(const std::string& text, bool old, const std::string& tag, int threads,
+                                   const char* only = nullptr)
 {
     for (const char* v : kOldPaths) {
-        if (old) ::setenv(v, "1", 1);
+        if (old && (!only || std::string(only) == v)) ::setenv(v, "1", 1);
         else ::unsetenv(v);
     }
     auto sim = makeSim(text);
@@ -74,4 +81,106 @@ TEST_CASE("Hybrid frames on the new paths equal the old paths' bit for bit, squa
                 INFO(why);
             }
         }
+}
+
+TEST_CASE("Folded plane fields give the plane layout's frames bit for bit, square and hexagonal",
+          "[fast][dla][phase_field][fold]")
+{
+    for (const std::string lattice : {"square", "hexagonal"})
+        for (const std::string scheme : {"euler", "lw_cn"}) {
+            const std::string text = hybridScene(lattice, scheme);
+            const std::string tag = "fold_" + lattice + "_" + scheme;
+            const auto unfolded = runFrames(text, true, tag + "_plane", 2, "FROSTVDB_NO_PLANE_FOLD");
+            const auto folded = runFrames(text, false, tag + "_folded", 2);
+            const auto folded1 = runFrames(text, false, tag + "_folded1", 1);
+            for (size_t f = 0; f < folded.size(); ++f) {
+                std::string why;
+                INFO(lattice << " " << scheme << " frame " << f + 1);
+                CHECK(sameVdbContent(unfolded[f], folded[f], &why));
+                INFO(why);
+                CHECK(sameVdbContent(unfolded[f], folded1[f], &why));
+                INFO(why);
+            }
+        }
+}
+
+TEST_CASE("The fold is a permutation: fold and unfold give back every value and active state", "[fast][fold]")
+{
+    CHECK(plane::fold(openvdb::Coord(-1, 5, 0)) == openvdb::Coord(5, -1, 7));
+    for (int x = -70; x < 70; ++x)
+        for (int y = -9; y < 9; ++y) {
+            const openvdb::Coord c(x, y, 0);
+            REQUIRE(plane::unfold(plane::fold(c)) == c);
+            const openvdb::Coord lo(x & ~7, y & ~7, 0);
+            const openvdb::Coord f = plane::fold(c);
+            REQUIRE((f & ~7) == plane::foldedLeafOrigin(lo));
+            REQUIRE(openvdb::FloatTree::LeafNodeType::coordToOffset(f) == plane::foldedOffset(lo, x & 7, y & 7));
+        }
+    auto g = openvdb::FloatGrid::create(0.25f);
+    g->setName("g");
+    for (int i = 0; i < 5000; ++i) {
+        const uint64_t h = hashCounters(7, uint64_t(i));
+        const openvdb::Coord c(int(h % 700) - 350, int((h >> 20) % 300) - 150, 0);
+        if (h >> 60 & 1) g->tree().setValueOn(c, float(h % 1000) * 0.001f);
+        else g->tree().setValueOff(c, -float(h % 1000));
+    }
+    auto folded = plane::foldGrid(*g);
+    CHECK(plane::isFolded(*folded));
+    CHECK(folded->activeVoxelCount() == g->activeVoxelCount());
+    CHECK(folded->memUsage() < g->memUsage());
+    auto back = plane::unfoldGrid(*folded);
+    CHECK(!plane::isFolded(*back));
+    CHECK(back->getName() == "g");
+    auto ga = g->getConstAccessor();
+    for (auto it = back->cbeginValueOn(); it; ++it) {
+        REQUIRE(ga.isValueOn(it.getCoord()));
+        REQUIRE(*it == ga.getValue(it.getCoord()));
+    }
+    CHECK(back->activeVoxelCount() == g->activeVoxelCount());
+    for (auto it = g->tree().cbeginLeaf(); it; ++it)
+        for (auto v = it->cbeginValueAll(); v; ++v)
+            if (it->isValueOn(v.pos()) || *v != 0.25f) {
+                const auto* l = back->tree().probeConstLeaf(v.getCoord());
+                if (!l && !it->isValueOn(v.pos())) continue; // a leaf of inactive values only is dropped
+                REQUIRE(l);
+                REQUIRE(l->getValue(v.getCoord()) == *v);
+            }
+}
+
+TEST_CASE("A checkpoint of the plane layout resumes on a folding build to the same frames", "[fast][fold][checkpoint]")
+{
+    // Fields restored from a checkpoint written before the fold (FROSTVDB_NO_PLANE_FOLD=1 stands
+    // in for the older build) keep their layout: every reader and writer asks the grid.
+    const std::string text = hybridScene("square", "euler");
+    const std::string path = tempDir("fold_ckpt") + "/old.ckpt";
+    Simulation straight = makeSim(text);
+    for (int s = 0; s < 30; ++s) straight.step();
+    int64_t k = 0;
+    {
+        ::setenv("FROSTVDB_NO_PLANE_FOLD", "1", 1);
+        Simulation old = makeSim(text);
+        for (int s = 0; s < 12; ++s) old.step();
+        while (!old.atCheckpointBoundary()) old.step();
+        k = old.stepsTaken();
+        old.saveCheckpoint(path);
+        ::unsetenv("FROSTVDB_NO_PLANE_FOLD");
+    }
+    REQUIRE(k < 30);
+    Simulation resumed = makeSim(text);
+    resumed.loadCheckpoint(path);
+    for (int64_t s = k; s < 30; ++s) resumed.step();
+    CHECK(plane::isFolded(*straight.world().fields.grid("growth_acc")));
+    CHECK(!plane::isFolded(*resumed.world().fields.grid("growth_acc")));
+    const Frame a = straight.currentFrame(1), b = resumed.currentFrame(1);
+    REQUIRE(a.grids.size() == b.grids.size());
+    for (size_t i = 0; i < a.grids.size(); ++i) {
+        auto x = openvdb::gridPtrCast<openvdb::FloatGrid>(a.grids[i]);
+        auto y = openvdb::gridPtrCast<openvdb::FloatGrid>(b.grids[i]);
+        REQUIRE(x);
+        REQUIRE(y);
+        INFO(x->getName());
+        CHECK(x->getName() == y->getName());
+        CHECK(x->tree().hasSameTopology(y->tree()));
+        CHECK(maxAbsDiff(*x, *y) == 0.0);
+    }
 }

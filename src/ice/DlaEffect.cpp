@@ -3,6 +3,7 @@
 /// and applies their sticks (hits, freezing, heat, growth) in walker order.
 #include <frostvdb/core/FieldEdits.h>
 #include <frostvdb/core/FieldWriters.h>
+#include <frostvdb/core/PlaneFold.h>
 #include <frostvdb/core/Progress.h>
 #include <frostvdb/core/Error.h>
 #include <frostvdb/core/Random.h>
@@ -164,16 +165,23 @@ void DlaEffect::initialize(World& world)
     // when every other writer of p lists them (step()).
     edits.listenCrossings(kPhase.name);
     edits.crossingCells(kPhase.name).clear(); // sync() below reads all of p
-    if (mParams.hits > 1) world.fields.require<openvdb::Int32Grid>(kDlaHits, 0);
+    if (mParams.hits > 1 && !world.fields.has(kDlaHits)) {
+        auto g = world.fields.require<openvdb::Int32Grid>(kDlaHits, 0);
+        if (plane::foldsPlaneFields(world.domain)) plane::markFolded(*g); // 8x denser (core/PlaneFold.h)
+    }
     const auto t0 = Clock::now();
     mEngine = std::make_unique<DlaEngine>(world.domain, mParams, world.seed);
     if (mParams.hits > 1) {
         // counts in a flat hash map while walking (a VDB probe per stick costs more than the walk
         // near the ice); the field dla_hits is refreshed from them at the end of every step
         mHitCount.clear();
-        if (auto g = world.fields.get<openvdb::Int32Grid>(kDlaHits))
-            for (auto it = g->cbeginValueOn(); it; ++it)
-                if (world.domain.contains(it.getCoord())) *mHitCount.insert(uint64_t(mEngine->index(it.getCoord()))).first = *it;
+        if (auto g = world.fields.get<openvdb::Int32Grid>(kDlaHits)) {
+            const bool fold = plane::isFolded(*g);
+            for (auto it = g->cbeginValueOn(); it; ++it) {
+                const openvdb::Coord c = fold ? plane::unfold(it.getCoord()) : it.getCoord();
+                if (world.domain.contains(c)) *mHitCount.insert(uint64_t(mEngine->index(c))).first = *it;
+            }
+        }
     }
     mStats.tableSeconds += since(t0);
     mEngine->sync(*world.fields.get<openvdb::FloatGrid>(kPhase));
@@ -323,6 +331,9 @@ void DlaEffect::step(World& world, const StepInfo& info)
     auto pAcc = p->getAccessor();
     auto gAcc = growth->getAccessor();
     auto fAcc = freeze->getAccessor();
+    // On a plane both accumulators are folded (core/PlaneFold.h): they are written at fold(c).
+    const bool foldAcc = plane::isFolded(*growth);
+    if (foldAcc != plane::isFolded(*freeze)) throw std::logic_error("growth_acc and freeze_time differ in layout");
     std::unique_ptr<openvdb::FloatGrid::Accessor> tAcc;
     if (T && sh.temperatureEvolves && mHeat != 0) tAcc = std::make_unique<openvdb::FloatGrid::Accessor>(T->getAccessor());
     const bool counting = hitsGrid && mParams.hits > 1;
@@ -340,7 +351,7 @@ void DlaEffect::step(World& world, const StepInfo& info)
         pAcc.setValue(c, 1.f);
         if (editsP) editsP->push_back(c);
         if (editsT) editsT->push_back(c);
-        recordPhaseChange(gAcc, fAcc, c, before, 1.f, time);
+        recordPhaseChange(gAcc, fAcc, foldAcc ? plane::fold(c) : c, before, 1.f, time);
         if (tAcc) tAcc->setValue(c, tAcc->getValue(c) + float(mHeat * (1.0 - double(before))));
         mEngine->freezeDeferred(cell); // distances relaxed once per batch (or before a resumed walk)
         ++mStats.frozen;
@@ -427,12 +438,15 @@ void DlaEffect::step(World& world, const StepInfo& info)
         t0 = Clock::now();
         std::sort(touched.begin(), touched.end());
         touched.erase(std::unique(touched.begin(), touched.end()), touched.end());
+        // dla_hits may be folded (core/PlaneFold.h): cells are plane cells, leaves stored leaves
+        const bool fold = plane::isFolded(*hitsGrid);
+        auto stored = [fold](const openvdb::Coord& c) { return fold ? plane::fold(c) : c; };
         auto hAcc = hitsGrid->getAccessor();
-        std::vector<openvdb::Coord> emptied; // leaves where a count went back to 0 (the cell froze)
+        std::vector<openvdb::Coord> emptied; // stored leaves where a count went back to 0 (the cell froze)
         for (int64_t cell : touched) {
             const int32_t* found = mHitCount.find(uint64_t(cell));
             const int32_t n = found ? *found : 0;
-            const openvdb::Coord c = mEngine->coord(cell);
+            const openvdb::Coord c = stored(mEngine->coord(cell));
             if (n > 0) hAcc.setValue(c, n);
             else {
                 hAcc.setValueOff(c, 0);
@@ -450,12 +464,14 @@ void DlaEffect::step(World& world, const StepInfo& info)
         if (sweep) {
             auto pAcc = p->getConstAccessor();
             std::vector<openvdb::Coord> underIce;
-            for (auto it = hitsGrid->cbeginValueOn(); it; ++it)
-                if (pAcc.getValue(it.getCoord()) > 0.5f) underIce.push_back(it.getCoord());
+            for (auto it = hitsGrid->cbeginValueOn(); it; ++it) {
+                const openvdb::Coord c = fold ? plane::unfold(it.getCoord()) : it.getCoord();
+                if (pAcc.getValue(c) > 0.5f) underIce.push_back(c);
+            }
             for (const auto& c : underIce) {
-                hAcc.setValueOff(c, 0);
+                hAcc.setValueOff(stored(c), 0);
                 if (int32_t* n = mHitCount.find(uint64_t(mEngine->index(c)))) *n = 0;
-                emptied.push_back(c & ~(openvdb::Int32Tree::LeafNodeType::DIM - 1));
+                emptied.push_back(stored(c) & ~(openvdb::Int32Tree::LeafNodeType::DIM - 1));
             }
         }
         std::sort(emptied.begin(), emptied.end());
@@ -471,7 +487,7 @@ void DlaEffect::step(World& world, const StepInfo& info)
         if (sweep && mHitCount.size() > 4 * hitsGrid->activeVoxelCount() + 4096) {
             KeyMap<int32_t> fresh;
             for (auto it = hitsGrid->cbeginValueOn(); it; ++it)
-                *fresh.insert(uint64_t(mEngine->index(it.getCoord()))).first = *it;
+                *fresh.insert(uint64_t(mEngine->index(fold ? plane::unfold(it.getCoord()) : it.getCoord()))).first = *it;
             mHitCount = std::move(fresh);
         }
         mStats.applySeconds += since(t0);
@@ -509,10 +525,13 @@ void DlaEffect::loadState(World& world, const StateReader& in)
     world.state<FieldEdits>().crossingCells(kPhase.name).clear(); // all of p was read
     if (mParams.hits > 1) {
         mHitCount.clear();
-        if (auto g = world.fields.get<openvdb::Int32Grid>(kDlaHits))
-            for (auto it = g->cbeginValueOn(); it; ++it)
-                if (world.domain.contains(it.getCoord()))
-                    *mHitCount.insert(uint64_t(mEngine->index(it.getCoord()))).first = *it;
+        if (auto g = world.fields.get<openvdb::Int32Grid>(kDlaHits)) {
+            const bool fold = plane::isFolded(*g);
+            for (auto it = g->cbeginValueOn(); it; ++it) {
+                const openvdb::Coord c = fold ? plane::unfold(it.getCoord()) : it.getCoord();
+                if (world.domain.contains(c)) *mHitCount.insert(uint64_t(mEngine->index(c))).first = *it;
+            }
+        }
     }
     mSteamSource.reset(); // rebuilt from the restored density at the next step
 }

@@ -1,5 +1,7 @@
 #include <frostvdb/ice/IceState.h>
 
+#include <frostvdb/core/PlaneFold.h>
+
 #include <openvdb/tools/Count.h>
 #include <openvdb/tools/Prune.h>
 #include <openvdb/tree/LeafManager.h>
@@ -38,8 +40,14 @@ void requireIceFields(World& world, bool defaultCrystal)
     const bool hadPhase = world.fields.has(kPhase);
     auto p = world.fields.require<openvdb::FloatGrid>(kPhase, 0.f);
     world.fields.require<openvdb::FloatGrid>(kTemperature, float(shared(world).farTemperature));
-    world.fields.require<openvdb::FloatGrid>(kGrowth, 0.f);
-    world.fields.require<openvdb::FloatGrid>(kFreezeTime, 0.f);
+    // The accumulators are written cell by cell and read only by frames: on a plane they are
+    // folded (core/PlaneFold.h), 8x denser; frames unfold them.
+    const bool fold = plane::foldsPlaneFields(world.domain);
+    for (const auto* key : {&kGrowth, &kFreezeTime})
+        if (!world.fields.has(*key)) {
+            auto g = world.fields.require<openvdb::FloatGrid>(*key, 0.f);
+            if (fold) plane::markFolded(*g);
+        }
     if (!hadPhase && defaultCrystal) stampDisc(world, *p, {0.5, 0.5, 0.5}, 3.0);
 }
 
@@ -77,10 +85,11 @@ openvdb::GridBase::Ptr iceFog(const openvdb::FloatGrid& p)
     return ice;
 }
 
-/// The frame's `growth`: growth_acc normalised to [0,1] (the paper's displacement map).
+/// The frame's `growth`: growth_acc normalised to [0,1] (the paper's displacement map), in the
+/// plane layout when growth_acc is folded.
 openvdb::GridBase::Ptr normalisedGrowth(const openvdb::FloatGrid& acc)
 {
-    auto growth = acc.deepCopy();
+    auto growth = plane::isFolded(acc) ? plane::unfoldGrid(acc) : acc.deepCopy();
     const float mx = growth->activeVoxelCount() > 0 ? openvdb::tools::minMax(growth->tree()).max() : 0.f;
     const float scale = mx > 0 ? 1.f / mx : 0.f;
     openvdb::tools::foreach(growth->beginValueOn(), [scale](const openvdb::FloatGrid::ValueOnIter& it) {
@@ -114,13 +123,24 @@ void addIceFieldOutputs(World& world, Frame& frame)
         temperature->setGridClass(openvdb::GRID_UNKNOWN);
         frame.add(temperature);
     }
-    if (auto acc = world.fields.get<openvdb::FloatGrid>(kGrowth))
+    // growth_acc and freeze_time may be folded (core/PlaneFold.h): frames hold the plane layout.
+    if (auto acc = world.fields.get<openvdb::FloatGrid>(kGrowth)) {
         frame.addCopy(normalisedGrowth(*acc), [acc] { return normalisedGrowth(*acc); });
+    }
     if (auto f = world.fields.get<openvdb::FloatGrid>(kFreezeTime)) {
-        // Shares the field's tree, as T does: its writers copy a shared tree first (ownTree).
-        auto freeze = openvdb::gridPtrCast<openvdb::FloatGrid>(f->copyGrid());
-        freeze->setName("freeze_time");
-        frame.add(freeze);
+        if (plane::isFolded(*f)) {
+            auto make = [f]() -> openvdb::GridBase::Ptr {
+                auto freeze = plane::unfoldGrid(*f);
+                freeze->setName("freeze_time");
+                return freeze;
+            };
+            frame.addCopy(make(), make);
+        } else {
+            // Shares the field's tree, as T does: its writers copy a shared tree first (ownTree).
+            auto freeze = openvdb::gridPtrCast<openvdb::FloatGrid>(f->copyGrid());
+            freeze->setName("freeze_time");
+            frame.add(freeze);
+        }
     }
 }
 

@@ -1,6 +1,7 @@
 #include <frostvdb/ice/PhaseFieldSolver.h>
 #include <frostvdb/core/Fields.h>
 #include <frostvdb/core/Error.h>
+#include <frostvdb/core/PlaneFold.h>
 #include <frostvdb/core/Random.h>
 #include <frostvdb/ice/EulerRows.h>
 #include <frostvdb/ice/ImplicitSystem.h>
@@ -264,6 +265,10 @@ using Failure = PhaseFieldSolver::Failure;
 struct PhaseFieldSolver::Accumulators {
     openvdb::FloatTree* growth = nullptr;
     openvdb::FloatTree* freeze = nullptr;
+    /// The field is folded (core/PlaneFold.h): a plane leaf's voxels live in a slice of the
+    /// folded leaf foldedLeafOrigin(origin), shared with 7 other plane leaves, so its mask words
+    /// are set atomically.
+    bool foldG = false, foldF = false;
     struct Pending {
         openvdb::Coord c;
         float v;
@@ -285,6 +290,25 @@ struct PhaseFieldSolver::Accumulators {
             else queue(local).push_back({c, tNext, false});
         }
     }
+    /// The accumulator leaf holding the voxels of the plane (or box) leaf at @a lo, null if none.
+    static FloatLeaf* leafFor(openvdb::FloatTree* t, bool fold, const openvdb::Coord& lo)
+    {
+        return t ? t->probeLeaf(fold ? plane::foldedLeafOrigin(lo) : lo) : nullptr;
+    }
+    /// The offset in leafFor's leaf of voxel @a n of the plane leaf at @a lo.
+    static openvdb::Index slot(bool fold, const openvdb::Coord& lo, openvdb::Index n)
+    {
+        return fold ? plane::foldedOffset(lo, int(n >> 6), int((n >> 3) & 7)) : n;
+    }
+    static void markOn(FloatLeaf& l, bool fold, openvdb::Index s)
+    {
+        if (fold) plane::setOnAtomic(l, s);
+        else l.getValueMask().setOn(s);
+    }
+    static bool isOn(const FloatLeaf& l, bool fold, openvdb::Index s)
+    {
+        return fold ? plane::isOnAtomic(l, s) : l.getValueMask().isOn(s);
+    }
     std::vector<Pending>& queue(std::vector<Pending>*& local)
     {
         if (!local) local = &pending.local();
@@ -297,8 +321,13 @@ struct PhaseFieldSolver::Accumulators {
         if (freeze) fa = std::make_unique<openvdb::tree::ValueAccessor<openvdb::FloatTree>>(*freeze);
         for (auto& list : pending) {
             for (const auto& e : list) {
-                if (e.growth) ga->setValueOn(e.c, ga->getValue(e.c) + e.v);
-                else if (!fa->isValueOn(e.c)) fa->setValueOn(e.c, e.v);
+                if (e.growth) {
+                    const openvdb::Coord c = foldG ? plane::fold(e.c) : e.c;
+                    ga->setValueOn(c, ga->getValue(c) + e.v);
+                } else {
+                    const openvdb::Coord c = foldF ? plane::fold(e.c) : e.c;
+                    if (!fa->isValueOn(c)) fa->setValueOn(c, e.v);
+                }
             }
             list.clear();
         }
@@ -485,9 +514,11 @@ struct LeafKernel {
         const openvdb::Coord bo = b.origin(go);
         const openvdb::Coord lo = pl.origin();
         const int ox = lo.x() - bo.x(), oy = lo.y() - bo.y();
-        FloatLeaf* gl = acc && acc->growth ? acc->growth->probeLeaf(lo) : nullptr;
-        FloatLeaf* fl = acc && acc->freeze ? acc->freeze->probeLeaf(lo) : nullptr;
-        // The accumulator leaves' buffers and masks directly: what setValueOn does, per voxel.
+        const bool foldG = acc && acc->foldG, foldF = acc && acc->foldF;
+        FloatLeaf* gl = acc ? Accumulators::leafFor(acc->growth, foldG, lo) : nullptr;
+        FloatLeaf* fl = acc ? Accumulators::leafFor(acc->freeze, foldF, lo) : nullptr;
+        // The accumulator leaves' buffers and masks directly: what setValueOn does, per voxel
+        // (at the folded slot when folded).
         float* gv = gl ? gl->buffer().data() : nullptr;
         float* fv = fl ? fl->buffer().data() : nullptr;
         const bool growth = acc && acc->growth, freeze = acc && acc->freeze;
@@ -513,15 +544,17 @@ struct LeafKernel {
                 const double dp = b.dp[i];
                 if (growth && dp > 0) {
                     if (gv) {
-                        gv[n] = gv[n] + float(dp);
-                        gl->getValueMask().setOn(n);
+                        const openvdb::Index s = Accumulators::slot(foldG, lo, n);
+                        gv[s] = gv[s] + float(dp);
+                        Accumulators::markOn(*gl, foldG, s);
                     } else acc->queue(pending).push_back({openvdb::Coord(lo.x() + x, lo.y() + y, lo.z() + zz), float(dp), true});
                 }
                 if (freeze && pn > 0.5f) {
                     if (fv) {
-                        if (!fl->getValueMask().isOn(n)) {
-                            fv[n] = tn1;
-                            fl->getValueMask().setOn(n);
+                        const openvdb::Index s = Accumulators::slot(foldF, lo, n);
+                        if (!Accumulators::isOn(*fl, foldF, s)) {
+                            fv[s] = tn1;
+                            Accumulators::markOn(*fl, foldF, s);
                         }
                     } else acc->queue(pending).push_back({openvdb::Coord(lo.x() + x, lo.y() + y, lo.z() + zz), tn1, false});
                 }
@@ -592,8 +625,9 @@ struct LeafKernel {
                         });
                         continue;
                     }
-                    FloatLeaf* gl = acc && acc->growth ? acc->growth->probeLeaf(pl.origin()) : nullptr;
-                    FloatLeaf* fl = acc && acc->freeze ? acc->freeze->probeLeaf(pl.origin()) : nullptr;
+                    // folded accumulators take the queue here (record() writes plane offsets)
+                    FloatLeaf* gl = acc && acc->growth && !acc->foldG ? acc->growth->probeLeaf(pl.origin()) : nullptr;
+                    FloatLeaf* fl = acc && acc->freeze && !acc->foldF ? acc->freeze->probeLeaf(pl.origin()) : nullptr;
                     forActiveVoxels(b, go, z0, pl, [&](openvdb::Index n, size_t i, const openvdb::Coord& c) {
                         const double chi = noiseDraw(k, seed, stepIndex, c);
                         float pn, tn;
@@ -781,6 +815,8 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
     if (freezeTime) ownTree(*freezeTime);
     acc.growth = growth ? &growth->tree() : nullptr;
     acc.freeze = freezeTime ? &freezeTime->tree() : nullptr;
+    acc.foldG = growth && plane::isFolded(*growth);
+    acc.foldF = freezeTime && plane::isFolded(*freezeTime);
     if (stats) {
         stats->regionVoxels = mRegionVoxels;
         stats->regionSeconds += since(t0);
@@ -1116,8 +1152,8 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
             float* tv = tLeaves.leaf(li).buffer().data();
             float* dpv = dpLeaves.leaf(li).buffer().data();
             float* dtv = dtLeaves.leaf(li).buffer().data();
-            FloatLeaf* gl = acc.growth ? acc.growth->probeLeaf(pl.origin()) : nullptr;
-            FloatLeaf* fl = acc.freeze ? acc.freeze->probeLeaf(pl.origin()) : nullptr;
+            FloatLeaf* gl = Accumulators::leafFor(acc.growth, acc.foldG, pl.origin());
+            FloatLeaf* fl = Accumulators::leafFor(acc.freeze, acc.foldF, pl.origin());
             // The accumulator leaves' buffers and masks directly (what Accumulators::record does
             // through the leaf's per-voxel accessors, whose buffer checks cost more than the add).
             float* gv = gl ? gl->buffer().data() : nullptr;
@@ -1140,15 +1176,17 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
                 dtv[n] = float(T0[s]);
                 if (acc.growth && dp > 0) {
                     if (gv) {
-                        gv[n] = gv[n] + float(dp);
-                        gl->getValueMask().setOn(n);
+                        const openvdb::Index gs = Accumulators::slot(acc.foldG, pl.origin(), n);
+                        gv[gs] = gv[gs] + float(dp);
+                        Accumulators::markOn(*gl, acc.foldG, gs);
                     } else acc.queue(pending).push_back({pl.offsetToGlobalCoord(n), float(dp), true});
                 }
                 if (acc.freeze && pn > 0.5f) {
                     if (fv) {
-                        if (!fl->getValueMask().isOn(n)) {
-                            fv[n] = tn1;
-                            fl->getValueMask().setOn(n);
+                        const openvdb::Index fs = Accumulators::slot(acc.foldF, pl.origin(), n);
+                        if (!Accumulators::isOn(*fl, acc.foldF, fs)) {
+                            fv[fs] = tn1;
+                            Accumulators::markOn(*fl, acc.foldF, fs);
                         }
                     } else acc.queue(pending).push_back({pl.offsetToGlobalCoord(n), tn1, false});
                 }
