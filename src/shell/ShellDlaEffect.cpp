@@ -87,6 +87,7 @@ public:
         out.putArray("ice_points", mWalkers->icePointList());
         out.putArray("p_left", mPLeft);
         out.putArray("hits", mHits);
+        out.putInt("melted_since_full_sync", mMeltedSinceFullSync ? 1 : 0); // the next full sync's condition
     }
     void loadState(World&, const StateReader& in) override
     {
@@ -96,6 +97,7 @@ public:
         mWalkers->restoreIce(ice);
         in.getArray("p_left", mPLeft);
         in.getArray("hits", mHits);
+        mMeltedSinceFullSync = in.has("melted_since_full_sync") && in.getInt("melted_since_full_sync") != 0;
         if ((!mPLeft.empty() && mPLeft.size() != mBand->size()) || (mParams.hits > 1 && mHits.size() != mBand->size()))
             throw CheckpointError("[dla] on a shell: the checkpoint's band does not match this scene's");
     }
