@@ -341,6 +341,42 @@ TEST_CASE("Shell [dla] scene: a run resumed from a checkpoint steps the same bit
     CHECK(frozen[1] > 0);
 }
 
+TEST_CASE("Shell [dla] with melting ice: a run resumed before a pending full sync steps the same bits",
+          "[fast][shell][dla][checkpoint]")
+{
+    // far warmer than the melt temperature: the phase field melts what walkers freeze, so the walkers
+    // full resync (every 64 steps, only after melting) is pending at the checkpoint and must run
+    // at step 64 in the resumed run as in the uninterrupted one
+    const std::string text = "[scene]\nname = \"shdm\"\nseed = 5\nframes = 1\nsteps_per_frame = 72\n"
+                             "[domain]\nkind = \"shell\"\nvoxel_size = 0.0001\nsphere_radius = 0.0012\n"
+                             "[[crystal.seed]]\nshape = \"point\"\nspace = \"world\"\nposition = [0, 0, 0.0012]\n"
+                             "radius = 4\n[dla]\nhumidity = 60\nbatch = 64\n"
+                             "[phase_field]\nfar_temperature = 2.0\n";
+    const std::string path = test::tempDir("shell_dla_melt_resume") + "/x.checkpoint";
+    Simulation straight = test::makeSim(text);
+    for (int s = 0; s < 72; ++s) straight.step();
+    int at = 0;
+    {
+        Simulation first = test::makeSim(text);
+        while (at < 56 || !first.atCheckpointBoundary()) {
+            first.step();
+            ++at;
+        }
+        REQUIRE(at < 64);
+        first.saveCheckpoint(path);
+    }
+    Simulation resumed = test::makeSim(text);
+    resumed.loadCheckpoint(path);
+    for (int s = at; s < 72; ++s) resumed.step();
+    for (const char* f : {"p", "T", "growth_acc", "freeze_time"}) {
+        INFO("field " << f << ", checkpoint at step " << at);
+        auto a = straight.world().fields.get<openvdb::FloatGrid>(f);
+        auto b = resumed.world().fields.get<openvdb::FloatGrid>(f);
+        CHECK(test::maxAbsDiff(*a, *b) == 0.0);
+        CHECK(test::maxAbsDiff(*b, *a) == 0.0);
+    }
+}
+
 TEST_CASE("Shell [dla] steam_humidity: steam beside the object adds walkers released under it",
           "[fast][shell][dla]")
 {
