@@ -88,6 +88,7 @@ public:
         out.putArray("p_left", mPLeft);
         out.putArray("hits", mHits);
         out.putInt("melted_since_full_sync", mMeltedSinceFullSync ? 1 : 0); // the next full sync's condition
+        out.putArray("ice_nodes", mWalkers->iceNodes());
     }
     void loadState(World&, const StateReader& in) override
     {
@@ -95,6 +96,11 @@ public:
         std::vector<double> ice;
         in.getArray("ice_points", ice);
         mWalkers->restoreIce(ice);
+        if (in.has("ice_nodes")) {
+            std::vector<uint8_t> nodes;
+            in.getArray("ice_nodes", nodes);
+            mWalkers->restoreIceNodes(nodes);
+        }
         in.getArray("p_left", mPLeft);
         in.getArray("hits", mHits);
         mMeltedSinceFullSync = in.has("melted_since_full_sync") && in.getInt("melted_since_full_sync") != 0;

@@ -154,6 +154,13 @@ public:
     /// the same set restored (distances are minima: the order does not change any result).
     std::vector<double> icePointList() const { return mIce.pointList(); }
     void restoreIce(const std::vector<double>& xyz);
+    /// Surface nodes: which nodes walkers treat as ice (checkpoints: a stick point restored near a
+    /// node that has melted since would mark it again).
+    const std::vector<uint8_t>& iceNodes() const { return mIceNode; }
+    void restoreIceNodes(const std::vector<uint8_t>& flags)
+    {
+        if (flags.size() == mIceNode.size()) mIceNode = flags;
+    }
     /// Band voxels whose closest point lies within kMarkRadius of @a x (ascending band index);
     /// on surface nodes, the node nearest @a x (one per surface cell, as a plane's stick freezes one cell).
     std::vector<size_t> markDisc(const openvdb::Vec3d& x) const;
