@@ -14,9 +14,8 @@
 /// into the operator, so no explicit re-extension happens between the implicit solves. The
 /// operator is applied matrix-free: one extension gather over the rows' face neighbours, then a
 /// 6-term sum per row (about 70 multiply-adds per row; the assembled matrix has ~150 entries per
-/// row, since the neighbours' stencils overlap): a solver::LinearOperator, solved by Eigen's
-/// BiCGSTAB through its matrix-free path (solver::bicgstab, Jacobi-preconditioned with the
-/// operator's true diagonal); every product and update is per row in a fixed order
+/// row, since the neighbours' stencils overlap). Eigen's BiCGSTAB (Jacobi-preconditioned with
+/// the operator's true diagonal) solves it; every product and update is per row in a fixed order
 /// and Eigen's reductions are serial, so the answer does not depend on the thread count.
 ///
 /// Values of nodes that are not rows (update-set voxels of leaves not stepped, which hold the
