@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <frostvdb/core/Error.h>
 #include <frostvdb/core/Lattice.h>
+#include <frostvdb/geometry/HexTransform.h>
 #include <frostvdb/core/Random.h>
 #include <frostvdb/io/Png.h>
 #include <frostvdb/io/Preview.h>
@@ -26,19 +27,7 @@ namespace {
 using Clock = std::chrono::steady_clock;
 double since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
 
-const double kSqrt3 = std::sqrt(3.0);
 
-
-/// The transform of the prism lattice: hexagonal shear in the plane, @a dz metres per layer.
-openvdb::math::Transform::Ptr prismTransform(double h, double dz)
-{
-    openvdb::Mat4d m = openvdb::Mat4d::identity();
-    m[0][0] = h;
-    m[1][0] = 0.5 * h;
-    m[1][1] = kSqrt3 / 2.0 * h;
-    m[2][2] = dz;
-    return openvdb::math::Transform::createLinearTransform(m);
-}
 
 /// Plate weight in [0, 1] of a frozen cell (thickness mode "value").
 double valueWeight(const HexAutomaton& a, size_t i)
@@ -314,7 +303,7 @@ void AutomatonEffect::addToFrame(World& world, Frame& frame)
     float cellsBg = 0.0f;
     if (mCfg.rule == Rule::CoxeReiter) cellsBg = float(mCfg.cr.background);
     if (mCfg.rule == Rule::Reiter) cellsBg = float(mCfg.reiter.beta);
-    auto cellXform = is3D ? prismTransform(h, mOut.prismHeight * h) : Lattice(LatticeKind::Hexagonal).transform(h);
+    auto cellXform = is3D ? hex::prismTransform(h, mOut.prismHeight * h) : Lattice(LatticeKind::Hexagonal).transform(h);
     auto iceXform = openvdb::math::Transform::createLinearTransform(vs);
 
     auto makeGrids = [&](const std::string& suffix) {

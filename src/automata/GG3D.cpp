@@ -324,53 +324,67 @@ void GG3D::applySwitches()
         applySwitch(mP, mCfg.switches[mSwitchNext++]);
 }
 
+template <typename Fn>
+void GG3D::forRows(Fn&& fn) const
+{
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, mRows.size(), 4), [&](const tbb::blocked_range<size_t>& rg) {
+        for (size_t k = rg.begin(); k < rg.end(); ++k) {
+            const RowSpan& row = mRows[k];
+            fn(row, mBox.index(row.qa, row.r, row.z));
+        }
+    });
+}
+
 void GG3D::step()
 {
     if (mStopped) return;
     applySwitches();
-    const size_t P = mBox.plane;
-    const auto& N = mN;
-    double* D = mD.data();
-    double* T = mT.data();
-    double* B = mB.data();
-    const uint8_t* F = mFlags.data();
-    const uint8_t* C = mCnt.data();
-    const GG3DParams p = mP;
-    const bool noise = p.noise > 0.0;
-    auto forRows = [&](auto&& fn) {
-        tbb::parallel_for(tbb::blocked_range<size_t>(0, mRows.size(), 4), [&](const tbb::blocked_range<size_t>& rg) {
-            for (size_t k = rg.begin(); k < rg.end(); ++k) {
-                const RowSpan& row = mRows[k];
-                fn(row, mBox.index(row.qa, row.r, row.z));
-            }
-        });
-    };
-
-    // Noise: a fraction xi of each cell's vapour sits out the diffusion (keyed by the canonical
-    // cell, so every image of a cell draws the same xi).
-    if (noise) {
-        double* Hd = mHold.data();
-        const uint64_t key = hashCounters(mCfg.seed, 0x47473344ull, uint64_t(mStep));
-        forRows([&](const RowSpan& row, size_t i0) {
-            for (int q = row.qa; q <= row.qb; ++q) {
-                const size_t i = i0 + size_t(q - row.qa);
-                Hd[i] = 0.0;
-                if (F[i] & kAttached) continue;
-                const Axial c = canonical(q, row.r);
-                const int zc = mZSym && row.z < mM ? mM - row.z : row.z;
-                const uint64_t h = hashCounters(key, uint64_t(uint32_t(c.q)), uint64_t(uint32_t(c.r)),
-                                                uint64_t(uint32_t(zc)));
-                if (h & 1) {
-                    Hd[i] = p.noise * D[i];
-                    D[i] -= Hd[i];
-                }
-            }
-        });
-    }
+    if (mP.noise > 0.0) holdNoise();
     syncGhosts(mD);
+    diffuseHorizontal();
+    attach(diffuseVerticallyAndFreeze());
+    melt();
+    ++mStep;
+    const int extent = std::max(mCrystalZHi - mM, mM - mCrystalZLo);
+    const int halfH = mZDomHi - mM;
+    if (mCrystalR >= mCfg.stopRadius || extent >= std::max(1, int(0.8 * halfH))) mStopped = true;
+    growActiveBox();
+}
 
-    // 1. Horizontal diffusion d -> T: d + (1/7) sum(d_n - d), attached or wall neighbours
-    //    reflect (difference 0).
+/// Noise: a fraction xi of each cell's vapour sits out the diffusion (keyed by the canonical
+/// cell, so every image of a cell draws the same xi).
+void GG3D::holdNoise()
+{
+    double* D = mD.data();
+    double* Hd = mHold.data();
+    const uint8_t* F = mFlags.data();
+    const double noise = mP.noise;
+    const uint64_t key = hashCounters(mCfg.seed, 0x47473344ull, uint64_t(mStep));
+    forRows([&](const RowSpan& row, size_t i0) {
+        for (int q = row.qa; q <= row.qb; ++q) {
+            const size_t i = i0 + size_t(q - row.qa);
+            Hd[i] = 0.0;
+            if (F[i] & kAttached) continue;
+            const Axial c = canonical(q, row.r);
+            const int zc = mZSym && row.z < mM ? mM - row.z : row.z;
+            const uint64_t h = hashCounters(key, uint64_t(uint32_t(c.q)), uint64_t(uint32_t(c.r)),
+                                            uint64_t(uint32_t(zc)));
+            if (h & 1) {
+                Hd[i] = noise * D[i];
+                D[i] -= Hd[i];
+            }
+        }
+    });
+}
+
+/// 1. Horizontal diffusion d -> T: d + (1/7) sum(d_n - d), attached or wall neighbours reflect
+/// (difference 0).
+void GG3D::diffuseHorizontal()
+{
+    const auto& N = mN;
+    const double* D = mD.data();
+    double* T = mT.data();
+    const uint8_t* F = mFlags.data();
     forRows([&](const RowSpan& row, size_t i0) {
         for (size_t i = i0, e = i0 + size_t(row.qb - row.qa); i <= e; ++i) {
             if (F[i] & kAttached) { T[i] = 0.0; continue; }
@@ -384,13 +398,23 @@ void GG3D::step()
         }
     });
     if (mHalfZ)
-        std::copy_n(mT.begin() + std::ptrdiff_t(mBox.index(mBox.q0, mBox.r0, 1)), P,
+        std::copy_n(mT.begin() + std::ptrdiff_t(mBox.index(mBox.q0, mBox.r0, 1)), mBox.plane,
                     mT.begin() + std::ptrdiff_t(mBox.index(mBox.q0, mBox.r0, mBox.z0)));
+}
 
-    // 2-3. Vertical diffusion (+ drift), freezing and the attachment decision.
-    const int32_t stepNo = int32_t(mStep + 1);
+/// 2-3. Vertical diffusion (+ drift), freezing and the attachment decision: the cells that
+/// attach this step, sorted.
+std::vector<size_t> GG3D::diffuseVerticallyAndFreeze()
+{
+    const size_t P = mBox.plane;
+    double* D = mD.data();
+    double* T = mT.data();
+    double* B = mB.data();
+    const uint8_t* F = mFlags.data();
+    const uint8_t* C = mCnt.data();
+    const GG3DParams& p = mP;
     tbb::enumerable_thread_specific<std::vector<size_t>> newly;
-    const double* Hd = noise ? mHold.data() : nullptr;
+    const double* Hd = p.noise > 0.0 ? mHold.data() : nullptr;
     auto settle = [&](size_t i, double v, std::vector<size_t>& out) {
         if (Hd) v += Hd[i];
         const uint8_t cn = C[i];
@@ -442,11 +466,17 @@ void GG3D::step()
                 if (!(F[i] & kAttached)) settle(i, T[i], out);
         });
     }
-
-    // Commit the attachments (order-independent), then refresh the neighbour counts around them.
     std::vector<size_t> all;
     for (auto& v : newly) all.insert(all.end(), v.begin(), v.end());
     std::sort(all.begin(), all.end());
+    return all;
+}
+
+/// Commits the attachments (order-independent), then refreshes the neighbour counts around them.
+void GG3D::attach(const std::vector<size_t>& all)
+{
+    const size_t P = mBox.plane;
+    const int32_t stepNo = int32_t(mStep + 1);
     auto decode = [&](size_t i, int& q, int& r, int& z) {
         z = int(i / P) + mBox.z0;
         const size_t rem = i % P;
@@ -462,22 +492,29 @@ void GG3D::step()
         mCrystalZHi = std::max(mCrystalZHi, z);
         mCrystalZLo = std::min(mCrystalZLo, mHalfZ ? mM - z : z);
     }
-    if (!all.empty()) {
-        syncGhosts(mFlags);
-        for (size_t i : all) {
-            int q, r, z;
-            decode(i, q, r, z);
-            for (int k = 0; k < 8; ++k) {
-                int qq = q, rr = r, zz = z;
-                if (k < 6) { qq += kNeighbours[size_t(k)].q; rr += kNeighbours[size_t(k)].r; }
-                else zz += k == 6 ? 1 : -1;
-                storedOf(qq, rr, zz);
-                recount(qq, rr, zz);
-            }
+    if (all.empty()) return;
+    syncGhosts(mFlags);
+    for (size_t i : all) {
+        int q, r, z;
+        decode(i, q, r, z);
+        for (int k = 0; k < 8; ++k) {
+            int qq = q, rr = r, zz = z;
+            if (k < 6) { qq += kNeighbours[size_t(k)].q; rr += kNeighbours[size_t(k)].r; }
+            else zz += k == 6 ? 1 : -1;
+            storedOf(qq, rr, zz);
+            recount(qq, rr, zz);
         }
     }
+}
 
-    // 4. Melting on boundary sites (configuration after attachment).
+/// 4. Melting on boundary sites (configuration after attachment).
+void GG3D::melt()
+{
+    double* D = mD.data();
+    double* B = mB.data();
+    const uint8_t* F = mFlags.data();
+    const uint8_t* C = mCnt.data();
+    const GG3DParams& p = mP;
     forRows([&](const RowSpan& row, size_t i0) {
         for (size_t i = i0, e = i0 + size_t(row.qb - row.qa); i <= e; ++i) {
             const uint8_t cn = C[i];
@@ -487,20 +524,17 @@ void GG3D::step()
             B[i] -= m;
         }
     });
+}
 
-    ++mStep;
-    const int extent = std::max(mCrystalZHi - mM, mM - mCrystalZLo);
-    const int halfH = mZDomHi - mM;
-    if (mCrystalR >= mCfg.stopRadius || extent >= std::max(1, int(0.8 * halfH))) mStopped = true;
-
-    // Grow the active box when the disturbance reaches its last two rings / layers.
-    if (edgeDisturbed()) {
-        const int ra = std::min(mCfg.domainRadius, mRa + std::max(4, mRa / 4));
-        const int span = std::max(2, (mZa - mZlo) / 4);
-        const int zhi = std::min(mZDomHi, mZa + span);
-        const int zlo = mHalfZ ? mM : std::max(mZDomLo, mZlo - span);
-        if (ra != mRa || zhi != mZa || zlo != mZlo) resize(ra, zlo, zhi);
-    }
+/// Grows the active box when the disturbance reaches its last two rings / layers.
+void GG3D::growActiveBox()
+{
+    if (!edgeDisturbed()) return;
+    const int ra = std::min(mCfg.domainRadius, mRa + std::max(4, mRa / 4));
+    const int span = std::max(2, (mZa - mZlo) / 4);
+    const int zhi = std::min(mZDomHi, mZa + span);
+    const int zlo = mHalfZ ? mM : std::max(mZDomLo, mZlo - span);
+    if (ra != mRa || zhi != mZa || zlo != mZlo) resize(ra, zlo, zhi);
 }
 
 bool GG3D::edgeDisturbed() const

@@ -158,16 +158,11 @@ GG3DConfig GG3DEffect::flakeConfig(const GG3DConfig& base, double vary, int k)
     return c;
 }
 
-std::unique_ptr<Effect> GG3DEffect::create(ParamDict& d, const World& world)
-{
-    std::vector<std::string> names{"none"};
-    for (const auto& p : gg3dPresets()) names.push_back(p.name);
-    const std::string preset = d.getString("preset", "none", names,
-        "a published case of Gravner & Griffeath (2009) (see docs/snowflakes3d.md); every other key overrides it");
-    GG3DPreset base = *findGG3DPreset("fig04_plate_ridges");
-    if (preset != "none") base = *findGG3DPreset(preset);
+namespace {
 
-    GG3DConfig cfg;
+/// The rule's keys: rho, beta, kappa, mu, phi, noise, hole filling and one parameter switch.
+void readGG3DRule(ParamDict& d, const GG3DPreset& base, GG3DConfig& cfg)
+{
     GG3DParams& p = cfg.p;
     auto arr7 = [&](const std::string& key, const A7& def, double lo, double hi, const std::string& doc) {
         const auto v = d.getFloatArray(key, {def.begin(), def.end()}, {1, 7}, lo, hi, "",
@@ -208,6 +203,11 @@ std::unique_ptr<Effect> GG3DEffect::create(ParamDict& d, const World& world)
         d.getFloat("switch_phi", 0.0, 0.0, 0.5, "", "phi after switch_step");
     }
 
+}
+
+/// The lattice's keys: domain radius, layers, walls, seeds, wedge, sparse tolerance, stop radius.
+void readGG3DLattice(ParamDict& d, const World& world, const GG3DPreset& base, GG3DConfig& cfg)
+{
     const openvdb::Coord dim = world.domain.bbox().dim();
     const int fromDomain = std::max(4, (std::min(dim.x(), dim.y()) - 1) / 2);
     cfg.domainRadius = int(d.getInt("domain_radius", 0, 0, 100000, "cells",
@@ -239,6 +239,11 @@ std::unique_ptr<Effect> GG3DEffect::create(ParamDict& d, const World& world)
     if (std::max(cfg.seedHeight, cfg.seedHeight2) + 4 > cfg.layers)
         d.fail("seed_height", "the seed does not fit layers = " + std::to_string(cfg.layers) + " (needs height + 4)");
 
+}
+
+/// The output keys (voxels per cell, prism height, level set, mesh, batch).
+GG3DOutput readGG3DOutput(ParamDict& d, const World& world)
+{
     GG3DOutput out;
     out.voxelsPerCell = int(d.getInt("voxels_per_cell", 3, 1, 16, "voxels",
         "`ice` / `ice_sdf` voxels (cubes) per cell spacing: the prisms resampled to a cubic grid"));
@@ -270,10 +275,15 @@ std::unique_ptr<Effect> GG3DEffect::create(ParamDict& d, const World& world)
         "grow this many distinct flakes (parameters jittered by `vary`): grids cells_k, ice_k, ... plus all side by "
         "side in cells, ice, ..."));
     out.vary = d.getFloat("vary", 0.05, 0.0, 0.5, "", "batch: relative jitter of rho, beta and mu for flakes 1..K-1");
+    return out;
+}
+
+/// Memory before allocation: every flake may grow its box to the whole domain.
+void refuseOverBudget(ParamDict& d, const GG3DConfig& cfg, const GG3DOutput& out)
+{
     const double budgetGB = d.getFloat("memory_budget", 6.0, 0.01, 1e6, "GB",
         "refuse the scene when the estimated solver memory of all flakes exceeds this");
 
-    // Memory before allocation: every flake may grow its box to the whole domain.
     const double perFlake = double(gg3dMemoryEstimate(cfg)) * 1e-9;
     const double need = perFlake * out.batch;
     if (need > budgetGB) {
@@ -284,8 +294,27 @@ std::unique_ptr<Effect> GG3DEffect::create(ParamDict& d, const World& world)
         d.fail(out.batch > 1 ? "batch" : "domain_radius", msg);
     }
 
+}
+
+} // namespace
+
+std::unique_ptr<Effect> GG3DEffect::create(ParamDict& d, const World& world)
+{
+    std::vector<std::string> names{"none"};
+    for (const auto& p : gg3dPresets()) names.push_back(p.name);
+    const std::string preset = d.getString("preset", "none", names,
+        "a published case of Gravner & Griffeath (2009) (see docs/snowflakes3d.md); every other key overrides it");
+    GG3DPreset base = *findGG3DPreset("fig04_plate_ridges");
+    if (preset != "none") base = *findGG3DPreset(preset);
+
+    GG3DConfig cfg;
+    readGG3DRule(d, base, cfg);
+    readGG3DLattice(d, world, base, cfg);
+    const GG3DOutput out = readGG3DOutput(d, world);
+    refuseOverBudget(d, cfg, out);
+
     // The paper's guard rails: warn, naming the preset and the inequality.
-    for (const auto& w : gg3dGuardRails(p))
+    for (const auto& w : gg3dGuardRails(cfg.p))
         std::cerr << "warning: [gravner_griffeath_3d] preset " << preset << ": " << w << "\n";
     return std::make_unique<GG3DEffect>(cfg, out, preset);
 }
@@ -368,7 +397,7 @@ std::vector<std::pair<std::string, double>> GG3DEffect::timings() const
 bool GG3DEffect::writePreview(World&, const Frame& frame, const std::string& pngPath)
 {
     for (const auto& g : frame.grids)
-        if (g->getName() == (mOut.sdf ? "ice_sdf" : "ice"))
+        if (g->getName() == (mOut.sdf ? out::kIceSdf.name : out::kAutomatonIce.name))
             if (auto fg = openvdb::gridConstPtrCast<openvdb::FloatGrid>(g)) {
                 if (fg->activeVoxelCount() == 0) return false;
                 if (mOut.sdf) renderGG3DPreview(*fg, pngPath);

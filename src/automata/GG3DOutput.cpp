@@ -4,6 +4,7 @@
 /// mesh files (tools::volumeToMesh), a ray-marched preview of the level set, and the effect's
 /// addToFrame and registration.
 #include <frostvdb/automata/GG3DEffect.h>
+#include <frostvdb/geometry/HexTransform.h>
 #include <frostvdb/io/Png.h>
 
 #include <openvdb/tools/Interpolation.h>
@@ -21,20 +22,7 @@ namespace frostvdb {
 namespace automata {
 
 namespace {
-const double kSqrt3 = std::sqrt(3.0);
 
-
-/// Prism lattice: hexagonal shear in the plane, @a dz per layer, layer m/2 at z = 0.
-openvdb::math::Transform::Ptr prismTransform(double h, double dz, int m)
-{
-    openvdb::Mat4d mat = openvdb::Mat4d::identity();
-    mat[0][0] = h;
-    mat[1][0] = 0.5 * h;
-    mat[1][1] = kSqrt3 / 2.0 * h;
-    mat[2][2] = dz;
-    mat[3][2] = -0.5 * m * dz;
-    return openvdb::math::Transform::createLinearTransform(mat);
-}
 
 /// `ice`: each voxel takes the state of the prism containing its centre. Slabs of voxel rows
 /// in parallel, each into its own tree, merged in slab order (deterministic).
@@ -148,7 +136,7 @@ void renderLevelSet(const openvdb::FloatGrid& sdf, const std::string& path, int 
 GG3DGrids buildGG3DGrids(const GG3D& a, const GG3DOutput& out, double h)
 {
     GG3DGrids g;
-    auto xf = prismTransform(h, out.prismHeight * h, a.mirror());
+    auto xf = hex::prismTransform(h, out.prismHeight * h, -0.5 * a.mirror() * (out.prismHeight * h)); // layer m/2 at z = 0
     g.cells = openvdb::FloatGrid::create(0.0f);
     g.cells->setTransform(xf->copy());
     g.freeze = openvdb::FloatGrid::create(-1.0f);

@@ -1,5 +1,7 @@
 #include <frostvdb/core/Lattice.h>
 #include <frostvdb/core/Error.h>
+#include <frostvdb/geometry/HexLattice.h>
+#include <frostvdb/geometry/HexTransform.h>
 
 #include <cmath>
 
@@ -10,9 +12,8 @@ Lattice::Lattice(LatticeKind kind, double spacing) : mKind(kind), mSpacing(spaci
     using openvdb::Coord;
     if (kind == LatticeKind::Square)
         mNeighbours = {Coord(1, 0, 0), Coord(-1, 0, 0), Coord(0, 1, 0), Coord(0, -1, 0)};
-    else
-        mNeighbours = {Coord(1, 0, 0),  Coord(-1, 0, 0), Coord(0, 1, 0),
-                       Coord(0, -1, 0), Coord(1, -1, 0), Coord(-1, 1, 0)};
+    else // the one hexagonal lattice's neighbours, in opposite pairs
+        for (int k : hex::kOppositePairs) mNeighbours.emplace_back(hex::kNeighbours[size_t(k)].q, hex::kNeighbours[size_t(k)].r, 0);
 }
 
 LatticeKind Lattice::parseKind(const std::string& name)
@@ -30,7 +31,8 @@ const char* Lattice::kindName(LatticeKind k)
 openvdb::Vec2d Lattice::planePosition(double i, double j) const
 {
     if (mKind == LatticeKind::Square) return {i, j};
-    return {i + 0.5 * j, j * std::sqrt(3.0) / 2.0};
+    const auto p = hex::position(i, j);
+    return {p[0], p[1]};
 }
 
 Stencil Lattice::stencil(bool withZ) const
@@ -68,16 +70,9 @@ Stencil Lattice::stencil(bool withZ) const
 
 openvdb::math::Transform::Ptr Lattice::transform(double voxelSize) const
 {
+    if (mKind == LatticeKind::Hexagonal) return hex::prismTransform(voxelSize, voxelSize); // sheared plane
     openvdb::Mat4d m = openvdb::Mat4d::identity();
-    if (mKind == LatticeKind::Square) {
-        m.setToScale(openvdb::Vec3d(voxelSize));
-    } else {
-        // Row-vector convention (OpenVDB): world = index * M. Axial (i, j) -> (i + j/2, j*sqrt3/2).
-        m[0][0] = voxelSize;
-        m[1][0] = 0.5 * voxelSize;
-        m[1][1] = std::sqrt(3.0) / 2.0 * voxelSize;
-        m[2][2] = voxelSize;
-    }
+    m.setToScale(openvdb::Vec3d(voxelSize));
     return openvdb::math::Transform::createLinearTransform(m);
 }
 

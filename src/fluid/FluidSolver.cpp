@@ -1,11 +1,12 @@
 // The dense MAC-grid stable-fluid solver of [fluid] (Stam 1999 with Bridson's staggered layout):
 // semi-Lagrangian self-advection, implicit viscosity and the pressure projection, each linear
-// system solved by a matrix-free Jacobi-preconditioned conjugate gradient warm-started from the
+// system solved by the shared Jacobi-preconditioned conjugate gradient (solver/), warm-started from the
 // previous step. Every reduction is summed row by row and then serially, so the result does not
 // depend on the thread count.
 #include <frostvdb/core/Stopwatch.h>
 #include <frostvdb/fluid/Fluid.h>
 #include <frostvdb/fluid/MultigridPoisson.h>
+#include <frostvdb/solver/ConjugateGradient.h>
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
@@ -39,76 +40,36 @@ struct Grid2 {
     size_t size() const { return size_t(W) * H; }
 };
 
-double dot(const Grid2& g, const std::vector<double>& a, const std::vector<double>& b)
-{
-    std::vector<double> part(g.H, 0.0);
-    forRows(g.H, g.W, [&](int j) {
-        double s = 0;
-        const size_t o = size_t(j) * g.W;
-        for (int i = 0; i < g.W; ++i) s += a[o + i] * b[o + i];
-        part[j] = s;
-    });
-    double s = 0;
-    for (double x : part) s += x; // serial: the same sum whatever the thread count
-    return s;
-}
+/// The rows' operator as a solver::LinearOperator: out = A in, rows in parallel.
+template <typename ApplyRow>
+class RowOperator final : public solver::LinearOperator {
+public:
+    RowOperator(const Grid2& g, const ApplyRow& applyRow) : mG(g), mApplyRow(applyRow) {}
+    size_t size() const override { return mG.size(); }
+    void apply(const std::vector<double>& in, std::vector<double>& out) const override
+    {
+        forRows(mG.H, mG.W, [&](int j) { mApplyRow(in, out, j); });
+    }
 
-double maxAbs(const Grid2& g, const std::vector<double>& a)
-{
-    std::vector<double> part(g.H, 0.0);
-    forRows(g.H, g.W, [&](int j) {
-        double m = 0;
-        const size_t o = size_t(j) * g.W;
-        for (int i = 0; i < g.W; ++i) m = std::max(m, std::fabs(a[o + i]));
-        part[j] = m;
-    });
-    double m = 0;
-    for (double x : part) m = std::max(m, x);
-    return m;
-}
+private:
+    Grid2 mG;
+    const ApplyRow& mApplyRow;
+};
 
-/// Jacobi-preconditioned CG from the initial guess in @a x; stops when max |b - A x| <= tol.
+/// Jacobi-preconditioned CG (the shared solver::conjugateGradient) from the initial guess in
+/// @a x; stops when max |b - A x| <= tol. Reductions sum each row, then the rows in order.
 template <typename ApplyRow>
 int conjugateGradient(const Grid2& g, const std::vector<double>& invDiag, const ApplyRow& applyRow,
                       const std::vector<double>& b, std::vector<double>& x, double tol, int maxIt,
                       double& residual, bool& converged)
 {
-    const size_t n = g.size();
-    std::vector<double> r(n), z(n), p(n), q(n);
-    forRows(g.H, g.W, [&](int j) { applyRow(x, q, j); });
-    forRows(g.H, g.W, [&](int j) {
-        for (size_t k = size_t(j) * g.W, e = k + g.W; k < e; ++k) {
-            r[k] = invDiag[k] != 0 ? b[k] - q[k] : 0.0;
-            z[k] = r[k] * invDiag[k];
-            p[k] = z[k];
-        }
-    });
-    double rz = dot(g, r, z);
-    residual = maxAbs(g, r);
-    int it = 0;
-    while (residual > tol && it < maxIt) {
-        forRows(g.H, g.W, [&](int j) { applyRow(p, q, j); });
-        const double pq = dot(g, p, q);
-        if (!(pq > 0)) break; // singular direction (enclosed pocket): nothing more to gain
-        const double alpha = rz / pq;
-        forRows(g.H, g.W, [&](int j) {
-            for (size_t k = size_t(j) * g.W, e = k + g.W; k < e; ++k) {
-                x[k] += alpha * p[k];
-                r[k] -= alpha * q[k];
-                z[k] = r[k] * invDiag[k];
-            }
-        });
-        ++it;
-        residual = maxAbs(g, r);
-        const double rzNew = dot(g, r, z);
-        const double beta = rz != 0 ? rzNew / rz : 0.0;
-        rz = rzNew;
-        forRows(g.H, g.W, [&](int j) {
-            for (size_t k = size_t(j) * g.W, e = k + g.W; k < e; ++k) p[k] = z[k] + beta * p[k];
-        });
-    }
-    converged = residual <= tol;
-    return it;
+    const RowOperator<ApplyRow> A(g, applyRow);
+    const solver::JacobiPreconditioner M(invDiag);
+    const solver::CgStats st = solver::conjugateGradient(A, M, b, x, solver::Blocks{g.size(), size_t(g.W)}, maxIt,
+                                                         [tol](const solver::Residual& r) { return r.maxAbs <= tol; });
+    residual = st.residual.maxAbs;
+    converged = st.converged;
+    return st.iterations;
 }
 
 /// Bilinear sample of a W x H array whose entry (a, b) sits at (a + ox, b + oy), clamped.

@@ -1,5 +1,6 @@
 // Multigrid-preconditioned CG over the active cells of a box (see fluid/MultigridPoisson.h).
 #include <frostvdb/fluid/MultigridPoisson.h>
+#include <frostvdb/solver/ConjugateGradient.h>
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
@@ -422,6 +423,47 @@ void MultigridPoisson::apply(const std::vector<double>& in, std::vector<double>&
     mLevels[0]->apply(in, out);
 }
 
+namespace {
+
+/// The fine level's operator for the shared CG.
+class LevelOperator final : public solver::LinearOperator {
+public:
+    explicit LevelOperator(const Level& L) : mL(L) {}
+    size_t size() const override { return mL.size(); }
+    void apply(const std::vector<double>& in, std::vector<double>& out) const override { mL.apply(in, out); }
+
+private:
+    const Level& mL;
+};
+
+/// z = one V-cycle on r (symmetric: red then black before, black then red after).
+class VCyclePreconditioner final : public solver::Preconditioner {
+public:
+    VCyclePreconditioner(const std::vector<std::unique_ptr<Level>>& levels, int sweeps) : mLevels(levels), mSweeps(sweeps) {}
+    void apply(const std::vector<double>& r, std::vector<double>& z) const override { vcycle(mLevels, 0, r, z, mSweeps); }
+
+private:
+    const std::vector<std::unique_ptr<Level>>& mLevels;
+    int mSweeps;
+};
+
+/// The Jacobi reference: z = r / diag (0 where the diagonal is 0).
+class DiagonalPreconditioner final : public solver::Preconditioner {
+public:
+    explicit DiagonalPreconditioner(const Level& L) : mL(L) {}
+    void apply(const std::vector<double>& r, std::vector<double>& z) const override
+    {
+        forBlocks(r.size(), [&](size_t a, size_t e) {
+            for (size_t u = a; u < e; ++u) z[u] = mL.diag[u] ? r[u] / mL.diag[u] : 0.0;
+        });
+    }
+
+private:
+    const Level& mL;
+};
+
+} // namespace
+
 PoissonStats MultigridPoisson::solve(const std::vector<double>& b, std::vector<double>& x,
                                      const PoissonSettings& settings) const
 {
@@ -432,75 +474,28 @@ PoissonStats MultigridPoisson::solve(const std::vector<double>& b, std::vector<d
     st.unknowns = n;
     x.resize(n, 0.0);
     if (n == 0) { st.converged = true; return st; }
-    // CG's vectors live as long as the solver (reused from solve to solve).
-    std::vector<double>&r = mR, &z = mZ, &p = mP, &q = mQ;
-    for (auto* v : {&r, &z, &p, &q}) v->resize(n);
-    L0.residual(x, b, r);
+    const solver::Blocks blocks{n, kBlock};
     const double bNorm = std::sqrt(blockSum(n, [&](size_t a, size_t e) {
         double s = 0;
         for (size_t u = a; u < e; ++u) s += b[u] * b[u];
         return s;
     }));
-    auto measure = [&]() {
-        const size_t blocks = (n + kBlock - 1) / kBlock;
-        std::vector<double> mx(blocks, 0.0);
-        const double r2 = blockSum(n, [&](size_t a, size_t e) {
-            double s = 0, m = 0;
-            for (size_t u = a; u < e; ++u) {
-                s += r[u] * r[u];
-                m = std::max(m, std::fabs(r[u]));
-            }
-            mx[a / kBlock] = m;
-            return s;
-        });
-        st.maxResidual = *std::max_element(mx.begin(), mx.end());
-        st.relativeResidual = bNorm > 0 ? std::sqrt(r2) / bNorm : std::sqrt(r2);
+    auto stop = [&](const solver::Residual& r) {
+        st.maxResidual = r.maxAbs;
+        st.relativeResidual = bNorm > 0 ? std::sqrt(r.sumSquares) / bNorm : std::sqrt(r.sumSquares);
         const bool rel = settings.relativeTolerance > 0 && st.relativeResidual <= settings.relativeTolerance;
         const bool abs = settings.absoluteTolerance > 0 && st.maxResidual <= settings.absoluteTolerance;
         return rel || abs || st.maxResidual == 0;
     };
-    auto precondition = [&]() {
-        if (settings.multigrid) {
-            vcycle(mLevels, 0, r, z, std::max(1, settings.smoothingSweeps));
-        } else {
-            forBlocks(n, [&](size_t a, size_t e) {
-                for (size_t u = a; u < e; ++u) z[u] = L0.diag[u] ? r[u] / L0.diag[u] : 0.0;
-            });
-        }
-    };
-    auto dot = [&](const std::vector<double>& a, const std::vector<double>& c) {
-        return blockSum(n, [&](size_t s0, size_t e) {
-            double s = 0;
-            for (size_t u = s0; u < e; ++u) s += a[u] * c[u];
-            return s;
-        });
-    };
-    st.converged = measure();
-    if (st.converged) return st;
-    precondition();
-    std::copy(z.begin(), z.end(), p.begin());
-    double rz = dot(r, z);
-    while (st.iterations < settings.maxIterations) {
-        L0.apply(p, q);
-        const double pq = dot(p, q);
-        if (!(pq > 0)) break; // a singular direction: nothing more to gain
-        const double alpha = rz / pq;
-        forBlocks(n, [&](size_t a, size_t e) {
-            for (size_t u = a; u < e; ++u) {
-                x[u] += alpha * p[u];
-                r[u] -= alpha * q[u];
-            }
-        });
-        ++st.iterations;
-        if ((st.converged = measure())) break;
-        precondition();
-        const double rzNew = dot(r, z);
-        const double beta = rz != 0 ? rzNew / rz : 0.0;
-        rz = rzNew;
-        forBlocks(n, [&](size_t a, size_t e) {
-            for (size_t u = a; u < e; ++u) p[u] = z[u] + beta * p[u];
-        });
-    }
+    const LevelOperator A(L0);
+    const VCyclePreconditioner vc(mLevels, std::max(1, settings.smoothingSweeps));
+    const DiagonalPreconditioner jacobi(L0);
+    // CG's vectors live as long as the solver (reused from solve to solve).
+    const solver::CgStats cg = solver::conjugateGradient(
+        A, settings.multigrid ? static_cast<const solver::Preconditioner&>(vc) : jacobi, b, x, blocks,
+        settings.maxIterations, stop, mWork);
+    st.iterations = cg.iterations;
+    st.converged = cg.converged;
     return st;
 }
 

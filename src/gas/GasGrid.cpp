@@ -236,12 +236,12 @@ GasGrids buildGasGrids(const GasModel& model, const GasContext& ctx,
             if (l) g->tree().addLeaf(l);
         return g;
     };
-    out.density = makeF("density", 0.f, dLeaves, true);
-    if (wantVel) out.vel = makeV("vel", vLeaves, openvdb::VEC_CONTRAVARIANT_RELATIVE);
+    out.density = makeF(out::kDensity.name, 0.f, dLeaves, true);
+    if (wantVel) out.vel = makeV(out::kVel.name, vLeaves, openvdb::VEC_CONTRAVARIANT_RELATIVE);
     if (fire) {
-        out.flame = makeF("flame", 0.f, fLeaves, true);
-        out.temperature = makeF("temperature", float(opt.ambientTemperature), tLeaves, false);
-        if (opt.colour) out.colour = makeV("Cd", cLeaves, openvdb::VEC_INVARIANT);
+        out.flame = makeF(out::kFlame.name, 0.f, fLeaves, true);
+        out.temperature = makeF(out::kTemperature.name, float(opt.ambientTemperature), tLeaves, false);
+        if (opt.colour) out.colour = makeV(out::kColour.name, cLeaves, openvdb::VEC_INVARIANT);
     }
     return out;
 }
@@ -383,14 +383,35 @@ typename GridT::Ptr findGrid(const openvdb::GridPtrVec& grids, const std::string
 
 } // namespace
 
-void writeGasPreview(const openvdb::GridPtrVec& grids, const V3& up, const std::string& pngPath, int width)
-{
-    auto density = findGrid<openvdb::FloatGrid>(grids, "density");
-    auto ice = findGrid<openvdb::FloatGrid>(grids, "ice");
-    auto colour = findGrid<openvdb::Vec3SGrid>(grids, "Cd");
-    auto flame = findGrid<openvdb::FloatGrid>(grids, "flame");
-    if (!density) throw SimulationError("gas preview: the frame has no density grid");
+namespace {
 
+/// The frame's gas grids sampled every s voxels over their active box, with the view's axes:
+/// U the dominant axis of `up` (image vertical), H the image's horizontal axis, D the depth.
+struct PreviewVolume {
+    int U = 2, H = 0, D = 1;
+    bool flipUp = false;
+    int n[3] = {1, 1, 1};
+    double dx = 1;                 ///< world size of one sample
+    std::vector<float> rho, fl;    ///< density, flame (empty without flame)
+    std::vector<openvdb::Vec3s> cd; ///< colour (empty without Cd)
+    std::vector<float> iceTop;     ///< max ice per (H, D) column (with ice)
+    bool fire = false, colour = false, ice = false;
+    size_t idx(int i, int j, int k) const { return size_t(i) + size_t(n[0]) * (size_t(j) + size_t(n[1]) * k); }
+    size_t at(int h, int u, int d) const
+    {
+        int ijk[3];
+        ijk[H] = h;
+        ijk[U] = u;
+        ijk[D] = d;
+        return idx(ijk[0], ijk[1], ijk[2]);
+    }
+};
+
+PreviewVolume samplePreview(const openvdb::FloatGrid::Ptr& density, openvdb::FloatGrid::Ptr ice,
+                            const openvdb::Vec3SGrid::Ptr& colour, const openvdb::FloatGrid::Ptr& flame, const V3& up,
+                            int width)
+{
+    PreviewVolume v;
     openvdb::CoordBBox bb = density->evalActiveVoxelBoundingBox();
     if (ice && ice->activeVoxelCount() > 0 && ice->transform() == density->transform())
         bb.expand(ice->evalActiveVoxelBoundingBox());
@@ -398,90 +419,96 @@ void writeGasPreview(const openvdb::GridPtrVec& grids, const V3& up, const std::
         ice.reset();
     if (bb.empty()) bb = openvdb::CoordBBox(Coord(0), Coord(7));
 
-    // axes: U = dominant axis of up (image vertical), H = horizontal image axis, D = depth
     const double uc[3] = {up.x, up.y, up.z};
     int U = 0;
     for (int a = 1; a < 3; ++a)
         if (std::fabs(uc[a]) > std::fabs(uc[U])) U = a;
-    const bool flipUp = uc[U] < 0;
-    const int H = U == 0 ? 1 : 0;
-    const int D = 3 - U - H;
+    v.flipUp = uc[U] < 0;
+    v.U = U;
+    v.H = U == 0 ? 1 : 0;
+    v.D = 3 - U - v.H;
 
     const int ext[3] = {bb.dim().x(), bb.dim().y(), bb.dim().z()};
-    int s = std::max(1, int(std::ceil(double(std::max(ext[H], ext[U])) / width)));
+    int s = std::max(1, int(std::ceil(double(std::max(ext[v.H], ext[U])) / width)));
     auto cells = [&](int step) {
         return double((ext[0] + step - 1) / step) * ((ext[1] + step - 1) / step) * ((ext[2] + step - 1) / step);
     };
     while (cells(s) > 12e6) ++s;
-    const int n[3] = {(ext[0] + s - 1) / s, (ext[1] + s - 1) / s, (ext[2] + s - 1) / s};
-    const size_t total = size_t(n[0]) * n[1] * n[2];
-    std::vector<float> rho(total, 0.f), fl(flame ? total : 0, 0.f);
-    std::vector<openvdb::Vec3s> cd(colour ? total : 0);
-    std::vector<float> iceTop(size_t(n[H]) * n[D], 0.f);
-    auto idx = [&](int i, int j, int k) { return size_t(i) + size_t(n[0]) * (size_t(j) + size_t(n[1]) * k); };
-    {
-        auto acc = density->getConstAccessor();
-        std::unique_ptr<openvdb::FloatGrid::ConstAccessor> facc;
-        std::unique_ptr<openvdb::Vec3SGrid::ConstAccessor> cacc;
-        std::unique_ptr<openvdb::FloatGrid::ConstAccessor> iacc;
-        if (flame) facc = std::make_unique<openvdb::FloatGrid::ConstAccessor>(flame->getConstAccessor());
-        if (colour) cacc = std::make_unique<openvdb::Vec3SGrid::ConstAccessor>(colour->getConstAccessor());
-        if (ice) iacc = std::make_unique<openvdb::FloatGrid::ConstAccessor>(ice->getConstAccessor());
-        for (int k = 0; k < n[2]; ++k)
-            for (int j = 0; j < n[1]; ++j)
-                for (int i = 0; i < n[0]; ++i) {
-                    const Coord c = bb.min() + Coord(i * s, j * s, k * s);
-                    const size_t id = idx(i, j, k);
-                    rho[id] = std::max(0.f, acc.getValue(c));
-                    if (facc) fl[id] = facc->getValue(c);
-                    if (cacc) cd[id] = cacc->getValue(c);
-                    if (iacc) {
-                        const int ijk[3] = {i, j, k};
-                        float& t = iceTop[size_t(ijk[H]) + size_t(n[H]) * ijk[D]];
-                        t = std::max(t, iacc->getValue(c));
-                    }
+    for (int a = 0; a < 3; ++a) v.n[a] = (ext[a] + s - 1) / s;
+    const size_t total = size_t(v.n[0]) * v.n[1] * v.n[2];
+    v.rho.assign(total, 0.f);
+    v.fl.assign(flame ? total : 0, 0.f);
+    v.cd.resize(colour ? total : 0);
+    v.iceTop.assign(size_t(v.n[v.H]) * v.n[v.D], 0.f);
+    v.fire = flame != nullptr;
+    v.colour = colour != nullptr;
+    v.ice = ice != nullptr;
+    v.dx = density->voxelSize()[0] * s;
+    auto acc = density->getConstAccessor();
+    std::unique_ptr<openvdb::FloatGrid::ConstAccessor> facc;
+    std::unique_ptr<openvdb::Vec3SGrid::ConstAccessor> cacc;
+    std::unique_ptr<openvdb::FloatGrid::ConstAccessor> iacc;
+    if (flame) facc = std::make_unique<openvdb::FloatGrid::ConstAccessor>(flame->getConstAccessor());
+    if (colour) cacc = std::make_unique<openvdb::Vec3SGrid::ConstAccessor>(colour->getConstAccessor());
+    if (ice) iacc = std::make_unique<openvdb::FloatGrid::ConstAccessor>(ice->getConstAccessor());
+    for (int k = 0; k < v.n[2]; ++k)
+        for (int j = 0; j < v.n[1]; ++j)
+            for (int i = 0; i < v.n[0]; ++i) {
+                const Coord c = bb.min() + Coord(i * s, j * s, k * s);
+                const size_t id = v.idx(i, j, k);
+                v.rho[id] = std::max(0.f, acc.getValue(c));
+                if (facc) v.fl[id] = facc->getValue(c);
+                if (cacc) v.cd[id] = cacc->getValue(c);
+                if (iacc) {
+                    const int ijk[3] = {i, j, k};
+                    float& t = v.iceTop[size_t(ijk[v.H]) + size_t(v.n[v.H]) * ijk[v.D]];
+                    t = std::max(t, iacc->getValue(c));
                 }
-    }
-    auto at = [&](int h, int u, int d) {
-        int ijk[3];
-        ijk[H] = h;
-        ijk[U] = u;
-        ijk[D] = d;
-        return idx(ijk[0], ijk[1], ijk[2]);
-    };
-    const double dx = density->voxelSize()[0] * s;
-    // extinction scale: the 99th percentile of view-column optical depth maps to ~2.5
+            }
+    return v;
+}
+
+/// Extinction scale: the 99th percentile of view-column optical depth maps to ~2.5.
+double extinctionScale(const PreviewVolume& v)
+{
     std::vector<float> cols;
-    cols.reserve(size_t(n[H]) * n[U]);
-    for (int u = 0; u < n[U]; ++u)
-        for (int h = 0; h < n[H]; ++h) {
+    cols.reserve(size_t(v.n[v.H]) * v.n[v.U]);
+    for (int u = 0; u < v.n[v.U]; ++u)
+        for (int h = 0; h < v.n[v.H]; ++h) {
             double sum = 0;
-            for (int d = 0; d < n[D]; ++d) sum += rho[at(h, u, d)];
-            if (sum > 0) cols.push_back(float(sum * dx));
+            for (int d = 0; d < v.n[v.D]; ++d) sum += v.rho[v.at(h, u, d)];
+            if (sum > 0) cols.push_back(float(sum * v.dx));
         }
-    double k = 1.0;
-    if (!cols.empty()) {
-        const size_t p = std::min(cols.size() - 1, size_t(cols.size() * 0.99));
-        std::nth_element(cols.begin(), cols.begin() + long(p), cols.end());
-        k = 2.5 / std::max(1e-12, double(cols[p]));
-    }
-    // light from above: transmittance along -up from the top of the box
-    std::vector<float> light(total, 1.f);
-    for (int d = 0; d < n[D]; ++d)
-        for (int h = 0; h < n[H]; ++h) {
+    if (cols.empty()) return 1.0;
+    const size_t p = std::min(cols.size() - 1, size_t(cols.size() * 0.99));
+    std::nth_element(cols.begin(), cols.begin() + long(p), cols.end());
+    return 2.5 / std::max(1e-12, double(cols[p]));
+}
+
+/// Light from above: transmittance along -up from the top of the box.
+std::vector<float> lightFromAbove(const PreviewVolume& v, double k)
+{
+    std::vector<float> light(v.rho.size(), 1.f);
+    for (int d = 0; d < v.n[v.D]; ++d)
+        for (int h = 0; h < v.n[v.H]; ++h) {
             double tau = 0;
-            for (int q = 0; q < n[U]; ++q) {
-                const int u = flipUp ? q : n[U] - 1 - q;
-                const size_t id = at(h, u, d);
+            for (int q = 0; q < v.n[v.U]; ++q) {
+                const int u = v.flipUp ? q : v.n[v.U] - 1 - q;
+                const size_t id = v.at(h, u, d);
                 light[id] = float(std::exp(-tau));
-                tau += 0.6 * k * rho[id] * dx;
+                tau += 0.6 * k * v.rho[id] * v.dx;
             }
         }
-    const bool isFire = flame != nullptr;
+    return light;
+}
+
+/// Both panels: the side view along D and, with ice, the top view along -up over the frost.
+ImageRGB renderPreview(const PreviewVolume& v, double k, const std::vector<float>& light)
+{
     auto shade = [&](size_t id, double a, double T, double& r, double& g, double& b) {
-        if (isFire) {
-            const openvdb::Vec3s c = colour ? cd[id] : openvdb::Vec3s(1.f, 0.6f, 0.2f);
-            const double e = 0.4 + 1.6 * (fl.empty() ? 1.0 : fl[id]);
+        if (v.fire) {
+            const openvdb::Vec3s c = v.colour ? v.cd[id] : openvdb::Vec3s(1.f, 0.6f, 0.2f);
+            const double e = 0.4 + 1.6 * (v.fl.empty() ? 1.0 : v.fl[id]);
             r += T * a * c.x() * e;
             g += T * a * c.y() * e;
             b += T * a * c.z() * e;
@@ -492,68 +519,82 @@ void writeGasPreview(const openvdb::GridPtrVec& grids, const V3& up, const std::
             b += T * a * l * 1.0;
         }
     };
-    const int W = n[H], Hh = n[U];
-    const int panels = ice ? 2 : 1;
-    const int topH = ice ? n[D] : 0;
+    const int W = v.n[v.H], Hh = v.n[v.U];
+    const int panels = v.ice ? 2 : 1;
+    const int topH = v.ice ? v.n[v.D] : 0;
     ImageRGB img(W * panels + (panels - 1) * 4, std::max(Hh, topH));
-    // side view
     for (int py = 0; py < Hh; ++py)
         for (int px = 0; px < W; ++px) {
-            const int u = flipUp ? py : Hh - 1 - py;
+            const int u = v.flipUp ? py : Hh - 1 - py;
             double r = 0, g = 0, b = 0, T = 1;
-            for (int d = 0; d < n[D] && T > 1e-3; ++d) {
-                const size_t id = at(px, u, d);
-                if (rho[id] <= 0) continue;
-                const double a = 1.0 - std::exp(-k * rho[id] * dx);
+            for (int d = 0; d < v.n[v.D] && T > 1e-3; ++d) {
+                const size_t id = v.at(px, u, d);
+                if (v.rho[id] <= 0) continue;
+                const double a = 1.0 - std::exp(-k * v.rho[id] * v.dx);
                 shade(id, a, T, r, g, b);
                 T *= 1.0 - a;
             }
             const double fy = double(py) / std::max(1, Hh - 1);
-            const double bgR = isFire ? 0.02 : 0.10 + 0.08 * fy, bgG = isFire ? 0.02 : 0.12 + 0.08 * fy,
-                         bgB = isFire ? 0.03 : 0.16 + 0.08 * fy;
+            const double bgR = v.fire ? 0.02 : 0.10 + 0.08 * fy, bgG = v.fire ? 0.02 : 0.12 + 0.08 * fy,
+                         bgB = v.fire ? 0.03 : 0.16 + 0.08 * fy;
             img.set(px, py, float(r + T * bgR), float(g + T * bgG), float(b + T * bgB));
         }
-    // top view (only with ice): steam seen from above over the frost
-    if (ice) {
-        const int x0 = W + 4;
-        for (int py = 0; py < topH; ++py)
-            for (int px = 0; px < W; ++px) {
-                const int d = topH - 1 - py;
-                double r = 0, g = 0, b = 0, T = 1;
-                for (int q = 0; q < n[U] && T > 1e-3; ++q) {
-                    const int u = flipUp ? q : n[U] - 1 - q;
-                    const size_t id = at(px, u, d);
-                    if (rho[id] <= 0) continue;
-                    const double a = 1.0 - std::exp(-k * rho[id] * dx);
-                    shade(id, a, T, r, g, b);
-                    T *= 1.0 - a;
-                }
-                const double p = std::clamp(double(iceTop[size_t(px) + size_t(W) * d]), 0.0, 1.0);
-                const double bgR = 0.08 + 0.75 * p, bgG = 0.10 + 0.82 * p, bgB = 0.16 + 0.84 * p;
-                img.set(x0 + px, py, float(r + T * bgR), float(g + T * bgG), float(b + T * bgB));
+    if (!v.ice) return img;
+    const int x0 = W + 4;
+    for (int py = 0; py < topH; ++py)
+        for (int px = 0; px < W; ++px) {
+            const int d = topH - 1 - py;
+            double r = 0, g = 0, b = 0, T = 1;
+            for (int q = 0; q < v.n[v.U] && T > 1e-3; ++q) {
+                const int u = v.flipUp ? q : v.n[v.U] - 1 - q;
+                const size_t id = v.at(px, u, d);
+                if (v.rho[id] <= 0) continue;
+                const double a = 1.0 - std::exp(-k * v.rho[id] * v.dx);
+                shade(id, a, T, r, g, b);
+                T *= 1.0 - a;
             }
-    }
-    // small volumes: bilinear upscale to about the requested width
+            const double p = std::clamp(double(v.iceTop[size_t(px) + size_t(W) * d]), 0.0, 1.0);
+            const double bgR = 0.08 + 0.75 * p, bgG = 0.10 + 0.82 * p, bgB = 0.16 + 0.84 * p;
+            img.set(x0 + px, py, float(r + T * bgR), float(g + T * bgG), float(b + T * bgB));
+        }
+    return img;
+}
+
+/// Small volumes: bilinear upscale by an integer factor f.
+ImageRGB upscale(const ImageRGB& img, int f)
+{
+    ImageRGB big(img.width * f, img.height * f);
+    for (int y = 0; y < big.height; ++y)
+        for (int x = 0; x < big.width; ++x) {
+            const double sx = std::clamp((x + 0.5) / f - 0.5, 0.0, img.width - 1.0);
+            const double sy = std::clamp((y + 0.5) / f - 0.5, 0.0, img.height - 1.0);
+            const int x0 = int(sx), y0 = int(sy);
+            const int x1 = std::min(x0 + 1, img.width - 1), y1 = std::min(y0 + 1, img.height - 1);
+            const double ax = sx - x0, ay = sy - y0;
+            float c[3];
+            for (int ch = 0; ch < 3; ++ch) {
+                auto px = [&](int xx, int yy) { return img.rgb[(size_t(yy) * img.width + xx) * 3 + ch] / 255.0; };
+                c[ch] = float((1 - ay) * ((1 - ax) * px(x0, y0) + ax * px(x1, y0)) +
+                              ay * ((1 - ax) * px(x0, y1) + ax * px(x1, y1)));
+            }
+            big.set(x, y, c[0], c[1], c[2]);
+        }
+    return big;
+}
+
+} // namespace
+
+void writeGasPreview(const openvdb::GridPtrVec& grids, const V3& up, const std::string& pngPath, int width)
+{
+    auto density = findGrid<openvdb::FloatGrid>(grids, out::kDensity.name);
+    if (!density) throw SimulationError("gas preview: the frame has no density grid");
+    const PreviewVolume v = samplePreview(density, findGrid<openvdb::FloatGrid>(grids, out::kIce.name),
+                                          findGrid<openvdb::Vec3SGrid>(grids, out::kColour.name),
+                                          findGrid<openvdb::FloatGrid>(grids, out::kFlame.name), up, width);
+    const double k = extinctionScale(v);
+    ImageRGB img = renderPreview(v, k, lightFromAbove(v, k));
     const int f = std::max(1, width / std::max(1, img.width));
-    if (f > 1) {
-        ImageRGB big(img.width * f, img.height * f);
-        for (int y = 0; y < big.height; ++y)
-            for (int x = 0; x < big.width; ++x) {
-                const double sx = std::clamp((x + 0.5) / f - 0.5, 0.0, img.width - 1.0);
-                const double sy = std::clamp((y + 0.5) / f - 0.5, 0.0, img.height - 1.0);
-                const int x0 = int(sx), y0 = int(sy);
-                const int x1 = std::min(x0 + 1, img.width - 1), y1 = std::min(y0 + 1, img.height - 1);
-                const double ax = sx - x0, ay = sy - y0;
-                float c[3];
-                for (int ch = 0; ch < 3; ++ch) {
-                    auto px = [&](int xx, int yy) { return img.rgb[(size_t(yy) * img.width + xx) * 3 + ch] / 255.0; };
-                    c[ch] = float((1 - ay) * ((1 - ax) * px(x0, y0) + ax * px(x1, y0)) +
-                                  ay * ((1 - ax) * px(x0, y1) + ax * px(x1, y1)));
-                }
-                big.set(x, y, c[0], c[1], c[2]);
-            }
-        img = std::move(big);
-    }
+    if (f > 1) img = upscale(img, f);
     writePngRGB(pngPath, img);
 }
 

@@ -12,6 +12,7 @@
 /// of 1e-13; sum(G) is the mean number of steps to reach the shell. The tables depend only on
 /// the neighbour set and r, so they are computed once per process and shared.
 #include <frostvdb/ice/Dla.h>
+#include <frostvdb/solver/ConjugateGradient.h>
 
 #include <cmath>
 #include <map>
@@ -22,6 +23,29 @@ namespace frostvdb {
 namespace ice {
 
 namespace {
+
+/// I - P_int on the interior cells: y_i = x_i - w * sum of x over i's interior neighbours.
+class WalkOperator final : public solver::LinearOperator {
+public:
+    WalkOperator(const std::vector<int>& adj, size_t n, size_t deg, double w) : mAdj(adj), mN(n), mDeg(deg), mW(w) {}
+    size_t size() const override { return mN; }
+    void apply(const std::vector<double>& x, std::vector<double>& y) const override
+    {
+        for (size_t i = 0; i < mN; ++i) {
+            double s = 0;
+            for (size_t k = 0; k < mDeg; ++k) {
+                const int a = mAdj[i * mDeg + k];
+                if (a >= 0) s += x[size_t(a)];
+            }
+            y[i] = x[i] - mW * s;
+        }
+    }
+
+private:
+    const std::vector<int>& mAdj;
+    size_t mN, mDeg;
+    double mW;
+};
 
 std::shared_ptr<ShellTable> computeShell(const std::vector<openvdb::Coord>& nbr, int r)
 {
@@ -75,37 +99,14 @@ std::shared_ptr<ShellTable> computeShell(const std::vector<openvdb::Coord>& nbr,
             adj[i * deg + k] = dist[size_t(kk)] < r ? id[size_t(kk)] : -1 - id[size_t(kk)];
         }
     const double w = 1.0 / double(deg);
-    auto apply = [&](const std::vector<double>& x, std::vector<double>& y) {
-        for (size_t i = 0; i < n; ++i) {
-            double s = 0;
-            for (size_t k = 0; k < deg; ++k) {
-                const int a = adj[i * deg + k];
-                if (a >= 0) s += x[size_t(a)];
-            }
-            y[i] = x[i] - w * s;
-        }
-    };
-    std::vector<double> x(n, 0.0), res(n, 0.0), p(n, 0.0), ap(n, 0.0);
-    res[0] = 1.0; // origin is interior index 0 (first in BFS order)
-    p = res;
-    double rs = 1.0;
-    const double tol2 = 1e-26;
-    int it = 0;
-    for (; it < 100000 && rs > tol2; ++it) {
-        apply(p, ap);
-        double pap = 0;
-        for (size_t i = 0; i < n; ++i) pap += p[i] * ap[i];
-        const double alpha = rs / pap;
-        double rsn = 0;
-        for (size_t i = 0; i < n; ++i) {
-            x[i] += alpha * p[i];
-            res[i] -= alpha * ap[i];
-            rsn += res[i] * res[i];
-        }
-        const double beta = rsn / rs;
-        for (size_t i = 0; i < n; ++i) p[i] = res[i] + beta * p[i];
-        rs = rsn;
-    }
+    // (I - P_int) G = e_origin by the shared CG, serial reductions (one block), unpreconditioned
+    const WalkOperator A(adj, n, deg, w);
+    std::vector<double> b(n, 0.0), x(n, 0.0);
+    b[0] = 1.0; // origin is interior index 0 (first in BFS order)
+    const solver::CgStats cg = solver::conjugateGradient(A, solver::IdentityPreconditioner(), b, x,
+                                                         solver::Blocks::serial(n), 100000,
+                                                         [](const solver::Residual& r) { return !(r.sumSquares > 1e-26); });
+    const double rs = cg.residual.sumSquares;
     auto t = std::make_shared<ShellTable>();
     t->radius = r;
     t->exits = shell;

@@ -2,11 +2,11 @@
 /// @brief The implicit closest-point band system (see ShellImplicit.h).
 #include <frostvdb/shell/ShellImplicit.h>
 
-#include <Eigen/Core>
-#include <Eigen/IterativeLinearSolvers>
+#include <frostvdb/solver/EigenMatrixFree.h>
 
 #include <tbb/parallel_for.h>
 
+#include <algorithm>
 #include <cmath>
 
 namespace frostvdb::shell {
@@ -42,33 +42,31 @@ inline double gatherExtension(const ShellBand& band, size_t q, const Get& get)
     return sz;
 }
 
-/// The band operator for Eigen's BiCGSTAB (internal::bicgstab needs cols() and a product).
-class BandOperator {
+/// The band operator, matrix-free: unknowns scattered to the band, extended by each point's
+/// tricubic stencil, combined by the rows' coefficients.
+class BandOperator final : public solver::LinearOperator {
 public:
     BandOperator(const ShellBand& band, const BandRows& rows, const BandSystem& sys)
         : mBand(band), mRows(rows), mSys(sys), mU(band.size(), 0.0), mE(rows.points(), 0.0)
     {
     }
-    Eigen::Index cols() const { return Eigen::Index(mRows.rows()); }
-    Eigen::Index rows() const { return cols(); }
-    Eigen::VectorXd operator*(const Eigen::VectorXd& x) const
+    size_t size() const override { return mRows.rows(); }
+    void apply(const std::vector<double>& x, std::vector<double>& y) const override
     {
         const size_t n = mRows.rows();
         // the unknowns scattered to the band (voxels that are not rows stay 0: their values are
         // in the right-hand side)
-        forRange(n, [&](size_t r) { mU[mRows.voxel(r)] = x[Eigen::Index(r)]; });
+        forRange(n, [&](size_t r) { mU[mRows.voxel(r)] = x[r]; });
         forRange(mRows.points(), [&](size_t m) {
             if (mRows.pointFixed(m)) return; // stays 0: its value is in the right-hand side
             mE[m] = gatherExtension(mBand, mRows.pointVoxel(m), [&](size_t j) { return mU[j]; });
         });
-        Eigen::VectorXd y(x.size());
         forRange(n, [&](size_t r) {
             const double* c = &mSys.coef[6 * r];
             double s = 0;
             for (int k = 0; k < 6; ++k) s += c[k] * mE[mRows.point(r, k)];
-            y[Eigen::Index(r)] = mSys.diag[r] * x[Eigen::Index(r)] - s;
+            y[r] = mSys.diag[r] * x[r] - s;
         });
-        return y;
     }
 
 private:
@@ -76,13 +74,6 @@ private:
     const BandRows& mRows;
     const BandSystem& mSys;
     mutable std::vector<double> mU, mE;
-};
-
-/// Jacobi: the operator's true diagonal diag_r - sum_k c_rk w_k(r) (w_k(r): the row's own
-/// weight in its neighbour's extension).
-struct BandJacobi {
-    Eigen::VectorXd inverse;
-    Eigen::VectorXd solve(const Eigen::VectorXd& b) const { return b.cwiseProduct(inverse); }
 };
 
 } // namespace
@@ -167,29 +158,33 @@ SolveReport BandSystem::solve(const ShellBand& band, const BandRows& rows, std::
                               int maxIterations) const
 {
     SolveReport rep;
-    const Eigen::Index n = Eigen::Index(rows.rows());
+    const size_t n = rows.rows();
     if (n == 0) {
         rep.converged = true;
         return rep;
     }
     const BandOperator A(band, rows, *this);
-    BandJacobi jacobi;
-    jacobi.inverse.resize(n);
-    for (Eigen::Index r = 0; r < n; ++r) {
-        double d = diag[size_t(r)];
-        for (int k = 0; k < 6; ++k) d -= coef[6 * size_t(r) + size_t(k)] * rows.selfWeight(size_t(r), k);
-        jacobi.inverse[r] = d != 0.0 ? 1.0 / d : 1.0;
+    // Jacobi: the operator's true diagonal diag_r - sum_k c_rk w_k(r) (w_k(r): the row's own
+    // weight in its neighbour's extension).
+    std::vector<double> inverse(n);
+    for (size_t r = 0; r < n; ++r) {
+        double d = diag[r];
+        for (int k = 0; k < 6; ++k) d -= coef[6 * r + size_t(k)] * rows.selfWeight(r, k);
+        inverse[r] = d != 0.0 ? 1.0 / d : 1.0;
     }
-    const Eigen::Map<const Eigen::VectorXd> b(rhs.data(), n);
-    Eigen::VectorXd sol = Eigen::Map<const Eigen::VectorXd>(x.data(), n);
-    // ||r||_2 <= tol implies ||r||_inf <= tol; Eigen's criterion is relative to ||b||_2.
-    const double bn = b.norm();
-    double relTol = bn > 0 ? tolerance / bn : tolerance;
-    Eigen::Index iterations = maxIterations;
-    Eigen::internal::bicgstab(A, b, sol, jacobi, iterations, relTol);
-    for (Eigen::Index r = 0; r < n; ++r) x[size_t(r)] = sol[r];
-    rep.iterations = int(iterations);
-    rep.residual = (b - A * sol).lpNorm<Eigen::Infinity>();
+    const std::vector<double> b(rhs.begin(), rhs.begin() + std::ptrdiff_t(n));
+    solver::BiCgStabSettings settings;
+    settings.absoluteTolerance = tolerance; // ||r||_2 <= tol implies ||r||_inf <= tol
+    settings.maxIterations = maxIterations;
+    x.resize(std::max(x.size(), n));
+    std::vector<double> sol(x.begin(), x.begin() + std::ptrdiff_t(n));
+    const solver::BiCgStabStats st = solver::bicgstab(A, inverse, b, sol, settings);
+    std::copy(sol.begin(), sol.end(), x.begin());
+    rep.iterations = st.iterations;
+    std::vector<double> ax(n);
+    A.apply(sol, ax);
+    rep.residual = 0;
+    for (size_t r = 0; r < n; ++r) rep.residual = std::max(rep.residual, std::fabs(b[r] - ax[r]));
     rep.converged = rep.residual <= tolerance;
     return rep;
 }

@@ -163,6 +163,15 @@ private:
     struct RowSpan { int z, r, qa, qb; };
 
     void applySwitches();
+    // The stages of step(), in order.
+    template <typename Fn>
+    void forRows(Fn&& fn) const; ///< fn(row, storage index of its first cell) over the rows, in parallel
+    void holdNoise();
+    void diffuseHorizontal();
+    std::vector<size_t> diffuseVerticallyAndFreeze();
+    void attach(const std::vector<size_t>& cells);
+    void melt();
+    void growActiveBox();
     void resize(int ra, int zlo, int zhi);
     Box boxFor(int ra, int zlo, int zhi) const;
     /// Makes @a nb the active box (radius @a ra, layers [zlo, zhi]): neighbour offsets, rows, ghosts.

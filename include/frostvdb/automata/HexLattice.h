@@ -1,17 +1,15 @@
 #pragma once
 /// @file HexLattice.h
-/// @brief Plain-array hexagonal lattice for the snowflake automata (no OpenVDB here, to keep
-/// compile times low): a hexagon of radius R in axial coordinates (q, r) centred on (0, 0),
-/// stored in a (2(R+pad)+1)^2 square array whose cells outside the hexagon form a fixed border.
+/// @brief The snowflake automata's array layout on the one hexagonal lattice
+/// (geometry/HexLattice.h: axial coordinates, neighbours, D6 images): a hexagon of radius R in
+/// axial coordinates (q, r) centred on (0, 0), stored in a (2(R+pad)+1)^2 square array whose
+/// cells outside the hexagon form a fixed border. No OpenVDB here, to keep compile times low.
 ///
-/// Axial coordinates are those of core/Lattice.h: world = h * (q + r/2, r*sqrt(3)/2).
-/// Neighbours in counter-clockwise order (direction k at 60k degrees):
-///   N_k = (1,0), (0,1), (-1,1), (-1,0), (0,-1), (1,-1)
-/// Second ring (Coxe-Reiter): points P_k = 2 N_k, edges E_k = N_k + N_{k+1}.
-///
-/// D6 symmetry: the 12 symmetries of the hexagon permute cube coordinates (x, y, z) =
-/// (q, -q-r, r) and may negate them. The fundamental wedge (1/12 of the lattice, the sector
-/// between 0 and 30 degrees) is { 0 <= r <= q, q + r <= R }; canonical() maps any cell onto it.
+/// Neighbour ring offsets follow hex::kNeighbours (counter-clockwise); second ring
+/// (Coxe-Reiter): points P_k = 2 N_k, edges E_k = N_k + N_{k+1}. The fundamental wedge is
+/// { 0 <= r <= q, q + r <= R }.
+#include <frostvdb/geometry/HexLattice.h>
+
 #include <algorithm>
 #include <array>
 #include <cstdint>
@@ -23,30 +21,12 @@
 namespace frostvdb {
 namespace automata {
 
-struct Axial {
-    int q = 0, r = 0;
-    bool operator==(const Axial& o) const { return q == o.q && r == o.r; }
-};
-
-/// Neighbour offsets in counter-clockwise order.
-constexpr std::array<Axial, 6> kNeighbours{{{1, 0}, {0, 1}, {-1, 1}, {-1, 0}, {0, -1}, {1, -1}}};
-
-/// Hexagonal (ring) distance from the origin.
-inline int hexDistance(int q, int r)
-{
-    return std::max({std::abs(q), std::abs(r), std::abs(q + r)});
-}
-
-/// The image of (q, r) in the fundamental wedge { 0 <= r <= q } under D6.
-inline Axial canonical(int q, int r)
-{
-    int a = q, b = r, c = -q - r; // cube coordinates x, z, y
-    if (a < b) std::swap(a, b);
-    if (b < c) std::swap(b, c);
-    if (a < b) std::swap(a, b); // a >= b >= c
-    if (b < 0) { const int t = a; a = -c; b = -b; c = -t; }
-    return {a, b};
-}
+using hex::Axial;
+using hex::canonical;
+using hex::cellAt;
+using hex::hexDistance;
+using hex::kNeighbours;
+using hex::roundAxial;
 
 /// Sum of six values v[0..5] given in cyclic order, computed so that the result is bit-identical
 /// for every D6 permutation of the inputs: opposite pairs are summed first (addition is
@@ -154,25 +134,6 @@ private:
     int mR = 0, mPad = 0, mOff = 0, mW = 1;
     std::array<int64_t, 6> mN{}, mP{}, mE{};
 };
-
-/// Nearest hexagonal cell to a fractional axial position (cube rounding).
-inline Axial roundAxial(double fq, double fr)
-{
-    const double x = fq, z = fr, y = -x - z;
-    double rx = std::round(x), ry = std::round(y), rz = std::round(z);
-    const double dx = std::abs(rx - x), dy = std::abs(ry - y), dz = std::abs(rz - z);
-    if (dx > dy && dx > dz) rx = -ry - rz;
-    else if (dy > dz) ry = -rx - rz;
-    else rz = -rx - ry;
-    return {int(rx), int(rz)};
-}
-
-/// A world position in cell spacings to the hexagonal cell that contains it.
-inline Axial cellAt(double x, double y)
-{
-    const double r = y / (std::sqrt(3.0) / 2.0);
-    return roundAxial(x - 0.5 * r, r);
-}
 
 } // namespace automata
 } // namespace frostvdb

@@ -1,7 +1,7 @@
 #pragma once
 /// @file MultigridPoisson.h
 /// @brief The pressure Poisson solve of a MAC-grid fluid, as a multigrid-preconditioned conjugate
-/// gradient (McAdams, Sifakis & Teran 2010) over the active cells of a box, in 2D or 3D.
+/// gradient (McAdams, Sifakis & Teran 2010; the shared solver::conjugateGradient) over the active cells of a box, in 2D or 3D.
 ///
 /// Layout (why): the unknowns are stored compactly, one entry per active (fluid) cell in
 /// lexicographic order, so the vectors of CG and of every multigrid level cost memory only where
@@ -19,6 +19,8 @@
 /// smoothing is red-black Gauss-Seidel (red then black before, black then red after, so the
 /// V-cycle is a symmetric preconditioner). Every sweep updates one colour at a time and every
 /// reduction sums fixed blocks serially, so the result is bit-identical at any thread count.
+#include <frostvdb/solver/ConjugateGradient.h>
+
 #include <openvdb/openvdb.h>
 
 #include <array>
@@ -85,7 +87,7 @@ public:
 private:
     std::vector<std::unique_ptr<Level>> mLevels;
     int mDim;
-    mutable std::vector<double> mR, mZ, mP, mQ; ///< CG's vectors, kept across solves
+    mutable solver::CgWorkspace mWork; ///< CG's vectors, kept across solves
 };
 
 } // namespace fluid

@@ -68,7 +68,10 @@ GasGrids buildGasGrids(const GasModel& model, const GasContext& ctx,
 void evaluateDensityOver(const GasModel& model, const GasContext& ctx, openvdb::FloatGrid& grid);
 
 /// A ray-marched preview of a frame's gas (density, plus `ice` if present, and fire emission from
-/// `flame`/`Cd`), viewed horizontally (perpendicular to @a up), lit from above.
+/// `flame`/`Cd`), viewed horizontally (perpendicular to @a up), lit from above. Not
+/// tools::VolumeRender: that renders one scalar density with a single light and cannot draw
+/// fire's per-voxel emission colour (`Cd` x `flame`) or the second panel of steam seen from above
+/// over the frost's `ice`.
 void writeGasPreview(const openvdb::GridPtrVec& grids, const V3& up, const std::string& pngPath,
                      int width = 480);
 
