@@ -329,10 +329,9 @@ void FluidEffect::addToFrame(World& world, Frame& frame)
     auto vel = world.fields.get<openvdb::Vec3SGrid>(ice::kVelocity);
     if (!vel) return;
     auto out = vel->deepCopy(); // already in world units
-    out->setName(out::kFlowVel.name); // not `vel`: that is the gas's m/s
     out->setVectorType(openvdb::VEC_CONTRAVARIANT_RELATIVE);
     out->insertMeta("units", openvdb::StringMetadata("m per unit simulation time"));
-    frame.add(out);
+    frame.add(out::kFlowVel, out); // not `vel`: that is the gas's m/s
 }
 
 bool FluidEffect::writePreview(World& world, const Frame& frame, const std::string& pngPath)
