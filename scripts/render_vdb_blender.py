@@ -3,8 +3,9 @@
     blender -b -P scripts/render_vdb_blender.py -- IN.vdb OUT.png [options]
 
 Options (all optional):
-    --grid NAME        grid to show (default for --as surface: ice_sdf, else ice, else density, else the
-                       first float grid; for --as volume: ice, else density, else ice_sdf, else the first)
+    --grid NAME        grid to show (default for --as surface: ice_sdf, else ice (or automaton_ice,
+                       aggregate_ice), else density, else the first float grid; for --as volume: ice (or
+                       automaton_ice, aggregate_ice), else density, else ice_sdf, else the first)
     --as surface|volume
                        surface (default): the grid's iso-surface (Blender's Volume to Mesh modifier,
                        threshold --threshold, 0 for level sets) shaded as ice; volume: a Principled
@@ -347,7 +348,8 @@ def main():
     in_vdb, out_png, opts = parse_args(sys.argv)
     clear_scene()
     # A surface is best taken from the level set (smooth), a volume from the fog.
-    prefer = ("ice_sdf", "ice", "density") if opts["as"] == "surface" else ("ice", "density", "ice_sdf")
+    fogs = ("ice", "automaton_ice", "aggregate_ice")
+    prefer = ("ice_sdf",) + fogs + ("density",) if opts["as"] == "surface" else fogs + ("density", "ice_sdf")
     vol_obj, grid = load_volume(in_vdb, opts["grid"], prefer)
     gname = grid.name
     lo, hi, _ = evaluated_bounds(vol_obj)

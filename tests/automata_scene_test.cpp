@@ -44,18 +44,18 @@ TEST_CASE("every automaton section writes cells, ice and freeze_step", "[automat
         INFO(sec);
         auto g = runScene(text);
         REQUIRE(g.count("cells"));
-        REQUIRE(g.count("ice"));
+        REQUIRE(g.count("automaton_ice"));
         REQUIRE(g.count("freeze_step"));
         CHECK(g["cells"]->activeVoxelCount() > 0);
-        CHECK(g["ice"]->activeVoxelCount() > 0);
+        CHECK(g["automaton_ice"]->activeVoxelCount() > 0);
         CHECK(g["freeze_step"]->activeVoxelCount() > 1);
-        CHECK(g["ice"]->getGridClass() == openvdb::GRID_FOG_VOLUME);
+        CHECK(g["automaton_ice"]->getGridClass() == openvdb::GRID_FOG_VOLUME);
         // `ice` is on cubes; `cells` uses the sheared hexagonal transform.
-        const auto vs = g["ice"]->voxelSize();
+        const auto vs = g["automaton_ice"]->voxelSize();
         CHECK(vs.x() == Approx(vs.y()));
         CHECK(vs.x() == Approx(vs.z()));
-        CHECK(g["ice"]->evalActiveVoxelBoundingBox().dim().z() > 1);
-        const auto ice = openvdb::tools::minMax(g["ice"]->tree());
+        CHECK(g["automaton_ice"]->evalActiveVoxelBoundingBox().dim().z() > 1);
+        const auto ice = openvdb::tools::minMax(g["automaton_ice"]->tree());
         CHECK(ice.max() <= 1.0f);
         CHECK(ice.min() >= 0.0f);
         // The seed cell is at index (0, 0, 0) and froze at step 0.
@@ -73,12 +73,12 @@ TEST_CASE("batch mode grows K distinct flakes in one run", "[automata][fast]")
                              "[domain]\nsize = [61, 61]\n[coxe_reiter]\nbackground = 0.2\nbatch = 3\n";
     Simulation* sim = nullptr;
     auto g = runScene(text, &sim);
-    for (const char* name : {"ice", "ice_0", "ice_1", "ice_2", "cells_0", "cells_1", "cells_2", "freeze_step_2"}) {
+    for (const char* name : {"automaton_ice", "automaton_ice_0", "automaton_ice_1", "automaton_ice_2", "cells_0", "cells_1", "cells_2", "freeze_step_2"}) {
         INFO(name);
         REQUIRE(g.count(name));
         CHECK(g[name]->activeVoxelCount() > 0);
     }
-    CHECK(g["ice_1"]->activeVoxelCount() != g["ice_2"]->activeVoxelCount());
+    CHECK(g["automaton_ice_1"]->activeVoxelCount() != g["automaton_ice_2"]->activeVoxelCount());
     auto* fx = dynamic_cast<automata::AutomatonEffect*>(sim->effect("coxe_reiter"));
     REQUIRE(fx);
     REQUIRE(fx->flakes().size() == 3);
@@ -87,15 +87,15 @@ TEST_CASE("batch mode grows K distinct flakes in one run", "[automata][fast]")
         CHECK(f->isD6Symmetric());
     }
     // The combined grid holds every flake side by side; each ice_k is centred on the origin.
-    CHECK(g["ice"]->activeVoxelCount() ==
-          g["ice_0"]->activeVoxelCount() + g["ice_1"]->activeVoxelCount() + g["ice_2"]->activeVoxelCount());
-    const auto bb = g["ice_2"]->evalActiveVoxelBoundingBox();
+    CHECK(g["automaton_ice"]->activeVoxelCount() ==
+          g["automaton_ice_0"]->activeVoxelCount() + g["automaton_ice_1"]->activeVoxelCount() + g["automaton_ice_2"]->activeVoxelCount());
+    const auto bb = g["automaton_ice_2"]->evalActiveVoxelBoundingBox();
     CHECK(bb.min().x() == -bb.max().x());
     // Flake 0 is exactly the unbatched flake.
-    const uint64_t flake0 = g["ice_0"]->activeVoxelCount();
+    const uint64_t flake0 = g["automaton_ice_0"]->activeVoxelCount();
     auto single = runScene("[scene]\nframes = 1\nsteps_per_frame = 40\nseed = 3\n"
                            "[domain]\nsize = [61, 61]\n[coxe_reiter]\nbackground = 0.2\n");
-    CHECK(single["ice"]->activeVoxelCount() == flake0);
+    CHECK(single["automaton_ice"]->activeVoxelCount() == flake0);
 }
 
 TEST_CASE("unknown keys and other rules' keys are errors", "[automata][fast]")

@@ -331,7 +331,7 @@ TEST_CASE("Same seed gives bit-identical dla3d files with 1 and 2 threads", "[fa
     auto grids = f.getGrids();
     std::set<std::string> names;
     for (auto& g : *grids) names.insert(g->getName());
-    CHECK(names == std::set<std::string>{"points", "ice_sdf", "ice"});
+    CHECK(names == std::set<std::string>{"points", "ice_sdf", "aggregate_ice"});
     for (auto& g : *grids)
         if (auto pts = openvdb::gridPtrCast<openvdb::points::PointDataGrid>(g)) {
             CHECK(openvdb::points::pointCount(pts->tree()) == 3000);

@@ -107,7 +107,7 @@ inflow_speed = 3.5
 TEST_CASE("Fluid projection leaves the discrete divergence below the tolerance", "[fast][fluid]")
 {
     for (auto edge : {ice::FluidEdge::Left, ice::FluidEdge::Top}) {
-        for (auto prof : {ice::InflowProfile::Uniform, ice::InflowProfile::Parabolic, ice::InflowProfile::RampQuadratic}) {
+        for (auto prof : {fluid::Profile::Uniform, fluid::Profile::Parabolic, fluid::Profile::Quadratic}) {
             ice::FluidParams fp;
             fp.inflowEdge = edge;
             fp.profile = prof;
@@ -178,7 +178,7 @@ TEST_CASE("Uniform inflow with no obstacle stays uniform on every edge", "[fast]
 
 TEST_CASE("A symmetric obstacle in a symmetric flow gives a mirror-symmetric velocity", "[fast][fluid]")
 {
-    for (auto prof : {ice::InflowProfile::Uniform, ice::InflowProfile::Parabolic}) {
+    for (auto prof : {fluid::Profile::Uniform, fluid::Profile::Parabolic}) {
         ice::FluidParams fp;
         fp.profile = prof;
         fp.tolerance = 1e-9;

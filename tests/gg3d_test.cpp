@@ -223,7 +223,7 @@ TEST_CASE("gg3d: over-budget scenes are refused before allocation; an empty sect
     Frame f = sim.currentFrame(1);
     std::set<std::string> names;
     for (auto& g : f.grids) names.insert(g->getName());
-    for (const char* n : {"cells", "ice", "ice_sdf", "freeze_step"}) CHECK(names.count(n));
+    for (const char* n : {"cells", "automaton_ice", "ice_sdf", "freeze_step"}) CHECK(names.count(n));
 }
 
 namespace {
@@ -501,12 +501,12 @@ TEST_CASE("[output] world_scale multiplies the world size of written grids and m
     Frame f = sim.currentFrame(1);
     double iceVoxel = 0;
     for (auto& g : f.grids)
-        if (g->getName() == "ice") iceVoxel = g->voxelSize()[0];
+        if (g->getName() == "automaton_ice") iceVoxel = g->voxelSize()[0];
     REQUIRE(iceVoxel == Approx(0.0001 / 3));
     const std::string path = sim.writeFrame(f, dir.string());
     openvdb::io::File file(path);
     file.open();
-    auto written = file.readGrid("ice");
+    auto written = file.readGrid("automaton_ice");
     file.close();
     CHECK(written->voxelSize()[0] == Approx(100 * iceVoxel));
     CHECK(iceVoxel == Approx(0.0001 / 3)); // the frame's own grid is untouched

@@ -84,10 +84,13 @@ TEST_CASE("deriveEffectOrder: writers before readers in a stage, cycles and two 
 
 TEST_CASE("A scene whose effects write one grid name with two meanings is refused", "[fast][order]")
 {
-    // the automaton's ice lives on its prism lattice, the hybrid ice on the domain
-    const auto msg = errorOf("[domain]\nsize = [32, 32]\n[phase_field]\n[packard]\n");
-    CHECK(msg.find("[phase_field] and [packard]") != std::string::npos);
-    CHECK(msg.find("'ice'") != std::string::npos);
+    // two automata each put their own `cells` (on their own lattice) into every frame
+    const auto msg = errorOf("[domain]\nsize = [32, 32]\n[packard]\n[reiter]\n");
+    CHECK(msg.find("[packard] and [reiter]") != std::string::npos);
+    CHECK(msg.find("'cells'") != std::string::npos);
+    // the automaton's ice has a name of its own (automaton_ice): it no longer clashes with the
+    // hybrid ice's `ice`
+    CHECK(errorOf("[domain]\nsize = [32, 32]\n[phase_field]\n[packard]\n").find("'ice'") == std::string::npos);
     // steam and fire share `density` and `vel` with one meaning each: accepted
     // (at 1 cm voxels: the default 0.1 mm would exceed the memory budget for the default gas bounds)
     CHECK(errorOf("[domain]\nsize = [32, 32]\nvoxel_size = 0.01\n[steam]\n[fire]\n").empty());

@@ -280,7 +280,8 @@ int cmdPreview(const std::vector<std::string>& args)
     if (width < 16 || width > 8192) throw SceneError("--width", 0, "", "must be in [16, 8192]");
     auto grids = readVdb(vm["file"].as<std::string>());
     openvdb::GridBase::Ptr pick;
-    std::vector<std::string> wanted = gridName.empty() ? std::vector<std::string>{"ice", "density", "cells"}
+    std::vector<std::string> wanted = gridName.empty() ? std::vector<std::string>{out::kIce.name, out::kAutomatonIce.name, out::kAggregateIce.name,
+                                                                                  out::kDensity.name, out::kCells.name}
                                                        : std::vector<std::string>{gridName};
     for (auto& w : wanted)
         for (auto& g : *grids)

@@ -1,6 +1,6 @@
 /// @file AutomatonEffect.cpp
 /// @brief Scene sections for the hexagonal automata, and the one place where their plain arrays
-/// become OpenVDB grids (`cells`, `ice`, `freeze_time`) and hexagon PNG previews.
+/// become OpenVDB grids (`cells`, `automaton_ice`, `freeze_step`) and hexagon PNG previews.
 #include <frostvdb/automata/AutomatonEffect.h>
 
 #include <cstdio>
@@ -146,7 +146,7 @@ MemoryEstimate AutomatonEffect::memoryEstimate(const World& world) const
     const bool is3D = mCfg.rule == Rule::GravnerGriffeath3D;
     const double layers = is3D ? (mCfg.layers > 0 ? mCfg.layers : (world.domain.flat() ? 31 : dim.z())) : 1.0;
     const double cells = (3.0 * R * R + 3.0 * R + 1.0) * layers;
-    const double X = (R + 1.0) * mOut.voxelsPerCell + 1.0; // `ice` half-width in voxels (writeFlake)
+    const double X = (R + 1.0) * mOut.voxelsPerCell + 1.0; // `automaton_ice` half-width in voxels (writeFlake)
     const double Z = is3D ? (layers * 0.5 + 1.0) * mOut.prismHeight * mOut.voxelsPerCell
                           : 0.5 * mOut.plateThickness * mOut.voxelsPerCell + 1.0;
     const double iceVoxels = (2 * X + 1) * (2 * X + 1) * (2 * Z + 1);
@@ -238,7 +238,7 @@ void writeFlake(const HexAutomaton& a, const OutputOptions& out, double h, int s
                 if (vapour && !a.frozen(i)) vapour->tree().setValue(ijk, float(a.vapour(i)));
             }
 
-    // `ice` on a cubic voxel grid: each voxel column / voxel looks up its hexagonal cell.
+    // `automaton_ice` on a cubic voxel grid: each voxel column / voxel looks up its hexagonal cell.
     const int rad = a.frozenRadius();
     if (rad < 0) return;
     const double vs = h / out.voxelsPerCell;
@@ -306,16 +306,16 @@ void AutomatonEffect::addToFrame(World& world, Frame& frame)
     auto cellXform = is3D ? hex::prismTransform(h, mOut.prismHeight * h) : Lattice(LatticeKind::Hexagonal).transform(h);
     auto iceXform = openvdb::math::Transform::createLinearTransform(vs);
 
-    auto makeGrids = [&](const std::string& suffix) {
+    // cells, automaton_ice, freeze_step (a step count, not the ice clock's freeze_time): named by
+    // their keys when added to the frame
+    const std::array<const FieldKey*, 3> keys{&out::kCells, &out::kAutomatonIce, &out::kFreezeStep};
+    auto makeGrids = [&]() {
         auto cells = openvdb::FloatGrid::create(cellsBg);
-        cells->setName("cells" + suffix);
         cells->setTransform(cellXform->copy());
         auto ice = openvdb::FloatGrid::create(0.0f);
-        ice->setName("ice" + suffix);
         ice->setGridClass(openvdb::GRID_FOG_VOLUME);
         ice->setTransform(iceXform->copy());
         auto freeze = openvdb::FloatGrid::create(-1.0f);
-        freeze->setName(out::kFreezeStep.name + suffix); // a step count, not the ice clock's freeze_time
         freeze->setTransform(cellXform->copy());
         freeze->insertMeta("unit", openvdb::StringMetadata("steps"));
         cells->insertMeta("rule", openvdb::StringMetadata(ruleName(mCfg.rule)));
@@ -327,11 +327,10 @@ void AutomatonEffect::addToFrame(World& world, Frame& frame)
 
     const int K = int(mFlakes.size());
     for (auto& f : mFlakes) f->expand();
-    auto all = makeGrids("");
+    auto all = makeGrids();
     openvdb::FloatGrid::Ptr vapour;
     if (mOut.writeVapour) {
         vapour = openvdb::FloatGrid::create(float(mCfg.gg.rho));
-        vapour->setName("vapour");
         vapour->setTransform(cellXform->copy());
     }
     for (int k = 0; k < K; ++k) {
@@ -342,19 +341,19 @@ void AutomatonEffect::addToFrame(World& world, Frame& frame)
         const int iceShift = int(std::lround(shift * h / vs));
         writeFlake(a, mOut, h, shift, iceShift, *all[0], *all[1], *all[2], k == 0 ? vapour.get() : nullptr);
         if (K > 1) {
-            auto one = makeGrids("_" + std::to_string(k));
+            auto one = makeGrids();
             writeFlake(a, mOut, h, 0, 0, *one[0], *one[1], *one[2], nullptr);
-            for (auto& g : one) {
-                g->pruneGrid();
-                frame.add(g);
+            for (size_t i = 0; i < one.size(); ++i) {
+                one[i]->pruneGrid();
+                frame.add(*keys[i], one[i], "_" + std::to_string(k));
             }
         }
     }
-    for (auto& g : all) {
-        g->pruneGrid();
-        frame.add(g);
+    for (size_t i = 0; i < all.size(); ++i) {
+        all[i]->pruneGrid();
+        frame.add(*keys[i], all[i]);
     }
-    if (vapour) frame.add(vapour);
+    if (vapour) frame.add(out::kVapour, vapour);
     mOutputSeconds += since(t0);
     (void)world;
 }
@@ -365,7 +364,7 @@ bool AutomatonEffect::writePreview(World& world, const Frame& frame, const std::
     if (mCfg.rule == Rule::GravnerGriffeath3D) {
         // The true 3D crystal: ray-marched by the shared preview.
         for (const auto& g : frame.grids)
-            if (g->getName() == "ice") {
+            if (g->getName() == out::kAutomatonIce.name) {
                 if (auto fg = openvdb::gridConstPtrCast<openvdb::FloatGrid>(g)) {
                     if (fg->activeVoxelCount() == 0) return false;
                     frostvdb::writePreview(*fg, pngPath);
@@ -419,8 +418,8 @@ OutputOptions readOutput(ParamDict& d, Rule rule, AutomatonConfig& cfg)
     cfg.wedge = d.getBool("wedge", true,
         "compute 1/12 of the lattice and mirror it (bit-identical; used only for symmetric set-ups)");
     o.batch = int(d.getInt("batch", 1, 1, 1024, "flakes",
-        "grow this many distinct flakes at once: grids cells_k, ice_k, freeze_time_k (k = 0..K-1) "
-        "centred on the origin, plus all flakes side by side in cells, ice, freeze_time"));
+        "grow this many distinct flakes at once: grids cells_k, automaton_ice_k, freeze_step_k (k = 0..K-1) "
+        "centred on the origin, plus all flakes side by side in cells, automaton_ice, freeze_step"));
     o.vary = d.getFloat("vary", 0.05, 0.0, 0.5, "",
         "batch: relative random jitter of the rule's parameters for flakes 1..K-1 (flake 0 is exact)");
     o.seedRadius = int(d.getInt("seed_radius", 3, 0, 50, "cells",
@@ -428,9 +427,9 @@ OutputOptions readOutput(ParamDict& d, Rule rule, AutomatonConfig& cfg)
     const std::string defThick = (rule == Rule::CoxeReiter || rule == Rule::Reiter) ? "value" : "age";
     if (!is3D) {
         o.thickness = d.getString("thickness", defThick, {"age", "value", "uniform"},
-            "`ice` plate thickness from the cell's age (old ice is thick), its value, or uniform");
+            "`automaton_ice` plate thickness from the cell's age (old ice is thick), its value, or uniform");
         o.plateThickness = d.getFloat("plate_thickness", 1.5, 0.01, 1000.0, "cells",
-            "thickest plate of `ice`, in cell spacings");
+            "thickest plate of `automaton_ice`, in cell spacings");
         o.plateMin = d.getFloat("plate_min", 0.25, 0.0, 1.0, "",
             "thinnest plate as a fraction of plate_thickness");
         o.ageSteps = d.getFloat("age_steps", 0.0, 0.0, 1e9, "steps",
@@ -442,7 +441,7 @@ OutputOptions readOutput(ParamDict& d, Rule rule, AutomatonConfig& cfg)
             "prism height in cell spacings (the model's prisms are one spacing high)");
     }
     o.voxelsPerCell = int(d.getInt("voxels_per_cell", is3D ? 3 : 2, 1, 16, "voxels",
-        "`ice` voxels (cubes) per cell spacing: the hexagonal lattice is resampled to a cubic grid"));
+        "`automaton_ice` voxels (cubes) per cell spacing: the hexagonal lattice is resampled to a cubic grid"));
     return o;
 }
 
@@ -513,7 +512,7 @@ std::unique_ptr<Effect> RuleEffect<R>::create(ParamDict& d, const World& world)
     AutomatonConfig cfg;
     cfg.rule = R;
     OutputOptions out = readOutput(d, R, cfg);
-    // `ice` voxels are h / voxels_per_cell: OpenVDB refuses transforms below ~1.44e-5 m (its
+    // `automaton_ice` voxels are h / voxels_per_cell: OpenVDB refuses transforms below ~1.44e-5 m (its
     // scale determinant must exceed 3e-15), so name the key here instead of failing at output.
     const double iceVoxel = world.domain.voxelSize() / out.voxelsPerCell;
     if (iceVoxel * iceVoxel * iceVoxel < 4e-15) {

@@ -246,10 +246,10 @@ GG3DOutput readGG3DOutput(ParamDict& d, const World& world)
 {
     GG3DOutput out;
     out.voxelsPerCell = int(d.getInt("voxels_per_cell", 3, 1, 16, "voxels",
-        "`ice` / `ice_sdf` voxels (cubes) per cell spacing: the prisms resampled to a cubic grid"));
+        "`automaton_ice` / `ice_sdf` voxels (cubes) per cell spacing: the prisms resampled to a cubic grid"));
     out.prismHeight = d.getFloat("prism_height", 1.0, 0.05, 100.0, "cells", "prism height in cell spacings");
     {   // OpenVDB refuses near-singular maps ("ArithmeticError: Non-zero scale values required"):
-        // check the `ice` voxel and the prism layer here and say which key to change.
+        // check the `automaton_ice` voxel and the prism layer here and say which key to change.
         const double h = world.domain.voxelSize();
         try {
             openvdb::math::Transform::createLinearTransform(h / out.voxelsPerCell);
@@ -257,7 +257,7 @@ GG3DOutput readGG3DOutput(ParamDict& d, const World& world)
         } catch (const std::exception&) {
             char msg[200];
             std::snprintf(msg, sizeof msg,
-                          "`ice` voxels of [domain] voxel_size / voxels_per_cell = %.3g m (prism height %.3g m) are "
+                          "`automaton_ice` voxels of [domain] voxel_size / voxels_per_cell = %.3g m (prism height %.3g m) are "
                           "below OpenVDB's limit (about 3e-5 m): lower voxels_per_cell or raise voxel_size",
                           h / out.voxelsPerCell, h * out.prismHeight);
             d.fail(d.has("prism_height") && h * out.prismHeight < h / out.voxelsPerCell ? "prism_height" : "voxels_per_cell", msg);
@@ -272,8 +272,8 @@ GG3DOutput readGG3DOutput(ParamDict& d, const World& world)
         "current directory");
     out.meshAdaptivity = d.getFloat("mesh_adaptivity", 0.0, 0.0, 1.0, "", "VolumeToMesh adaptivity (0: all quads)");
     out.batch = int(d.getInt("batch", 1, 1, 4096, "flakes",
-        "grow this many distinct flakes (parameters jittered by `vary`): grids cells_k, ice_k, ... plus all side by "
-        "side in cells, ice, ..."));
+        "grow this many distinct flakes (parameters jittered by `vary`): grids cells_k, automaton_ice_k, ... plus all side by "
+        "side in cells, automaton_ice, ..."));
     out.vary = d.getFloat("vary", 0.05, 0.0, 0.5, "", "batch: relative jitter of rho, beta and mu for flakes 1..K-1");
     return out;
 }

@@ -1,6 +1,6 @@
 /// @file GG3DOutput.cpp
 /// @brief The OpenVDB side of [gravner_griffeath_3d]: `cells` / `freeze_time` on the prism
-/// lattice, `ice` (prisms resampled to cubic voxels), `ice_sdf` (tools::topologyToLevelSet),
+/// lattice, `automaton_ice` (prisms resampled to cubic voxels), `ice_sdf` (tools::topologyToLevelSet),
 /// mesh files (tools::volumeToMesh), a ray-marched preview of the level set, and the effect's
 /// addToFrame and registration.
 #include <frostvdb/automata/GG3DEffect.h>
@@ -24,7 +24,7 @@ namespace automata {
 namespace {
 
 
-/// `ice`: each voxel takes the state of the prism containing its centre. Slabs of voxel rows
+/// `automaton_ice`: each voxel takes the state of the prism containing its centre. Slabs of voxel rows
 /// in parallel, each into its own tree, merged in slab order (deterministic).
 openvdb::FloatGrid::Ptr resampleIce(const GG3D& a, const GG3DOutput& out, double h)
 {
@@ -200,10 +200,6 @@ void GG3DEffect::addToFrame(World& world, Frame& frame)
     const auto t0 = std::chrono::steady_clock::now();
     const double h = mCellSize;
     const int K = int(mFlakes.size());
-    auto name = [&](openvdb::FloatGrid::Ptr g, const std::string& base, const std::string& suffix) {
-        g->setName(base + suffix);
-        return g;
-    };
     GG3DGrids all;
     for (int k = 0; k < K; ++k) {
         const GG3D& a = *mFlakes[size_t(k)];
@@ -219,8 +215,12 @@ void GG3DEffect::addToFrame(World& world, Frame& frame)
             break;
         }
         for (auto* g : {&one.cells, &one.freeze, &one.ice, &one.sdf})
-            if (*g) frame.add(name(*g, *g == one.cells ? "cells" : *g == one.freeze ? "freeze_step"
-                                          : *g == one.ice ? "ice" : "ice_sdf", "_" + std::to_string(k)));
+            if (*g)
+                frame.add(*g == one.cells    ? out::kCells
+                          : *g == one.freeze ? out::kFreezeStep
+                          : *g == one.ice    ? out::kAutomatonIce
+                                             : out::kIceSdf,
+                          *g, "_" + std::to_string(k));
         // Side by side along x, 2R + 4 cells apart (R = domain radius).
         const int shift = k * (2 * mCfg.domainRadius + 4);
         auto place = [&](openvdb::FloatGrid::Ptr& dst, const openvdb::FloatGrid::Ptr& src, int dx) {
@@ -247,13 +247,13 @@ void GG3DEffect::addToFrame(World& world, Frame& frame)
     }
     if (K > 1 && mOut.sdf && all.ice && all.ice->activeVoxelCount() > 0)
         all.sdf = openvdb::tools::topologyToLevelSet(*all.ice, 3, 0, 0, mOut.sdfSmoothing);
-    frame.add(name(all.cells, "cells", ""));
-    frame.add(name(all.freeze, "freeze_step", ""));
+    frame.add(out::kCells, all.cells);
+    frame.add(out::kFreezeStep, all.freeze);
     all.ice->pruneGrid();
-    frame.add(name(all.ice, "ice", ""));
+    frame.add(out::kAutomatonIce, all.ice);
     if (mOut.sdf && all.sdf) {
         all.sdf->setGridClass(openvdb::GRID_LEVEL_SET);
-        frame.add(name(all.sdf, "ice_sdf", ""));
+        frame.add(out::kIceSdf, all.sdf);
         if (mOut.mesh != "none" && all.sdf->activeVoxelCount() > 0) {
             std::string path = mOut.meshPath.empty() ? world.sceneName + "_gg3d." + mOut.mesh : mOut.meshPath;
             const auto dot = path.rfind('.');

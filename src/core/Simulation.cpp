@@ -465,7 +465,7 @@ std::vector<std::string> Simulation::writeDisplacement(const Frame& frame, const
     if (!mOutput.displacementPng || !mWorld.domain.flat()) return {};
     for (auto& g : frame.grids) {
         auto growth = openvdb::gridPtrCast<openvdb::FloatGrid>(g);
-        if (!growth || g->getName() != "growth") continue;
+        if (!growth || g->getName() != out::kGrowth.name) continue;
         makeDirectories(dir);
         const std::string path = framePath(dir, mWorld.sceneName, frame.frame, "displacement.png");
         return writeDisplacementMaps(*growth, mWorld.domain, path.substr(0, path.size() - 4), mOutput.displacementTile);
@@ -724,8 +724,9 @@ std::string Simulation::writeFramePreview(const Frame& frame, int64_t f, const s
     for (auto& e : mEffects)
         if (e->writePreview(mWorld, frame, png)) return png;
     openvdb::GridBase::Ptr pick;
-    for (const std::string& want : {mOutput.previewGrid, std::string("ice"), std::string("density"),
-                                   std::string("cells")}) {
+    for (const std::string& want : {mOutput.previewGrid, std::string(out::kIce.name), std::string(out::kAutomatonIce.name),
+                                   std::string(out::kAggregateIce.name), std::string(out::kDensity.name),
+                                   std::string(out::kCells.name)}) {
         if (want.empty() || pick) continue;
         for (auto& g : frame.grids)
             if (g->getName() == want && g->isType<openvdb::FloatGrid>()) pick = g;

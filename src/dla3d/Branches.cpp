@@ -1,4 +1,5 @@
 /// @file Branches.cpp
+#include <frostvdb/core/FieldKeys.h>
 #include <frostvdb/dla3d/Branches.h>
 
 #include <openvdb/points/PointConversion.h>
@@ -53,7 +54,7 @@ openvdb::points::PointDataGrid::Ptr makePointGrid(const std::vector<Vec3d>& posi
     for (size_t i = 0; i < ids.size(); ++i) ids[i] = int32_t(i);
     appendAttribute<int32_t>(tree, "id");
     populateAttribute(tree, index->tree(), "id", PointAttributeVector<int32_t>(ids));
-    grid->setName("points");
+    grid->setName(out::kPoints.name);
     return grid;
 }
 
@@ -133,7 +134,7 @@ openvdb::FloatGrid::Ptr rasterizeBranches(const std::vector<Vec3d>& positions, c
     grid->setGridClass(openvdb::GRID_LEVEL_SET);
     openvdb::tools::signedFloodFill(grid->tree());
     openvdb::tools::pruneLevelSet(grid->tree());
-    grid->setName("ice_sdf");
+    grid->setName(out::kIceSdf.name);
     return grid;
 }
 

@@ -152,7 +152,7 @@ std::unique_ptr<Effect> Dla3dEffect::create(ParamDict& d, const World& world)
                              "CPU-seconds");
     o.points = d.getBool("write_points", true, "write the PointDataGrid `points`");
     o.sdf = d.getBool("write_sdf", true, "write the level set `ice_sdf`");
-    o.fog = d.getBool("write_fog", true, "write the fog volume `ice` (from ice_sdf)");
+    o.fog = d.getBool("write_fog", true, "write the fog volume `aggregate_ice` (from ice_sdf)");
     o.mesh = d.getString("mesh", "none", {"none", "obj", "ply"},
                          "also write ice_sdf as a polygon mesh beside the last preview (<scene>.<frame>.obj/ply)");
     s.seed = world.seed;
@@ -276,7 +276,8 @@ void Dla3dEffect::addToFrame(World& world, Frame& frame)
             throw SimulationError("dla3d: non-finite particle position at frame " + std::to_string(frame.frame));
     const auto radii = branchRadii(agg.parents(), mOptions.style);
     if (mOptions.points)
-        frame.add(makePointGrid(agg.positions(), radii, agg.parents(), agg.generations(), mAttach, mOptions.voxelSize));
+        frame.add(out::kPoints,
+                  makePointGrid(agg.positions(), radii, agg.parents(), agg.generations(), mAttach, mOptions.voxelSize));
     mSdf.reset();
     if (mOptions.sdf || mOptions.fog || mOptions.mesh != "none") {
         // Counted before a voxel is touched: a frame over max_voxels is refused, a long one reports progress.
@@ -304,12 +305,11 @@ void Dla3dEffect::addToFrame(World& world, Frame& frame)
                                  report);
         if (progress) progress->finish();
         mSdf->insertMeta("frostvdb_dla3d_particles", openvdb::Int64Metadata(int64_t(agg.size())));
-        if (mOptions.sdf) frame.add(mSdf);
+        if (mOptions.sdf) frame.add(out::kIceSdf, mSdf);
         if (mOptions.fog) {
             auto fog = mSdf->deepCopy();
             openvdb::tools::sdfToFogVolume(*fog);
-            fog->setName("ice");
-            frame.add(fog);
+            frame.add(out::kAggregateIce, fog);
         }
     }
     mOutputSeconds += std::chrono::duration<double>(Clock::now() - t0).count();
@@ -326,7 +326,7 @@ bool Dla3dEffect::writePreview(World& world, const Frame& frame, const std::stri
         if (mOptions.mesh == "obj") writeObj(base + ".obj", points, tris, quads);
         else writePly(base + ".ply", points, tris, quads);
     }
-    return false; // the driver draws `ice` (ray-marched)
+    return false; // the driver draws `aggregate_ice` (ray-marched)
 }
 
 MemoryEstimate Dla3dEffect::memoryEstimate(const World&) const

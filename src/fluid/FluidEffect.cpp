@@ -61,9 +61,10 @@ std::unique_ptr<Effect> FluidEffect::create(ParamDict& d, const World& world)
         "inflow speed across the inflow side: uniform; parabolic (speed at the centre, 0 at the ends, the paper's "
         "Figure 10); ramp_quadratic or quadratic (0 at the start rising as s^2 to speed at the end, Figure 6); "
         "linear (rising as s). s runs along x for inflow on y or z sides, along y for inflow on x sides");
-    f.profile = profile == "parabolic" ? ice::InflowProfile::Parabolic
-              : (profile == "ramp_quadratic" || profile == "quadratic") ? ice::InflowProfile::RampQuadratic
-              : ice::InflowProfile::Uniform;
+    f.profile = profile == "parabolic" ? fluid::Profile::Parabolic
+              : profile == "linear" ? fluid::Profile::Linear
+              : (profile == "ramp_quadratic" || profile == "quadratic") ? fluid::Profile::Quadratic
+              : fluid::Profile::Uniform;
     if (!sparse && profile == "linear")
         throw SceneError(world.sceneLabel, 0, "fluid.inflow_profile",
                          "[fluid] inflow_profile = \"linear\" needs solver = \"sparse\"");
@@ -99,10 +100,7 @@ std::unique_ptr<Effect> FluidEffect::create(ParamDict& d, const World& world)
     d.onlyWhen(!sparse, "pressure_solver", "solver = \"sparse\"");
     static const std::map<std::string, int> sides{{"left", 0}, {"right", 1}, {"bottom", 2}, {"top", 3}, {"front", 4}, {"back", 5}};
     sp.inflowSide = sides.at(edge);
-    sp.profile = profile == "parabolic" ? fluid::Profile::Parabolic
-               : profile == "linear" ? fluid::Profile::Linear
-               : (profile == "ramp_quadratic" || profile == "quadratic") ? fluid::Profile::Quadratic
-               : fluid::Profile::Uniform;
+    sp.profile = f.profile; // one vocabulary for both solvers (fluid/Boundary.h)
     sp.lateral = f.closedWalls ? fluid::SideKind::Wall : fluid::SideKind::Outflow;
     if (flat) sp.sides[4] = sp.sides[5] = 1; // a plane: no flow across it
     if (!flat && !sparse)
@@ -331,10 +329,9 @@ void FluidEffect::addToFrame(World& world, Frame& frame)
     auto vel = world.fields.get<openvdb::Vec3SGrid>(ice::kVelocity);
     if (!vel) return;
     auto out = vel->deepCopy(); // already in world units
-    out->setName(out::kFlowVel.name); // not `vel`: that is the gas's m/s
     out->setVectorType(openvdb::VEC_CONTRAVARIANT_RELATIVE);
     out->insertMeta("units", openvdb::StringMetadata("m per unit simulation time"));
-    frame.add(out);
+    frame.add(out::kFlowVel, out); // not `vel`: that is the gas's m/s
 }
 
 bool FluidEffect::writePreview(World& world, const Frame& frame, const std::string& pngPath)

@@ -90,11 +90,11 @@ double bilinear(const std::vector<double>& f, int W, int H, double x, double y)
 StableFluid2D::StableFluid2D(const FluidParams& params, int nx, int ny, double h)
     : mParams(params), mNx(std::max(nx, 2)), mNy(std::max(ny, 2)), mH(h)
 {
-    const WallKind side = params.closedWalls ? WallKind::Closed : WallKind::Outflow;
+    const SideKind side = params.closedWalls ? SideKind::Wall : SideKind::Outflow;
     for (auto& w : mWalls) w = side;
     const int in = int(params.inflowEdge);
-    mWalls[in] = WallKind::Inflow;
-    mWalls[in ^ 1] = WallKind::Outflow; // opposite edge (Left<->Right, Bottom<->Top)
+    mWalls[in] = SideKind::Inflow;
+    mWalls[in ^ 1] = SideKind::Outflow; // opposite edge (Left<->Right, Bottom<->Top)
     mU.assign(size_t(mNx + 1) * mNy, 0.0);
     mV.assign(size_t(mNx) * (mNy + 1), 0.0);
     mPhi.assign(size_t(mNx) * mNy, 0.0);
@@ -107,9 +107,10 @@ double StableFluid2D::profile(double s) const
 {
     const double U = mParams.inflowSpeed;
     switch (mParams.profile) {
-    case InflowProfile::Uniform: return U;
-    case InflowProfile::Parabolic: return 4.0 * s * (1.0 - s) * U;
-    case InflowProfile::RampQuadratic: return s * s * U;
+    case Profile::Uniform: return U;
+    case Profile::Linear: return s * U;
+    case Profile::Quadratic: return s * s * U;
+    case Profile::Parabolic: return 4.0 * s * (1.0 - s) * U;
     }
     return U;
 }
@@ -126,9 +127,9 @@ bool StableFluid2D::uFixed(int i, int j, double& value) const
     if (i != 0 && i != mNx) return false;
     const FluidEdge e = i == 0 ? FluidEdge::Left : FluidEdge::Right;
     switch (mWalls[int(e)]) {
-    case WallKind::Outflow: return false;
-    case WallKind::Closed: value = 0; return true;
-    case WallKind::Inflow:
+    case SideKind::Outflow: return false;
+    case SideKind::Wall: value = 0; return true;
+    case SideKind::Inflow:
         value = profile((j + 0.5) / mNy) * (i == 0 ? 1.0 : -1.0);
         return true;
     }
@@ -141,9 +142,9 @@ bool StableFluid2D::vFixed(int i, int j, double& value) const
     if (j != 0 && j != mNy) return false;
     const FluidEdge e = j == 0 ? FluidEdge::Bottom : FluidEdge::Top;
     switch (mWalls[int(e)]) {
-    case WallKind::Outflow: return false;
-    case WallKind::Closed: value = 0; return true;
-    case WallKind::Inflow:
+    case SideKind::Outflow: return false;
+    case SideKind::Wall: value = 0; return true;
+    case SideKind::Inflow:
         value = profile((i + 0.5) / mNx) * (j == 0 ? 1.0 : -1.0);
         return true;
     }
@@ -344,8 +345,8 @@ void StableFluid2D::project()
                 [&out, W0](int i, int j, int) {
                     return out[size_t(j) * W0 + i] ? fluid::CellKind::Solid : fluid::CellKind::Fluid;
                 },
-                std::array<bool, 6>{mWalls[0] == WallKind::Outflow, mWalls[1] == WallKind::Outflow,
-                                    mWalls[2] == WallKind::Outflow, mWalls[3] == WallKind::Outflow, false, false});
+                std::array<bool, 6>{mWalls[0] == SideKind::Outflow, mWalls[1] == SideKind::Outflow,
+                                    mWalls[2] == SideKind::Outflow, mWalls[3] == SideKind::Outflow, false, false});
             mPoissonSolid = std::move(out);
         }
         const size_t n = mPoisson->unknowns();

@@ -192,14 +192,14 @@ public:
     void addToFrame(World& world, Frame& frame) override
     {
         if (frame.frame != mFrameBuilt || !mGrids.density) build(world, frame.frame);
-        mergeInto(frame, mGrids.density, "density", true);
-        if (mGrids.vel) mergeVec(frame, mGrids.vel, "vel");
-        if (mGrids.flame) mergeInto(frame, mGrids.flame, "flame", false);
-        if (mGrids.temperature) mergeInto(frame, mGrids.temperature, "temperature", false);
-        if (mGrids.colour) mergeVec(frame, mGrids.colour, "Cd");
+        mergeInto(frame, mGrids.density, out::kDensity, true);
+        if (mGrids.vel) mergeVec(frame, mGrids.vel, out::kVel);
+        if (mGrids.flame) mergeInto(frame, mGrids.flame, out::kFlame, false);
+        if (mGrids.temperature) mergeInto(frame, mGrids.temperature, out::kTemperature, false);
+        if (mGrids.colour) mergeVec(frame, mGrids.colour, out::kColour);
         if (mPublish)
             for (auto& g : frame.grids)
-                if (g->getName() == "density") publish(world, g); // the frame's (merged) density
+                if (g->getName() == out::kDensity.name) publish(world, g); // the frame's (merged) density
     }
     bool needsHistory() const override { return false; }
     double time() const override { return double(mFrameBuilt) / mModel->common().fps; }
@@ -330,10 +330,10 @@ private:
     /// Adds @a g to the frame, or merges it into a grid of the same name another gas added
     /// (density sums, others keep the maximum). Merging builds a new grid: cached grids of the
     /// effects are never modified.
-    static void mergeInto(Frame& frame, const openvdb::FloatGrid::Ptr& g, const std::string& name, bool sum)
+    static void mergeInto(Frame& frame, const openvdb::FloatGrid::Ptr& g, const FieldKey& key, bool sum)
     {
         for (auto& e : frame.grids)
-            if (e->getName() == name)
+            if (e->getName() == key.name)
                 if (auto f = openvdb::gridPtrCast<openvdb::FloatGrid>(e)) {
                     auto merged = f->deepCopy();
                     auto copy = g->deepCopy();
@@ -342,12 +342,12 @@ private:
                     e = merged;
                     return;
                 }
-        frame.add(g);
+        frame.add(key, g);
     }
-    static void mergeVec(Frame& frame, const openvdb::Vec3SGrid::Ptr& g, const std::string& name)
+    static void mergeVec(Frame& frame, const openvdb::Vec3SGrid::Ptr& g, const FieldKey& key)
     {
         for (auto& e : frame.grids)
-            if (e->getName() == name)
+            if (e->getName() == key.name)
                 if (auto f = openvdb::gridPtrCast<openvdb::Vec3SGrid>(e)) {
                     // the first gas wins where both are active
                     auto merged = f->deepCopy();
@@ -357,7 +357,7 @@ private:
                     e = merged;
                     return;
                 }
-        frame.add(g);
+        frame.add(key, g);
     }
 
     std::string mSection;

@@ -80,7 +80,7 @@ openvdb::GridBase::Ptr iceFog(const openvdb::FloatGrid& p)
     tiles.setMaxDepth(openvdb::FloatTree::ValueOnIter::LEAF_DEPTH - 1);
     for (; tiles; ++tiles) clampToFog(tiles);
     openvdb::tools::pruneInactive(ice->tree());
-    ice->setName("ice");
+    ice->setName(out::kIce.name);
     ice->setGridClass(openvdb::GRID_FOG_VOLUME);
     return ice;
 }
@@ -95,7 +95,7 @@ openvdb::GridBase::Ptr normalisedGrowth(const openvdb::FloatGrid& acc)
     openvdb::tools::foreach(growth->beginValueOn(), [scale](const openvdb::FloatGrid::ValueOnIter& it) {
         it.setValue(std::min(1.f, *it * scale));
     });
-    growth->setName("growth");
+    growth->setName(out::kGrowth.name);
     return growth;
 }
 
@@ -131,14 +131,14 @@ void addIceFieldOutputs(World& world, Frame& frame)
         if (plane::isFolded(*f)) {
             auto make = [f]() -> openvdb::GridBase::Ptr {
                 auto freeze = plane::unfoldGrid(*f);
-                freeze->setName("freeze_time");
+                freeze->setName(out::kFreezeTime.name);
                 return freeze;
             };
             frame.addCopy(make(), make);
         } else {
             // Shares the field's tree, as T does: its writers copy a shared tree first (ownTree).
             auto freeze = openvdb::gridPtrCast<openvdb::FloatGrid>(f->copyGrid());
-            freeze->setName("freeze_time");
+            freeze->setName(out::kFreezeTime.name);
             frame.add(freeze);
         }
     }

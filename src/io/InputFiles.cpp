@@ -2,7 +2,7 @@
 /// @brief Regular-file checks, digests and the run's log of input files (io/InputFiles.h).
 #include <frostvdb/io/InputFiles.h>
 
-#include <frostvdb/core/Budget.h>
+#include <frostvdb/base/Budget.h>
 
 #include <cerrno>
 #include <cstdio>

@@ -1,6 +1,6 @@
 #include <frostvdb/io/VdbIO.h>
 #include <frostvdb/io/InputFiles.h>
-#include <frostvdb/core/Error.h>
+#include <frostvdb/base/Error.h>
 #include <frostvdb/io/AtomicFile.h>
 
 #include <openvdb/io/Archive.h>

@@ -80,7 +80,7 @@ int benchSnowflake(const BenchArgs& args)
     const double tDisp = since(t0);
     double tPreview = 0;
     for (auto& g : frame.grids)
-        if (g->getName() == "ice") {
+        if (g->getName() == out::kAutomatonIce.name) {
             t0 = Clock::now();
             writePreview(*g, (out / "preview_timing.png").string());
             tPreview = since(t0);

@@ -91,11 +91,29 @@ struct Frame {
     int64_t step = 0;   ///< steps taken so far
     double time = 0.0;  ///< simulation time of the first effect with a clock
     openvdb::GridPtrVec grids;
+    /// Adds @a g named by its output key (core/FieldKeys.h, listed in docs/outputs.md), with
+    /// @a suffix appended (one grid per flake: `cells_0`, ...). Every grid name comes from a key.
+    void add(const FieldKey& key, openvdb::GridBase::Ptr g, const std::string& suffix = std::string())
+    {
+        g->setName(key.name + suffix);
+        grids.push_back(std::move(g));
+    }
+    /// Adds @a g as it is named (a grid named from its key already, or a merged copy of one).
     void add(openvdb::GridBase::Ptr g) { grids.push_back(std::move(g)); }
-    /// Adds @a g, a copy of a live field that @a again makes anew. The frame writer drops such a
-    /// grid once the PNGs are drawn and makes it again just before writing it into the VDB, so a
-    /// frame of a large domain holds one such copy at a time. A grid another effect replaced in
-    /// `grids` is not the one made here and is kept as it is.
+    /// Adds @a g, a copy of a live field that @a again makes anew, named by @a key. The frame
+    /// writer drops such a grid once the PNGs are drawn and makes it again just before writing it
+    /// into the VDB, so a frame of a large domain holds one such copy at a time. A grid another
+    /// effect replaced in `grids` is not the one made here and is kept as it is.
+    void addCopy(const FieldKey& key, openvdb::GridBase::Ptr g, std::function<openvdb::GridBase::Ptr()> again)
+    {
+        const std::string name = key.name;
+        g->setName(name);
+        addCopy(std::move(g), [name, again = std::move(again)] {
+            auto made = again();
+            made->setName(name);
+            return made;
+        });
+    }
     void addCopy(openvdb::GridBase::Ptr g, std::function<openvdb::GridBase::Ptr()> again)
     {
         remake.resize(grids.size());

@@ -105,7 +105,7 @@ inline const FieldKey kTemperature{"temperature", FieldType::Float, FieldRole::O
 inline const FieldKey kColour{"Cd", FieldType::Vec3f, FieldRole::Output, "", "(0, 0, 0)", "[fire] emission colour"};
 inline const FieldKey kCells{"cells", FieldType::Float, FieldRole::Output, "", "0",
     "automaton cell state on the hexagonal-prism lattice"};
-inline const FieldKey kAutomatonIce{"ice", FieldType::Float, FieldRole::Output, "", "0",
+inline const FieldKey kAutomatonIce{"automaton_ice", FieldType::Float, FieldRole::Output, "", "0",
     "automaton ice as a fog volume on the hexagonal-prism lattice (frozen cells 1)"};
 inline const FieldKey kFreezeStep{"freeze_step", FieldType::Float, FieldRole::Output, "steps", "-1",
     "automaton step at which a cell froze (seed 0, never -1)"};
@@ -113,7 +113,7 @@ inline const FieldKey kVapour{"vapour", FieldType::Float, FieldRole::Output, "",
     "Gravner-Griffeath diffusive vapour mass on the automaton lattice"};
 inline const FieldKey kIceSdf{"ice_sdf", FieldType::Float, FieldRole::Output, "m", "half band width",
     "level set of the effect's ice or aggregate (negative inside)"};
-inline const FieldKey kAggregateIce{"ice", FieldType::Float, FieldRole::Output, "", "0",
+inline const FieldKey kAggregateIce{"aggregate_ice", FieldType::Float, FieldRole::Output, "", "0",
     "[dla3d] aggregate as a fog volume (1 inside the swept branches, smooth edge)"};
 inline const FieldKey kPoints{"points", FieldType::Points, FieldRole::Output, "", "-",
     "[dla3d] particles as a PointDataGrid (radius, parent, generation, attach_time, id)"};

@@ -15,6 +15,7 @@
 /// the ice clock's units, so a velocity u moves a point by u * dt / h cells per step. The field
 /// `vel` in World (and in frames) holds u * voxel_size / h at every domain cell: world metres per
 /// unit of simulation time, as ice/IceState.h documents and [dla] reads it.
+#include <frostvdb/fluid/Boundary.h>
 #include <frostvdb/core/Effect.h>
 #include <frostvdb/fluid/SparseFluid.h>
 
@@ -30,12 +31,12 @@ namespace fluid { class MultigridPoisson; }
 namespace ice {
 
 enum class FluidEdge { Left = 0, Right = 1, Bottom = 2, Top = 3 };
-enum class InflowProfile { Uniform, Parabolic, RampQuadratic };
-enum class WallKind { Inflow, Outflow, Closed };
+using fluid::Profile;  // the one boundary vocabulary (fluid/Boundary.h)
+using fluid::SideKind;
 
 struct FluidParams {
     FluidEdge inflowEdge = FluidEdge::Left;
-    InflowProfile profile = InflowProfile::Uniform;
+    Profile profile = Profile::Uniform;
     double inflowSpeed = 3.5;   ///< dimensionless (the paper's 3.5)
     bool closedWalls = false;   ///< side walls (parallel to the inflow) closed instead of outflow
     double viscosity = 0.0;     ///< kinematic viscosity nu (dimensionless), implicit
@@ -65,7 +66,7 @@ public:
     int nx() const { return mNx; }
     int ny() const { return mNy; }
     const FluidParams& params() const { return mParams; }
-    WallKind wall(FluidEdge e) const { return mWalls[int(e)]; }
+    SideKind wall(FluidEdge e) const { return mWalls[int(e)]; }
 
     /// Obstacle cells (nx * ny, row-major, x fastest): nonzero = solid.
     void setSolid(std::vector<uint8_t> solid);
@@ -111,7 +112,7 @@ private:
     FluidParams mParams;
     int mNx, mNy;
     double mH;
-    WallKind mWalls[4];
+    SideKind mWalls[4];
     std::vector<double> mU, mV, mPhi;
     std::vector<uint8_t> mSolid;
     FluidStepStats mStats;

@@ -32,6 +32,8 @@
 
 #include <openvdb/openvdb.h>
 
+#include <frostvdb/fluid/Boundary.h>
+
 #include <array>
 #include <cstdint>
 #include <functional>
@@ -41,8 +43,6 @@
 namespace frostvdb {
 namespace fluid {
 
-enum class SideKind : uint8_t { Outflow, Wall, Inflow };
-enum class Profile : uint8_t { Uniform, Linear, Quadratic, Parabolic };
 enum class Advection : uint8_t { SemiLagrangian, MacCormack };
 
 struct SparseFluidParams {

@@ -89,10 +89,13 @@ def _socket(node, *names):
     return None
 
 
-def build_material(name, preset, voxel_size, look_grid="ice"):
-    """A material for the preset: frost/crystals/feathers read `ice` as density (white, slightly
-    blue, scattering; an optical depth of about 1.5 per voxel, so the look does not depend on
-    the object's size); steam reads density, temperature (blackbody) and flame (emission)."""
+def build_material(name, preset, voxel_size, look_grid=None):
+    """A material for the preset: frost/crystals read `ice`, feathers `aggregate_ice` ([dla3d]'s
+    own name) as density (white, slightly blue, scattering; an optical depth of about 1.5 per
+    voxel, so the look does not depend on the object's size); steam reads density, temperature
+    (blackbody) and flame (emission)."""
+    if look_grid is None:
+        look_grid = "aggregate_ice" if preset == "FEATHERS" else "ice"
     mat = bpy.data.materials.get(name) or bpy.data.materials.new(name)
     mat.use_nodes = True
     nt = mat.node_tree

@@ -1,5 +1,5 @@
-#include <frostvdb/core/Budget.h>
-#include <frostvdb/core/Error.h>
+#include <frostvdb/base/Budget.h>
+#include <frostvdb/base/Error.h>
 
 #include <cstdio>
 #include <fstream>
