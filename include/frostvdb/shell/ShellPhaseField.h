@@ -162,9 +162,6 @@ private:
     void stepSurface(double time, int64_t stepIndex, uint64_t seed, ShellStepStats* stats);
     /// Finds new hot leaves and grows the stepped set (active mode), or lists every leaf.
     void updateRegion();
-    /// Leaves holding at least one voxel (cached per leaf count).
-    size_t nonEmptyLeaves() const;
-    mutable size_t mNonEmpty = 0, mNonEmptyFor = size_t(-1);
     std::shared_ptr<const ShellBand> mBand;
     KobayashiParams mParams;
     Anisotropy mAniso;
