@@ -193,14 +193,6 @@ Coord bucketOf(const Vec3d& q, int level)
 }
 } // namespace
 
-SurfacePointIndex::Accessors SurfacePointIndex::accessors() const
-{
-    Accessors out;
-    out.reserve(kLevels);
-    for (const auto& c : mCounts) out.emplace_back(*c);
-    return out;
-}
-
 SurfacePointIndex::NearAccessors SurfacePointIndex::nearAccessors() const
 {
     NearAccessors out;
@@ -332,7 +324,7 @@ double SurfacePointIndex::Cursor::distance(const Vec3d& x)
         for (int dz = -1; dz <= 1; ++dz)
             for (int dy = -1; dy <= 1; ++dy)
                 for (int dx = -1; dx <= 1; ++dx) {
-                    if (mAcc[0].getValue(b + Coord(dx, dy, dz)) <= 0) continue; // empty: no look-up
+                    if (mFineAcc.getValue(b + Coord(dx, dy, dz)) <= 0) continue; // empty: no look-up
                     auto it = mIndex.mFine.find(packKey(x + Vec3d(dx, dy, dz) * kBucket, kBucket));
                     if (it != mIndex.mFine.end()) mPoints.insert(mPoints.end(), it->second.begin(), it->second.end());
                 }

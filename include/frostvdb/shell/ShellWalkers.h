@@ -71,24 +71,24 @@ public:
     using CountTree = openvdb::tree::Tree3<int32_t, 4, 3>::Type;
     /// Occupied buckets among the 3x3x3 around a bucket (at most 27: a byte per bucket).
     using NearTree = openvdb::tree::Tree3<uint8_t, 4, 3>::Type;
-    /// One accessor per level's tree (one set per thread: they cache the nodes last visited; not
-    /// registered with the tree, which does not change during a walk).
-    using Accessors = std::vector<openvdb::tree::ValueAccessor<const CountTree, false>>;
+    /// Accessors cache the nodes last visited (one set per thread); they are not registered with
+    /// the tree, which does not change during a walk. Queries read the fine level's counts (which
+    /// buckets to look up) and every level's neighbourhood counts (the coarse bound).
+    using CountAccessor = openvdb::tree::ValueAccessor<const CountTree, false>;
     using NearAccessors = std::vector<openvdb::tree::ValueAccessor<const NearTree, false>>;
     NearAccessors nearAccessors() const;
-    Accessors accessors() const;
 
     class Cursor {
     public:
         explicit Cursor(const SurfacePointIndex& index)
-            : mIndex(index), mAcc(index.accessors()), mNearAcc(index.nearAccessors())
+            : mIndex(index), mFineAcc(*index.mCounts[0]), mNearAcc(index.nearAccessors())
         {
         }
         double distance(const openvdb::Vec3d& x);
 
     private:
         const SurfacePointIndex& mIndex;
-        Accessors mAcc;
+        CountAccessor mFineAcc; ///< level 0's counts
         NearAccessors mNearAcc;
         uint64_t mKey = ~uint64_t(0);
         std::vector<openvdb::Vec3d> mPoints;
