@@ -88,6 +88,9 @@ public:
         out.putArray("p_left", mPLeft);
         out.putArray("hits", mHits);
         out.putInt("melted_since_full_sync", mMeltedSinceFullSync ? 1 : 0); // the next full sync's condition
+        std::vector<double> sticks; // what the next full sync removes
+        for (const auto& x : mSticks) sticks.insert(sticks.end(), {x.x(), x.y(), x.z()});
+        out.putArray("sticks_since_full_sync", sticks);
         out.putArray("ice_nodes", mWalkers->iceNodes());
     }
     void loadState(World&, const StateReader& in) override
@@ -104,6 +107,12 @@ public:
         in.getArray("p_left", mPLeft);
         in.getArray("hits", mHits);
         mMeltedSinceFullSync = in.has("melted_since_full_sync") && in.getInt("melted_since_full_sync") != 0;
+        mSticks.clear();
+        if (in.has("sticks_since_full_sync")) {
+            std::vector<double> xyz;
+            in.getArray("sticks_since_full_sync", xyz);
+            for (size_t k = 0; k + 2 < xyz.size(); k += 3) mSticks.emplace_back(xyz[k], xyz[k + 1], xyz[k + 2]);
+        }
         if ((!mPLeft.empty() && mPLeft.size() != mBand->size()) || (mParams.hits > 1 && mHits.size() != mBand->size()))
             throw CheckpointError("[dla] on a shell: the checkpoint's band does not match this scene's");
     }
@@ -133,6 +142,7 @@ private:
     std::vector<float> mPLeft; ///< p as this effect left it last step, on the right side of 1/2 (empty: none yet)
     std::vector<size_t> mSynced; ///< voxels whose ice syncIce added or removed this step
     bool mFullSync = true, mMeltedSinceFullSync = false;
+    std::vector<openvdb::Vec3d> mSticks; ///< stick points added since the last full sync
     // steam humidity (the plane's rule, DlaEffect::updateSteam): per layer site, the largest
     // density x (1 - h / reach) along its outward normal up to steam_reach; rebuilt when the gas
     // publishes a new density grid
@@ -181,19 +191,18 @@ private:
         }
     }
 
-    /// The walkers' ice from p: in full at the first step, and every kFullSyncSteps steps when
-    /// ice melted since the last full sync (a melted node's stick points go then); else the
-    /// voxels another effect (the phase field) turned to ice or melted since our last step are
-    /// added or removed.
+    /// The walkers' ice from p: built in full at the first step; then the voxels another effect
+    /// (the phase field) turned to ice or melted since our last step are added or removed, and
+    /// every kFullSyncSteps steps when ice melted since the last full sync the stick points go
+    /// (a melted node's stick points with them), which leaves what a full build would.
     static constexpr int64_t kFullSyncSteps = 64;
     void syncIce(int64_t step)
     {
         mSynced.clear();
-        // (without melting the incremental set is the full one plus the stick points: a full
-        // sync of 2.5 M ice nodes took 1.4 s each 64 steps on the windshield hero)
-        mFullSync = mPLeft.size() != mP.size() || (step % kFullSyncSteps == 0 && mMeltedSinceFullSync);
+        mFullSync = mPLeft.size() != mP.size();
         if (mFullSync) {
             mWalkers->sync(mP);
+            mSticks.clear();
             mMeltedSinceFullSync = false;
             return;
         }
@@ -218,6 +227,14 @@ private:
         mWalkers->addIceVoxels(grown);
         mSynced = std::move(grown);
         mSynced.insert(mSynced.end(), melted.begin(), melted.end());
+        // A full sync when ice melted: the incremental set is the full one plus the stick points
+        // (a melted node's stick points stay until then), so removing the stick points is the
+        // full sync (rebuilding it from p took 1.4 s for 2.5 M ice nodes on the windshield hero).
+        if (step % kFullSyncSteps == 0 && mMeltedSinceFullSync) {
+            mWalkers->forgetSticks(mSticks, mP);
+            mSticks.clear();
+            mMeltedSinceFullSync = false;
+        }
     }
     /// What this step leaves for the next one's comparison: p's side of 1/2 is all syncIce reads,
     /// so only the voxels that crossed it (synced here or frozen by walkers) are copied, not p.
@@ -308,6 +325,7 @@ void ShellDlaEffect::step(World& world, const StepInfo& info)
         }
         written.insert(written.end(), disc.begin(), disc.end());
         mWalkers->addIce(x);
+        mSticks.push_back(x);
         mWalkers->addIceVoxels(disc); // the frozen nodes too, as a full sync would add them
         ++mStats.frozen;
         changed = true;

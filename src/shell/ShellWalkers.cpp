@@ -376,18 +376,26 @@ void ShellWalkers::sync(const std::vector<float>& p)
     mIce.assign(ice);
 }
 
-void ShellWalkers::markNode(const Vec3d& x, uint8_t value)
+int32_t ShellWalkers::nodeOfStick(const Vec3d& x) const
 {
-    if (mIceNode.empty()) return;
+    if (mIceNode.empty()) return -1;
     auto acc = mBand->indexGrid().getConstAccessor();
     const int32_t k = nodeNear(*mBand, acc, x);
-    if (k >= 0 && (mBand->closestPoint(size_t(k)) - x).lengthSqr() < 0.25) mIceNode[size_t(k)] = value;
+    return k >= 0 && (mBand->closestPoint(size_t(k)) - x).lengthSqr() < 0.25 ? k : -1;
 }
 
 void ShellWalkers::addIce(const Vec3d& x)
 {
     mIce.insert(x);
-    markNode(x, 1);
+    if (const int32_t k = nodeOfStick(x); k >= 0) mIceNode[size_t(k)] = 1;
+}
+
+void ShellWalkers::forgetSticks(const std::vector<Vec3d>& sticks, const std::vector<float>& p)
+{
+    for (const Vec3d& x : sticks) {
+        mIce.erase(x); // one copy: a stick on a node's closest point leaves the node's own
+        if (const int32_t k = nodeOfStick(x); k >= 0) mIceNode[size_t(k)] = inLayer(size_t(k)) && p[size_t(k)] > 0.5f;
+    }
 }
 
 void ShellWalkers::restoreIce(const std::vector<double>& xyz)
@@ -400,7 +408,7 @@ void ShellWalkers::restoreIce(const std::vector<double>& xyz)
 void ShellWalkers::removeIceVoxels(const std::vector<size_t>& voxels)
 {
     for (size_t i : voxels)
-        if (std::fabs(mBand->normalOffset(i)) <= 0.5f && mBand->lateralOffset(i) <= 0.25f) {
+        if (inLayer(i)) {
             mIce.erase(mBand->closestPoint(i));
             if (!mIceNode.empty()) mIceNode[i] = 0;
         }
@@ -409,7 +417,7 @@ void ShellWalkers::removeIceVoxels(const std::vector<size_t>& voxels)
 void ShellWalkers::addIceVoxels(const std::vector<size_t>& voxels)
 {
     for (size_t i : voxels)
-        if (std::fabs(mBand->normalOffset(i)) <= 0.5f && mBand->lateralOffset(i) <= 0.25f) {
+        if (inLayer(i)) {
             mIce.insert(mBand->closestPoint(i));
             if (!mIceNode.empty()) mIceNode[i] = 1;
         }

@@ -145,8 +145,12 @@ public:
     /// Adds the surface-layer voxels among @a voxels (ice that another effect grew).
     void addIceVoxels(const std::vector<size_t>& voxels);
     /// Removes the surface-layer voxels among @a voxels (ice that melted); stick points stay
-    /// until the next sync().
+    /// until the next sync() or forgetSticks().
     void removeIceVoxels(const std::vector<size_t>& voxels);
+    /// Removes the stick points @a sticks (added by addIce since the last sync()), and the node
+    /// flags they set, so that with the surface-layer voxels kept up to date by addIceVoxels and
+    /// removeIceVoxels the ice is what sync(p) would build, without rebuilding it.
+    void forgetSticks(const std::vector<openvdb::Vec3d>& sticks, const std::vector<float>& p);
     /// Lower bound of the distance (voxels) from @a x to the ice.
     double iceDistance(const openvdb::Vec3d& x) const { return mIce.distance(x); }
     size_t icePoints() const { return mIce.size(); }
@@ -209,7 +213,14 @@ private:
     SurfacePointIndex mIce, mBorder;
     /// Surface nodes: 1 where the node is ice (its closest point is in mIce), for the graph step.
     std::vector<uint8_t> mIceNode;
-    void markNode(const openvdb::Vec3d& x, uint8_t value);
+    /// Surface nodes: the node a stick point at @a x flags (nearest, closest point within half a
+    /// voxel), or -1.
+    int32_t nodeOfStick(const openvdb::Vec3d& x) const;
+    /// A surface-layer voxel: a release site, and ice when p > 1/2.
+    bool inLayer(size_t i) const
+    {
+        return std::fabs(mBand->normalOffset(i)) <= 0.5f && mBand->lateralOffset(i) <= 0.25f;
+    }
 
     /// Surface nodes: one step of the node-graph walk from @a node (walkOnGraph in the .cpp).
     struct GraphStep {
