@@ -76,6 +76,7 @@ public:
 
     void step(World& world, const StepInfo& info) override;
     void addToFrame(World& world, Frame& frame) override;
+
     double time() const override { return mTime; }
     // Checkpoints: the walkers' ice (stick points are off the lattice: p cannot rebuild it), p as
     // this effect left it (the next step's incremental sync), the hit counts and the clock. The
@@ -131,6 +132,30 @@ public:
     }
 
 private:
+    /// One step's shared state between its stages (step() lists them).
+    struct StepContext {
+        World& world;
+        const ice::IceShared& shared;
+        ShellPhaseField* solver = nullptr; ///< [phase_field]'s arrays, borrowed for the step
+        bool read = false;                 ///< T, growth and freeze_time borrowed too
+        bool changed = false;              ///< something froze
+        bool heat = false;                 ///< freezing releases heat
+        double time = 0;                   ///< the step's start (freeze_time)
+        std::vector<size_t> written;       ///< voxels frozen (the solver's active region rescans their leaves)
+    };
+    void borrowPhase(StepContext& ctx);
+    void borrowRest(StepContext& ctx);
+    void handBack(StepContext& ctx);
+    void updateMelt(World& world, ShellWalkers::Inputs& in);
+    void updateDrift(World& world, double dt, ShellWalkers::Inputs& in);
+    /// H walkers, plus the steam's extra walkers (in's steam inputs set).
+    uint64_t walkersToRelease(World& world, int64_t step, ShellWalkers::Inputs& in);
+    /// Walks them in batches and applies their sticks in walker order.
+    void walkAndFreeze(StepContext& ctx, int64_t step, uint64_t total, const ShellWalkers::Inputs& in);
+    void account(const ShellWalkEnd& e);
+    void hit(StepContext& ctx, const openvdb::Vec3d& x);
+    void freezeAt(StepContext& ctx, const openvdb::Vec3d& x);
+
     ice::DlaParams mParams;
     double mHeat = 0, mTime = 0;
     std::shared_ptr<const ShellBand> mBand;
@@ -251,25 +276,80 @@ private:
 
 void ShellDlaEffect::step(World& world, const StepInfo& info)
 {
-    ice::IceShared& sh = ice::shared(world);
-    const ShellBand& band = *mBand;
+    const ice::IceShared& sh = ice::shared(world);
+    StepContext ctx{world, sh};
+    ctx.time = sh.timeAtStep(info.step);
+    ctx.heat = sh.temperatureEvolves && mHeat != 0;
     auto t0 = Clock::now();
-    // With [phase_field] in the scene, its band arrays are the fields: read and freeze into them
-    // in place. Alone, the World grids are the fields (converted to band order and back).
-    ShellPhaseField* solver = world.hasState<SurfaceFields>() ? world.state<SurfaceFields>().solver : nullptr;
-    if (solver) mP.swap(solver->pForEdit());
-    else fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kPhase), mP);
+    borrowPhase(ctx);
     syncIce(info.step);
     mStats.syncSeconds += since(t0);
-
     ShellWalkers::Inputs in;
+    updateMelt(world, in);
+    updateDrift(world, sh.dt, in);
+    const uint64_t total = walkersToRelease(world, info.step, in);
+    mStats.released += total;
+    walkAndFreeze(ctx, info.step, total, in);
+    rememberIce(ctx.written); // the next step adds only ice grown by others
+    handBack(ctx);
+    mTime = sh.timeAtStep(info.step + 1);
+}
+
+void ShellDlaEffect::borrowPhase(StepContext& ctx)
+{
+    // With [phase_field] in the scene, its band arrays are the fields: read and freeze into them
+    // in place. Alone, the World grids are the fields (converted to band order and back).
+    World& world = ctx.world;
+    ctx.solver = world.hasState<SurfaceFields>() ? world.state<SurfaceFields>().solver : nullptr;
+    if (ctx.solver) mP.swap(ctx.solver->pForEdit());
+    else fromGrid(*mBand, *world.fields.get<openvdb::FloatGrid>(ice::kPhase), mP);
+}
+
+void ShellDlaEffect::borrowRest(StepContext& ctx)
+{
+    if (ctx.read) return; // T, growth and freeze_time only when something freezes
+    if (ctx.solver) {
+        mT.swap(ctx.solver->TForEdit());
+        mGrowth.swap(ctx.solver->growthValues());
+        mFreeze.swap(ctx.solver->freezeValues());
+    } else {
+        const World& world = ctx.world;
+        fromGrid(*mBand, *world.fields.get<openvdb::FloatGrid>(ice::kTemperature), mT);
+        fromGrid(*mBand, *world.fields.get<openvdb::FloatGrid>(ice::kGrowth), mGrowth);
+        fromGrid(*mBand, *world.fields.get<openvdb::FloatGrid>(ice::kFreezeTime), mFreeze);
+    }
+    ctx.read = true;
+}
+
+void ShellDlaEffect::handBack(StepContext& ctx)
+{
+    const ShellBand& band = *mBand;
+    if (ctx.solver) { // hand the arrays back, and the voxels written
+        mP.swap(ctx.solver->pForEdit());
+        if (ctx.read) {
+            mT.swap(ctx.solver->TForEdit());
+            mGrowth.swap(ctx.solver->growthValues());
+            mFreeze.swap(ctx.solver->freezeValues());
+        }
+        ctx.solver->touched(ctx.written);
+    } else if (ctx.changed) {
+        World& world = ctx.world;
+        world.fields.replace(ice::kPhase, toGrid(band, mP, 0.f, ice::kPhase.name));
+        world.fields.replace(ice::kTemperature, toGrid(band, mT, float(ctx.shared.farTemperature), ice::kTemperature.name));
+        world.fields.replace(ice::kGrowth, toGrid(band, mGrowth, 0.f, ice::kGrowth.name));
+        world.fields.replace(ice::kFreezeTime, toGrid(band, mFreeze, 0.f, ice::kFreezeTime.name));
+    }
+}
+
+void ShellDlaEffect::updateMelt(World& world, ShellWalkers::Inputs& in)
+{
     // sticking probability: the melt field times the mesh's colour melt map (as the phase field),
     // converted again only when the melt grid is replaced
     auto melt = world.fields.get<openvdb::FloatGrid>(ice::kMelt);
-    if (melt != mMeltSource || mMelt.size() != band.size()) {
+    if (melt != mMeltSource || mMelt.size() != mBand->size()) {
         mMeltSource = melt;
         if (melt) {
-            fromGrid(band, *melt, mMelt);
+            fromGrid(*mBand, *melt, mMelt);
             if (!mStaticMelt.empty())
                 for (size_t i = 0; i < mMelt.size(); ++i) mMelt[i] *= mStaticMelt[i];
         } else {
@@ -277,99 +357,50 @@ void ShellDlaEffect::step(World& world, const StepInfo& info)
         }
     }
     if (!mMelt.empty()) in.melt = &mMelt;
+}
+
+void ShellDlaEffect::updateDrift(World& world, double dt, ShellWalkers::Inputs& in)
+{
     // drift: the tangential wind (cells per unit ice time) times dt and flow_drift, per step
     mDrift.clear();
-    if (world.hasState<ShellWindState>() && mParams.flowDrift > 0) {
-        const auto& w = world.state<ShellWindState>().tangential;
-        if (w.size() == band.size()) {
-            mDrift.resize(w.size());
-            const float s = float(sh.dt * mParams.flowDrift);
-            for (size_t i = 0; i < w.size(); ++i) mDrift[i] = w[i] * s;
-            in.drift = &mDrift;
-        }
-    }
+    if (!world.hasState<ShellWindState>() || mParams.flowDrift <= 0) return;
+    const auto& w = world.state<ShellWindState>().tangential;
+    if (w.size() != mBand->size()) return;
+    mDrift.resize(w.size());
+    const float s = float(dt * mParams.flowDrift);
+    for (size_t i = 0; i < w.size(); ++i) mDrift[i] = w[i] * s;
+    in.drift = &mDrift;
+}
 
-    bool read = false, changed = false;
-    std::vector<size_t> written; // voxels frozen this step (the solver's active region rescans their leaves)
-    auto readRest = [&] { // T, growth and freeze_time only when something freezes
-        if (read) return;
-        if (solver) {
-            mT.swap(solver->TForEdit());
-            mGrowth.swap(solver->growthValues());
-            mFreeze.swap(solver->freezeValues());
-        } else {
-            fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kTemperature), mT);
-            fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kGrowth), mGrowth);
-            fromGrid(band, *world.fields.get<openvdb::FloatGrid>(ice::kFreezeTime), mFreeze);
-        }
-        read = true;
-    };
-    const bool heat = sh.temperatureEvolves && mHeat != 0;
-    const double time = sh.timeAtStep(info.step);
-    auto freezeAt = [&](const openvdb::Vec3d& x) {
-        readRest();
-        std::vector<size_t> disc;
-        if (band.surfaceNodes()) { // the free node next to the ice, as a plane's walker freezes its cell
-            const int32_t id = mWalkers->freeNodeNear(x, mP);
-            if (id >= 0) disc.push_back(size_t(id));
-        } else {
-            disc = mWalkers->markDisc(x);
-        }
-        for (size_t i : disc) {
-            const float before = mP[i];
-            mP[i] = 1.f;
-            if (before < 1.f) mGrowth[i] += 1.f - before;
-            if (before <= 0.5f && mFreeze[i] == 0.f) mFreeze[i] = float(time);
-            if (heat) mT[i] += float(mHeat * (1.0 - double(before)));
-            mStats.dpDla += 1.0 - double(before);
-        }
-        written.insert(written.end(), disc.begin(), disc.end());
-        mWalkers->addIce(x);
-        mSticks.push_back(x);
-        mWalkers->addIceVoxels(disc); // the frozen nodes too, as a full sync would add them
-        ++mStats.frozen;
-        changed = true;
-    };
-    auto hit = [&](const openvdb::Vec3d& x) {
-        ++mStats.stuck;
-        if (mParams.hits > 1) {
-            const int32_t site = mWalkers->siteOf(x);
-            if (site >= 0 && ++mHits[size_t(site)] < mParams.hits) return;
-            if (site >= 0) mHits[size_t(site)] = 0;
-        }
-        freezeAt(x);
-    };
-    auto account = [&](const ShellWalkEnd& e) {
-        mStats.moves += e.moves;
-        mStats.jumps += e.jumps;
-        mStats.latticeSteps += e.latticeSteps;
-        if (e.kind == ShellWalkEnd::Killed) ++mStats.killed;
-        if (e.kind == ShellWalkEnd::Exhausted) ++mStats.exhausted;
-    };
-
-    const int64_t H = mParams.humidityAt(info.step);
+uint64_t ShellDlaEffect::walkersToRelease(World& world, int64_t step, ShellWalkers::Inputs& in)
+{
+    const int64_t H = mParams.humidityAt(step);
     uint64_t total = uint64_t(H);
     in.baseWalkers = H;
-    if (mParams.steamHumidity > 0) { // extra walkers H x gain x mean steam weight, released in the steam
-        t0 = Clock::now();
-        updateSteam(world);
-        const size_t cells = mWalkers->layer().size();
-        if (mSteamSum > 0 && cells > 0) {
-            const double e = double(H) * mParams.steamHumidity * mSteamSum / double(cells);
-            uint64_t extra = uint64_t(std::floor(e));
-            if (toUnit(hashCounters(world.seed, 0x57EA4ull, uint64_t(info.step))) < e - std::floor(e)) ++extra;
-            total += extra;
-            in.steamCdf = &mSteamCdf;
-            in.steamSites = &mSteamSites;
-        }
-        mStats.steamSeconds += since(t0);
+    if (mParams.steamHumidity <= 0) return total;
+    // extra walkers H x gain x mean steam weight, released in the steam
+    const auto t0 = Clock::now();
+    updateSteam(world);
+    const size_t cells = mWalkers->layer().size();
+    if (mSteamSum > 0 && cells > 0) {
+        const double e = double(H) * mParams.steamHumidity * mSteamSum / double(cells);
+        uint64_t extra = uint64_t(std::floor(e));
+        if (toUnit(hashCounters(world.seed, 0x57EA4ull, uint64_t(step))) < e - std::floor(e)) ++extra;
+        total += extra;
+        in.steamCdf = &mSteamCdf;
+        in.steamSites = &mSteamSites;
     }
-    mStats.released += total;
+    mStats.steamSeconds += since(t0);
+    return total;
+}
+
+void ShellDlaEffect::walkAndFreeze(StepContext& ctx, int64_t step, uint64_t total, const ShellWalkers::Inputs& in)
+{
     std::vector<ShellWalkEnd> ends;
     for (uint64_t first = 0; first < total; first += uint64_t(mParams.batch)) {
         const uint64_t count = std::min<uint64_t>(uint64_t(mParams.batch), total - first);
-        t0 = Clock::now();
-        mWalkers->walkBatch(info.step, first, count, in, ends);
+        auto t0 = Clock::now();
+        mWalkers->walkBatch(step, first, count, in, ends);
         mStats.walkSeconds += since(t0);
         t0 = Clock::now();
         for (uint64_t w = 0; w < count; ++w) {
@@ -382,30 +413,60 @@ void ShellDlaEffect::step(World& world, const StepInfo& info)
                 ++mStats.conflicts;
                 if (!e.hasPrev || mWalkers->iceDistance(e.prev) < 0.5) continue;
                 const openvdb::Vec3d start = e.prev;
-                e = mWalkers->walk(info.step, first + w, kResumeSalt, &start, in);
+                e = mWalkers->walk(step, first + w, kResumeSalt, &start, in);
                 account(e);
                 if (e.kind != ShellWalkEnd::Stuck) continue;
             }
-            hit(e.point);
+            hit(ctx, e.point);
         }
         mStats.applySeconds += since(t0);
     }
-    rememberIce(written); // the next step adds only ice grown by others
-    if (solver) { // hand the arrays back, and the voxels written
-        mP.swap(solver->pForEdit());
-        if (read) {
-            mT.swap(solver->TForEdit());
-            mGrowth.swap(solver->growthValues());
-            mFreeze.swap(solver->freezeValues());
-        }
-        solver->touched(written);
-    } else if (changed) {
-        world.fields.replace(ice::kPhase, toGrid(band, mP, 0.f, ice::kPhase.name));
-        world.fields.replace(ice::kTemperature, toGrid(band, mT, float(sh.farTemperature), ice::kTemperature.name));
-        world.fields.replace(ice::kGrowth, toGrid(band, mGrowth, 0.f, ice::kGrowth.name));
-        world.fields.replace(ice::kFreezeTime, toGrid(band, mFreeze, 0.f, ice::kFreezeTime.name));
+}
+
+void ShellDlaEffect::account(const ShellWalkEnd& e)
+{
+    mStats.moves += e.moves;
+    mStats.jumps += e.jumps;
+    mStats.latticeSteps += e.latticeSteps;
+    if (e.kind == ShellWalkEnd::Killed) ++mStats.killed;
+    if (e.kind == ShellWalkEnd::Exhausted) ++mStats.exhausted;
+}
+
+void ShellDlaEffect::hit(StepContext& ctx, const openvdb::Vec3d& x)
+{
+    ++mStats.stuck;
+    if (mParams.hits > 1) {
+        const int32_t site = mWalkers->siteOf(x);
+        if (site >= 0 && ++mHits[size_t(site)] < mParams.hits) return;
+        if (site >= 0) mHits[size_t(site)] = 0;
     }
-    mTime = sh.timeAtStep(info.step + 1);
+    freezeAt(ctx, x);
+}
+
+void ShellDlaEffect::freezeAt(StepContext& ctx, const openvdb::Vec3d& x)
+{
+    borrowRest(ctx);
+    std::vector<size_t> disc;
+    if (mBand->surfaceNodes()) { // the free node next to the ice, as a plane's walker freezes its cell
+        const int32_t id = mWalkers->freeNodeNear(x, mP);
+        if (id >= 0) disc.push_back(size_t(id));
+    } else {
+        disc = mWalkers->markDisc(x);
+    }
+    for (size_t i : disc) {
+        const float before = mP[i];
+        mP[i] = 1.f;
+        if (before < 1.f) mGrowth[i] += 1.f - before;
+        if (before <= 0.5f && mFreeze[i] == 0.f) mFreeze[i] = float(ctx.time);
+        if (ctx.heat) mT[i] += float(mHeat * (1.0 - double(before)));
+        mStats.dpDla += 1.0 - double(before);
+    }
+    ctx.written.insert(ctx.written.end(), disc.begin(), disc.end());
+    mWalkers->addIce(x);
+    mSticks.push_back(x);
+    mWalkers->addIceVoxels(disc); // the frozen nodes too, as a full sync would add them
+    ++mStats.frozen;
+    ctx.changed = true;
 }
 
 void ShellDlaEffect::addToFrame(World& world, Frame& frame)

@@ -528,176 +528,203 @@ void ShellWalkers::walkBatch(int64_t step, uint64_t first, uint64_t count, const
     });
 }
 
-ShellWalkEnd ShellWalkers::walk(int64_t step, uint64_t walker, uint64_t salt, const Vec3d* start,
-                                const Inputs& in) const
-{
-    const ShellBand& b = *mBand;
-    ice::WalkerRng rng(mSeed, walker, uint64_t(step), salt);
-    auto acc = b.indexGrid().getConstAccessor();
-    ShellWalkEnd end;
-    // a closed surface without ice: nothing to stick to and no border to leave by
-    if (mIce.size() == 0 && !mOpen) return end;
-    Vec3d x;
-    if (start) {
-        x = *start;
-    } else { // release on a surface point away from the ice (uniform by area, or on the border)
-        const auto& sites = mParams.release == ice::DlaRelease::Perimeter ? mBorderLayer : mLayer;
-        const bool steam = in.steamCdf && !in.steamCdf->empty() && walker >= uint64_t(in.baseWalkers);
-        if (sites.empty() && !steam) return end;
-        bool found = false;
-        for (int t = 0; t < 64 && !found; ++t) {
-            if (steam) { // a site by its steam weight (DlaEngine::release's rule)
-                const double u = rng.uniform() * in.steamCdf->back();
-                const size_t k = size_t(std::upper_bound(in.steamCdf->begin(), in.steamCdf->end(), u) -
-                                        in.steamCdf->begin());
-                x = b.closestPoint((*in.steamSites)[std::min(k, in.steamSites->size() - 1)]);
-            } else {
-                const uint64_t pick = uint64_t((static_cast<unsigned __int128>(rng.next()) * sites.size()) >> 64);
-                x = b.closestPoint(sites[size_t(pick)]);
-            }
-            found = mIce.distance(x) > kStickRadius;
-        }
-        if (!found) return end;
+/// One walker's state along its walk, shared by walk()'s stages.
+struct ShellWalkers::Walk {
+    Walk(const ShellWalkers& w, const Inputs& inputs, ice::WalkerRng r)
+        : b(*w.mBand), in(inputs), rng(r), acc(b.indexGrid().getConstAccessor()), ice(w.mIce), border(w.mBorder),
+          onNodes(b.surfaceNodes())
+    {
     }
-    auto driftAt = [&](const Vec3d& p) {
+    const ShellBand& b;
+    const Inputs& in;
+    ice::WalkerRng rng;
+    IndexAccessor acc;
+    SurfacePointIndex::Cursor ice, border;
+    /// Surface nodes: the node whose tangent plane x was last projected on gives its frame (no
+    /// look-up per step); the closest-point band reads the frame of the voxel holding x.
+    const bool onNodes;
+    int32_t node = -1;
+    Vec3d x{0.0};
+    double d = 0;     ///< distance to the ice (a lower bound)
+    double steps = 0; ///< lattice steps so far
+    ShellWalkEnd end;
+
+    const VoxelFrame* frame()
+    {
+        return onNodes ? (node < 0 ? nullptr : &b.frame(size_t(node))) : frameWith(b, acc, x);
+    }
+    Vec3d driftAt(const Vec3d& p)
+    {
         if (!in.drift) return Vec3d(0.0);
         const int32_t id = acc.getValue(Coord::round(p));
         return id < 0 ? Vec3d(0.0) : Vec3d((*in.drift)[size_t(id)]);
-    };
-    SurfacePointIndex::Cursor ice(mIce), border(mBorder);
-    // Surface nodes: the node whose tangent plane x was last projected on gives its frame (no
-    // look-up per step); the closest-point band reads the frame of the voxel holding x.
-    const bool onNodes = b.surfaceNodes();
-    int32_t node = onNodes ? nodeNear(b, acc, x) : -1;
-    auto frameAt = [&](const Vec3d& p) { return onNodes ? (node < 0 ? nullptr : &b.frame(size_t(node))) : frameWith(b, acc, p); };
-    auto projectStep = [&](const Vec3d& y, Vec3d& q, double* lat) {
+    }
+    bool projectStep(const Vec3d& y, Vec3d& q, double* lat)
+    {
         return onNodes ? projectOnNodes(b, acc, y, q, lat, &node) : projectWith(b, acc, y, q, lat);
-    };
-    double steps = 0;
-    double d = ice.distance(x);
+    }
+    /// Next to ice: the sticking roll (the melt map's probability at the walker's site).
+    bool sticks()
+    {
+        double s = 1.0;
+        if (in.melt) {
+            const int32_t id = onNodes ? node : acc.getValue(Coord::round(x));
+            if (id >= 0) s = double((*in.melt)[size_t(id)]);
+        }
+        return s >= 1.0 || (s > 0.0 && rng.uniform() < s);
+    }
+    ShellWalkEnd finish(ShellWalkEnd::Kind kind)
+    {
+        end.kind = kind;
+        if (kind == ShellWalkEnd::Stuck) end.point = x;
+        end.latticeSteps = steps;
+        return end;
+    }
+};
+
+ShellWalkEnd ShellWalkers::walk(int64_t step, uint64_t walker, uint64_t salt, const Vec3d* start,
+                                const Inputs& in) const
+{
+    // a closed surface without ice: nothing to stick to and no border to leave by
+    if (mIce.size() == 0 && !mOpen) return ShellWalkEnd{};
+    Walk w(*this, in, ice::WalkerRng(mSeed, walker, uint64_t(step), salt));
+    if (start) w.x = *start;
+    else if (!releaseSite(w, walker)) return w.end;
+    if (w.onNodes) w.node = nodeNear(w.b, w.acc, w.x);
+    w.d = w.ice.distance(w.x);
     for (;;) {
-        // next to ice: the sticking roll (the melt map's probability at the walker's site)
-        auto sticks = [&] {
-            double s = 1.0;
-            if (in.melt) {
-                const int32_t id = onNodes ? node : acc.getValue(Coord::round(x));
-                if (id >= 0) s = double((*in.melt)[size_t(id)]);
-            }
-            return s >= 1.0 || (s > 0.0 && rng.uniform() < s);
-        };
-        auto stuck = [&] {
-            end.kind = ShellWalkEnd::Stuck;
-            end.point = x;
-            end.latticeSteps = steps;
-            return end;
-        };
-        if (d <= kStickRadius && sticks()) return stuck();
+        if (w.d <= kStickRadius && w.sticks()) return w.finish(ShellWalkEnd::Stuck);
         // max_steps, and a safety cap on the work (moves and jumps): a walker enclosed by ice it
         // cannot stick to (a melt map of 0 all along it) would otherwise walk for ever
-        if ((mParams.maxSteps > 0 && steps >= double(mParams.maxSteps)) || end.moves >= kMaxMoves) {
-            end.kind = ShellWalkEnd::Exhausted;
-            end.latticeSteps = steps;
-            return end;
-        }
-        ++end.moves;
-        const VoxelFrame* f = frameAt(x);
+        if ((mParams.maxSteps > 0 && w.steps >= double(mParams.maxSteps)) || w.end.moves >= kMaxMoves)
+            return w.finish(ShellWalkEnd::Exhausted);
+        ++w.end.moves;
+        const VoxelFrame* f = w.frame();
         if (!f) break;
-        const Vec3d v = driftAt(x);
-        if (mParams.jumps && d - 2.0 >= double(mParams.jumpMinRadius)) {
-            // walk on spheres: a uniform point of the free geodesic circle
-            double r = std::min({d - 2.0, border.distance(x) - 1.0, double(mMaxJump)});
-            const double vm = v.length();
-            if (vm > 0) r = std::min(r, std::sqrt(0.5 / vm)); // the drift over the jump stays < 1/2
-            if (r >= double(mParams.jumpMinRadius)) {
-                const double a = 2.0 * M_PI * rng.uniform();
-                if (!shootWith(b, acc, x, f->tangent * std::cos(a) + f->bitangent * std::sin(a), r, mOpen)) break;
-                steps += r * r; // mean exit time of the unit-step walk from a disc of radius r
-                ++end.jumps;
-                end.hasPrev = false;
-                if (vm > 0) {
-                    Vec3d q;
-                    double lat = 0;
-                    if (!projectWith(b, acc, x + v * (r * r), q, &lat) || (mOpen && lat > 0.5)) break;
-                    x = q;
-                }
-                if (onNodes) node = nodeNear(b, acc, x);
-                d = ice.distance(x);
-                continue;
-            }
+        const Vec3d v = w.driftAt(w.x);
+        Move m = jump(w, *f, v);
+        if (m == Move::NotTaken) m = graphBurst(w);
+        if (m == Move::NotTaken) m = latticeStep(w, *f, v);
+        if (m == Move::Stuck) return w.finish(ShellWalkEnd::Stuck);
+        if (m == Move::Left) break;
+    }
+    return w.finish(ShellWalkEnd::Killed);
+}
+
+bool ShellWalkers::releaseSite(Walk& w, uint64_t walker) const
+{
+    // a surface point away from the ice (uniform by area, or on the border)
+    const Inputs& in = w.in;
+    const auto& sites = mParams.release == ice::DlaRelease::Perimeter ? mBorderLayer : mLayer;
+    const bool steam = in.steamCdf && !in.steamCdf->empty() && walker >= uint64_t(in.baseWalkers);
+    if (sites.empty() && !steam) return false;
+    for (int t = 0; t < 64; ++t) {
+        if (steam) { // a site by its steam weight (DlaEngine::release's rule)
+            const double u = w.rng.uniform() * in.steamCdf->back();
+            const size_t k =
+                size_t(std::upper_bound(in.steamCdf->begin(), in.steamCdf->end(), u) - in.steamCdf->begin());
+            w.x = w.b.closestPoint((*in.steamSites)[std::min(k, in.steamSites->size() - 1)]);
+        } else {
+            const uint64_t pick = uint64_t((static_cast<unsigned __int128>(w.rng.next()) * sites.size()) >> 64);
+            w.x = w.b.closestPoint(sites[size_t(pick)]);
         }
-        // on surface nodes without drift: a burst of node-graph steps, then one distance query
-        if (onNodes && node >= 0 && !in.drift) {
-            bool graph = true, left = false;
-            for (int n = 0; n < kGraphBurst; ++n) {
-                GraphStep g = graphStep(node, rng, true);
-                if (g.kind == GraphStep::NextToIce) {
-                    if (sticks()) return stuck();
-                    g = graphStep(node, rng, false); // the roll failed: it walks on
-                }
-                if (g.kind == GraphStep::NoStencil) {
-                    graph = n > 0;
-                    break;
-                }
-                steps += g.latticeSteps;
-                if (n > 0) ++end.moves;
-                if (g.kind != GraphStep::Moved) continue;
-                if (mOpen && b.lateralOffset(size_t(g.node)) > 0.25f) { // past the border: it leaves
-                    left = true;
-                    break;
-                }
-                end.prev = x;
-                end.hasPrev = true;
-                node = g.node;
-                x = b.closestPoint(size_t(node));
-                if (mParams.maxSteps > 0 && steps >= double(mParams.maxSteps)) break;
-            }
-            if (left) break;
-            if (graph) {
-                d = ice.distance(x);
-                continue;
-            }
-        }
-        // one lattice step along one of the six tangent directions, plus the drift
-        const unsigned k = unsigned((static_cast<unsigned __int128>(rng.next()) * 6u) >> 64);
-        const double a = double(k) * (M_PI / 3.0);
-        const Vec3d y = x + f->tangent * std::cos(a) + f->bitangent * std::sin(a) + v;
-        const int32_t nodeBefore = node;
+        if (mIce.distance(w.x) > kStickRadius) return true;
+    }
+    return false;
+}
+
+ShellWalkers::Move ShellWalkers::jump(Walk& w, const VoxelFrame& f, const Vec3d& v) const
+{
+    // walk on spheres: a uniform point of the free geodesic circle
+    if (!mParams.jumps || w.d - 2.0 < double(mParams.jumpMinRadius)) return Move::NotTaken;
+    double r = std::min({w.d - 2.0, w.border.distance(w.x) - 1.0, double(mMaxJump)});
+    const double vm = v.length();
+    if (vm > 0) r = std::min(r, std::sqrt(0.5 / vm)); // the drift over the jump stays < 1/2
+    if (r < double(mParams.jumpMinRadius)) return Move::NotTaken;
+    const double a = 2.0 * M_PI * w.rng.uniform();
+    if (!shootWith(w.b, w.acc, w.x, f.tangent * std::cos(a) + f.bitangent * std::sin(a), r, mOpen)) return Move::Left;
+    w.steps += r * r; // mean exit time of the unit-step walk from a disc of radius r
+    ++w.end.jumps;
+    w.end.hasPrev = false;
+    if (vm > 0) {
         Vec3d q;
         double lat = 0;
-        if (!projectStep(y, q, &lat) || (mOpen && lat > 0.5)) break; // left the mesh's border
-        steps += 1;
-        double dq = ice.distance(q);
-        // ice cannot be entered: a walker next to ice whose step lands on it stays
-        if (d <= kStickRadius && dq < 0.5) {
-            node = nodeBefore;
-            continue;
-        }
-        if (d > kStickRadius && dq <= kStickRadius) {
-            // contact: the walker stops where its step first comes within one spacing of the ice
-            // (bisection on the step), so stuck points sit one spacing from the ice, as the
-            // plane's stuck cells sit next to theirs
-            double lo = 0, hi = 1;
-            for (int it = 0; it < 12; ++it) {
-                const double mid = 0.5 * (lo + hi);
-                (ice.distance(x + (q - x) * mid) <= kStickRadius ? hi : lo) = mid;
-            }
-            Vec3d c;
-            const int32_t nodeAtQ = node;
-            if (projectStep(x + (q - x) * hi, c, nullptr) && ice.distance(c) <= kStickRadius) {
-                q = c;
-                dq = ice.distance(q);
-            } else {
-                node = nodeAtQ;
-            }
-        }
-        end.prev = x;
-        end.hasPrev = true;
-        x = q;
-        d = dq;
+        if (!projectWith(w.b, w.acc, w.x + v * (r * r), q, &lat) || (mOpen && lat > 0.5)) return Move::Left;
+        w.x = q;
     }
-    end.kind = ShellWalkEnd::Killed;
-    end.latticeSteps = steps;
-    return end;
+    if (w.onNodes) w.node = nodeNear(w.b, w.acc, w.x);
+    w.d = w.ice.distance(w.x);
+    return Move::Moved;
+}
+
+ShellWalkers::Move ShellWalkers::graphBurst(Walk& w) const
+{
+    // on surface nodes without drift: a burst of node-graph steps, then one distance query
+    if (!w.onNodes || w.node < 0 || w.in.drift) return Move::NotTaken;
+    for (int n = 0; n < kGraphBurst; ++n) {
+        GraphStep g = graphStep(w.node, w.rng, true);
+        if (g.kind == GraphStep::NextToIce) {
+            if (w.sticks()) return Move::Stuck;
+            g = graphStep(w.node, w.rng, false); // the roll failed: it walks on
+        }
+        if (g.kind == GraphStep::NoStencil) {
+            if (n == 0) return Move::NotTaken; // a projected step instead
+            break;
+        }
+        w.steps += g.latticeSteps;
+        if (n > 0) ++w.end.moves;
+        if (g.kind != GraphStep::Moved) continue;
+        if (mOpen && w.b.lateralOffset(size_t(g.node)) > 0.25f) return Move::Left; // past the border: it leaves
+        w.end.prev = w.x;
+        w.end.hasPrev = true;
+        w.node = g.node;
+        w.x = w.b.closestPoint(size_t(w.node));
+        if (mParams.maxSteps > 0 && w.steps >= double(mParams.maxSteps)) break;
+    }
+    w.d = w.ice.distance(w.x);
+    return Move::Moved;
+}
+
+ShellWalkers::Move ShellWalkers::latticeStep(Walk& w, const VoxelFrame& f, const Vec3d& v) const
+{
+    // one lattice step along one of the six tangent directions, plus the drift
+    const unsigned k = unsigned((static_cast<unsigned __int128>(w.rng.next()) * 6u) >> 64);
+    const double a = double(k) * (M_PI / 3.0);
+    const Vec3d y = w.x + f.tangent * std::cos(a) + f.bitangent * std::sin(a) + v;
+    const int32_t nodeBefore = w.node;
+    Vec3d q;
+    double lat = 0;
+    if (!w.projectStep(y, q, &lat) || (mOpen && lat > 0.5)) return Move::Left; // left the mesh's border
+    w.steps += 1;
+    double dq = w.ice.distance(q);
+    // ice cannot be entered: a walker next to ice whose step lands on it stays
+    if (w.d <= kStickRadius && dq < 0.5) {
+        w.node = nodeBefore;
+        return Move::Moved;
+    }
+    if (w.d > kStickRadius && dq <= kStickRadius) {
+        // contact: the walker stops where its step first comes within one spacing of the ice
+        // (bisection on the step), so stuck points sit one spacing from the ice, as the
+        // plane's stuck cells sit next to theirs
+        double lo = 0, hi = 1;
+        for (int it = 0; it < 12; ++it) {
+            const double mid = 0.5 * (lo + hi);
+            (w.ice.distance(w.x + (q - w.x) * mid) <= kStickRadius ? hi : lo) = mid;
+        }
+        Vec3d c;
+        const int32_t nodeAtQ = w.node;
+        if (w.projectStep(w.x + (q - w.x) * hi, c, nullptr) && w.ice.distance(c) <= kStickRadius) {
+            q = c;
+            dq = w.ice.distance(q);
+        } else {
+            w.node = nodeAtQ;
+        }
+    }
+    w.end.prev = w.x;
+    w.end.hasPrev = true;
+    w.x = q;
+    w.d = dq;
+    return Move::Moved;
 }
 
 } // namespace frostvdb::shell

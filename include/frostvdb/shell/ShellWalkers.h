@@ -230,6 +230,15 @@ private:
     };
     /// @a checkIce: report NextToIce (no move) when a strong neighbour is ice.
     GraphStep graphStep(int32_t node, ice::WalkerRng& rng, bool checkIce) const;
+
+    // walk()'s stages on one walker's state (ShellWalkers.cpp): a jump, a burst of graph steps
+    // or one projected lattice step, each moves the walker, declines, leaves the surface or sticks
+    struct Walk;
+    enum class Move : uint8_t { NotTaken, Moved, Left, Stuck };
+    bool releaseSite(Walk& w, uint64_t walker) const;
+    Move jump(Walk& w, const VoxelFrame& f, const openvdb::Vec3d& v) const;
+    Move graphBurst(Walk& w) const;
+    Move latticeStep(Walk& w, const VoxelFrame& f, const openvdb::Vec3d& v) const;
 };
 
 } // namespace frostvdb::shell
