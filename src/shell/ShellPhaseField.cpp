@@ -548,24 +548,61 @@ inline double shellEpsSquared(const ShellBand& b, const std::vector<float>& pe, 
 void ShellPhaseField::stepImplicit(double dt, double theta, double tNext, int64_t stepIndex, uint64_t seed,
                                    ShellStepStats* stats)
 {
-    const ShellBand& b = *mBand;
     KobayashiParams k = mParams;
     k.dt = dt; // the reaction part reads r = dt / tau
-    const double invH = 1.0 / mH;
-    const float tInf = float(k.farTemperature);
     const auto t0 = Clock::now();
+    const BandRows& rows = implicitRows();
+    // The theta-point estimates, extrapolated along the last step's increment p - p^{n-1} (which
+    // holds whatever other effects wrote since, as on a plane), scaled to this step's dt.
+    const float ex = mHistory ? float(theta * dt / mLastDt) : 0.f;
+    thetaPointCoefficients(k, ex);
+    implicitExtensions(rows, ex, float(theta));
+    assembleImplicitRows(rows, k, theta, ex, stepIndex, seed);
+    const auto t1 = Clock::now();
+    const SolveReport rp = mSysP.solve(*mBand, rows, mXP, k.solverTolerance, k.solverMaxIterations);
+    ClipCount clips = clipImplicitPhase(rows, tNext, dt);
+    // Latent heat of the p actually taken, once; the T solve starts from T^n + K dp.
+    for (size_t row = 0; row < rows.rows(); ++row) {
+        const double heat = k.latentHeat * (mXP[row] - mP0[row]);
+        mSysT.rhs[row] += heat;
+        mXT[row] += heat;
+    }
+    const SolveReport rt = mSysT.solve(*mBand, rows, mXT, k.solverTolerance, k.solverMaxIterations);
+    const auto t2 = Clock::now();
+    writeBackImplicit(rows, tNext);
+    mHistory = true;
+    mLastDt = dt;
+    if (stats) {
+        stats->kernelSeconds += std::chrono::duration<double>(t1 - t0).count();
+        stats->solveSeconds += std::chrono::duration<double>(t2 - t1).count();
+        stats->extendSeconds += since(t2);
+        stats->voxelUpdates += rows.rows();
+        stats->solves += 1;
+        stats->iterationsP += rp.iterations;
+        stats->iterationsT += rt.iterations;
+        stats->unconverged += (!rp.converged || !rt.converged) ? 1 : 0;
+        stats->clippedVoxels += clips.clipped;
+        stats->maxClip = std::max(stats->maxClip, clips.maxClip);
+        stats->lastResidual = std::max(rp.residual, rt.residual);
+    }
+}
+
+const BandRows& ShellPhaseField::implicitRows()
+{
+    const ShellBand& b = *mBand;
     if (!mRows) mRows = std::make_unique<BandRows>();
     if (mRowsStepped != mStepped.size() || mRowsBand != b.size()) { // the stepped set only grows
         mRows->build(b, mStepped);
         mRowsStepped = mStepped.size();
         mRowsBand = b.size();
     }
-    const BandRows& rows = *mRows;
-    const size_t n = rows.rows();
+    return *mRows;
+}
 
-    // The theta-point estimates, extrapolated along the last step's increment p - p^{n-1} (which
-    // holds whatever other effects wrote since, as on a plane), scaled to this step's dt.
-    const float ex = mHistory ? float(theta * dt / mLastDt) : 0.f;
+void ShellPhaseField::thetaPointCoefficients(const KobayashiParams& k, float ex)
+{
+    const ShellBand& b = *mBand;
+    const double invH = 1.0 / mH;
     b.forEachVoxel(&mStepped, [&](size_t i) {
         mPe[i] = std::min(1.f, std::max(0.f, mP[i] + ex * (mP[i] - mStartP[i])));
     });
@@ -575,6 +612,12 @@ void ShellPhaseField::stepImplicit(double dt, double theta, double tNext, int64_
     b.forEachVoxel(&mStepped, [&](size_t i) {
         if (b.inCoefficientSet(i)) mA[i] = float(shellEpsSquared(b, mPe, i, invH, an, flat2));
     });
+}
+
+void ShellPhaseField::implicitExtensions(const BandRows& rows, float ex, float theta)
+{
+    const ShellBand& b = *mBand;
+    const float tInf = float(mParams.farTemperature);
     // T: the start values' extension at the rows' neighbours (the explicit half reads E T^n, as
     // the implicit half reads E T'), and the fixed nodes' part of it (right-hand side).
     rows.extendAt(b, mT, tInf, mET, mETFixed);
@@ -584,7 +627,7 @@ void ShellPhaseField::stepImplicit(double dt, double theta, double tNext, int64_
     // about pf, p extrapolated to the end of the step: E p' ~ Ep(pf) + E (p' - pf). The implicit
     // operator stays linear (E on the increment, O(dt^2) small) and the step second order.
     b.forEachVoxel(&mStepped, [&](size_t i) {
-        mPf[i] = std::min(1.f, std::max(0.f, mP[i] + (ex / float(theta)) * (mP[i] - mStartP[i])));
+        mPf[i] = std::min(1.f, std::max(0.f, mP[i] + (ex / theta) * (mP[i] - mStartP[i])));
     });
     b.extendPhase(mP, mPn, mPhi, &mStepped, &mStepped);  // Ep(p^n)
     b.extendPhase(mPf, mTn, mPhi, &mStepped, &mStepped); // Ep(pf)
@@ -604,7 +647,15 @@ void ShellPhaseField::stepImplicit(double dt, double theta, double tNext, int64_
             }
         }
     });
+}
 
+void ShellPhaseField::assembleImplicitRows(const BandRows& rows, const KobayashiParams& k, double theta, float ex,
+                                           int64_t stepIndex, uint64_t seed)
+{
+    const ShellBand& b = *mBand;
+    const double dt = k.dt, invH = 1.0 / mH;
+    const float tInf = float(k.farTemperature);
+    const size_t n = rows.rows();
     // The plane's 7-point stencil (taps +x, -x, +y, -y, +z, -z) over a 7-value local gather,
     // centre at 0, tap q at 1 + q: advectionDiffusionCoefficients runs unchanged on it.
     FlatStencil st(Lattice(LatticeKind::Square, mH).stencil(true), 0, 0);
@@ -674,44 +725,44 @@ void ShellPhaseField::stepImplicit(double dt, double theta, double tNext, int64_
             mP0[row] = p0;
         }
     });
-    const auto t1 = Clock::now();
-    const SolveReport rp = mSysP.solve(b, rows, mXP, k.solverTolerance, k.solverMaxIterations);
+}
+
+ShellPhaseField::ClipCount ShellPhaseField::clipImplicitPhase(const BandRows& rows, double tNext, double dt)
+{
     // As on a plane: p' leaves [0, 1] by rounding (set back silently) or where the solve is not a
     // positive scheme, which the band system never is: the extension's cubic weights are not all
     // positive, so p' dips a little below 0 ahead of a tilted front (about 0.3 % of the row
     // updates on a 30-degree plate, by less than 1e-3). Within [-0.25, 1.25] it is clipped and
     // counted (with the largest distance); beyond, the step fails.
     constexpr double kRounding = 1e-12;
-    int64_t clipped = 0;
-    double maxClip = 0;
-    for (size_t row = 0; row < n; ++row) {
+    ClipCount out;
+    for (size_t row = 0; row < rows.rows(); ++row) {
         double& v = mXP[row];
         if (!std::isfinite(v) || v < -0.25 || v > 1.25) {
             std::ostringstream os;
-            os << "shell phase field (lw_cn) left its bounds: p = " << v << " at voxel " << b.coord(rows.voxel(row))
-               << " (t = " << tNext << "); dt = " << dt << ". Lower phase_field.dt or tighten the solver tolerance";
+            os << "shell phase field (lw_cn) left its bounds: p = " << v << " at voxel "
+               << mBand->coord(rows.voxel(row)) << " (t = " << tNext << "); dt = " << dt
+               << ". Lower phase_field.dt or tighten the solver tolerance";
             throw SimulationError(os.str());
         }
-        maxClip = std::max({maxClip, -v, v - 1.0});
-        if (v < 0.0) clipped += v < -kRounding, v = 0.0;
-        else if (v > 1.0) clipped += v > 1.0 + kRounding, v = 1.0;
+        out.maxClip = std::max({out.maxClip, -v, v - 1.0});
+        if (v < 0.0) out.clipped += v < -kRounding, v = 0.0;
+        else if (v > 1.0) out.clipped += v > 1.0 + kRounding, v = 1.0;
     }
-    // Latent heat of the p actually taken, once; the T solve starts from T^n + K dp.
-    for (size_t row = 0; row < n; ++row) {
-        const double heat = k.latentHeat * (mXP[row] - mP0[row]);
-        mSysT.rhs[row] += heat;
-        mXT[row] += heat;
-    }
-    const SolveReport rt = mSysT.solve(b, rows, mXT, k.solverTolerance, k.solverMaxIterations);
-    const auto t2 = Clock::now();
+    return out;
+}
 
+void ShellPhaseField::writeBackImplicit(const BandRows& rows, double tNext)
+{
     // Write back: the start values become the history, rows take the solution, the voxels that
     // are not rows (d > 3.5) the extension of it.
+    const ShellBand& b = *mBand;
+    const float tInf = float(mParams.farTemperature);
     b.forEachVoxel(&mStepped, [&](size_t i) {
         mStartP[i] = mP[i];
         mStartT[i] = mT[i];
     });
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 4096), [&](const tbb::blocked_range<size_t>& range) {
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, rows.rows(), 4096), [&](const tbb::blocked_range<size_t>& range) {
         for (size_t row = range.begin(); row < range.end(); ++row) {
             const size_t i = rows.voxel(row);
             mP[i] = float(mXP[row]);
@@ -731,21 +782,6 @@ void ShellPhaseField::stepImplicit(double dt, double theta, double tNext, int64_
         if (d > 0.f) mGrowth[i] += d;
         if (mFreeze[i] == 0.f && mP[i] > 0.5f) mFreeze[i] = tn;
     });
-    mHistory = true;
-    mLastDt = dt;
-    if (stats) {
-        stats->kernelSeconds += std::chrono::duration<double>(t1 - t0).count();
-        stats->solveSeconds += std::chrono::duration<double>(t2 - t1).count();
-        stats->extendSeconds += since(t2);
-        stats->voxelUpdates += n;
-        stats->solves += 1;
-        stats->iterationsP += rp.iterations;
-        stats->iterationsT += rt.iterations;
-        stats->unconverged += (!rp.converged || !rt.converged) ? 1 : 0;
-        stats->clippedVoxels += clipped;
-        stats->maxClip = std::max(stats->maxClip, maxClip);
-        stats->lastResidual = std::max(rp.residual, rt.residual);
-    }
 }
 
 } // namespace frostvdb::shell

@@ -157,6 +157,23 @@ public:
 private:
     /// One theta-step of @a dt (theta 1/2: Crank-Nicolson, 1: implicit Euler).
     void stepImplicit(double dt, double theta, double tNext, int64_t stepIndex, uint64_t seed, ShellStepStats* stats);
+    // stepImplicit's stages (ShellPhaseField.cpp)
+    const BandRows& implicitRows(); ///< the rows of the stepped set (built again when it grew)
+    /// p extrapolated to the theta-point (pe) and eps^2(pe) on the coefficient set.
+    void thetaPointCoefficients(const KobayashiParams& k, float ex);
+    /// The extensions the rows' neighbours read: E T^n, Ep(p^n), Ep(pf) and E pf.
+    void implicitExtensions(const BandRows& rows, float ex, float theta);
+    /// The p and T systems' rows, right-hand sides and first guesses.
+    void assembleImplicitRows(const BandRows& rows, const KobayashiParams& k, double theta, float ex,
+                              int64_t stepIndex, uint64_t seed);
+    struct ClipCount {
+        int64_t clipped = 0;
+        double maxClip = 0;
+    };
+    /// p' back into [0, 1] (counted), or an error beyond [-0.25, 1.25].
+    ClipCount clipImplicitPhase(const BandRows& rows, double tNext, double dt);
+    /// The solution into the band: rows, then the extension elsewhere; history, growth, freeze time.
+    void writeBackImplicit(const BandRows& rows, double tNext);
     /// The forward Euler step on a surface-node band (ShellBand::surfaceNodes): the nodes' stencils
     /// instead of Cartesian differences, nothing to extend.
     void stepSurface(double time, int64_t stepIndex, uint64_t seed, ShellStepStats* stats);
