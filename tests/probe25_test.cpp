@@ -697,3 +697,27 @@ TEST_CASE("Probe 25.2: the memory estimate of each effect and domain is within 1
         CHECK(ratio >= 1.0 / 1.5);
     }
 }
+
+TEST_CASE("Probe 25.2: a shell's whole band is held to run.memory_limit, once, at domain.voxel_size",
+          "[fast][probe][memory][shell]")
+{
+    // A tilted 0.3 m plate at 1 mm: the whole band is estimated at about 83 MiB.
+    const std::string dir = tempDir("p25_shell_band");
+    std::ofstream(dir + "/tilted.obj") << "v -0.15 -0.15 -0.05\nv 0.15 -0.15 -0.05\nv 0.15 0.15 0.07\n"
+                                          "v -0.15 0.15 0.07\nf 1 2 3\nf 1 3 4\n";
+    auto scene = [&](double limit, const std::string& effects) {
+        return "[scene]\nframes = 1\nsteps_per_frame = 1\n[run]\nmemory_limit = " + std::to_string(limit) +
+               "\n[output]\npreview = \"none\"\n[domain]\nkind = \"shell\"\nvoxel_size = 0.001\nmesh = \"" + dir +
+               "/tilted.obj\"\n" + effects;
+    };
+    const std::string dense = "[region]\ndense = true\n[phase_field]\n";
+    for (const std::string& fx : {dense, std::string("[dla]\n"), dense + "[dla]\n"}) {
+        const std::string e = refusalOf(scene(0.05, fx));
+        INFO(fx << ": " << e);
+        CHECK(e.find("domain.voxel_size: needs about 83") != std::string::npos);
+        CHECK(e.find("run.memory_limit") != std::string::npos);
+        CHECK(e.find("domain.size") == std::string::npos); // the plane's key, not in this scene
+    }
+    // [dla] and a dense region build one band: counted once (twice would be 166 MiB)
+    CHECK(refusalOf(scene(0.12, dense + "[dla]\n")) == "");
+}
