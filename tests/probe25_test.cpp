@@ -545,3 +545,179 @@ TEST_CASE("Probe 25.2: a map image larger than run.memory_limit is refused befor
     CHECK(e.find("memory_limit") != std::string::npos);
     CHECK(refusalOf(meltMapScene(png, "[run]\nmemory_limit = 0.1\n")) == "");
 }
+
+// ---- finding 1 --------------------------------------------------------------------------------
+
+namespace {
+/// A square plate of side @a side metres (two triangles) at z = 0, written as OBJ in @a dir.
+std::string plateObj(const std::string& dir, double side)
+{
+    const std::string path = dir + "/plate.obj";
+    const double h = 0.5 * side;
+    std::ofstream(path) << "v " << -h << " " << -h << " 0\nv " << h << " " << -h << " 0\nv " << h << " " << h
+                        << " 0\nv " << -h << " " << h << " 0\nf 1 2 3\nf 1 3 4\n";
+    return path;
+}
+
+std::string shellSeedScene(const std::string& mesh, const std::string& seed, const std::string& extra = "")
+{
+    return R"([scene]
+name = "plate"
+frames = 1
+steps_per_frame = 1
+[run]
+memory_limit = 1
+[domain]
+kind = "shell"
+mesh = ")" + mesh + R"("
+voxel_size = 0.001
+[phase_field]
+[[crystal.seed]]
+)" + seed + extra;
+}
+} // namespace
+
+TEST_CASE("Probe 25.1: a seed stamp on a large shell is estimated and refused before it is stamped",
+          "[fast][probe][memory][shell]")
+{
+    // A 1 km plate at 1 mm (its lazy band is accepted): a disc of the whole plate would stamp
+    // about 1e13 cells (main: bad_alloc after gigabytes); its border band about 4e6 surface cells.
+    const std::string mesh = plateObj(tempDir("p25_seed_plate"), 1000.0);
+    const std::string disc = refusalOf(shellSeedScene(mesh, "shape = \"disc\"\nradius_fraction = 1\n"));
+    INFO(disc);
+    CHECK(disc.find("crystal.seed.radius_fraction") != std::string::npos);
+    CHECK(disc.find("memory_limit") != std::string::npos);
+    CHECK(lines(disc) == 0);
+    const std::string border = refusalOf(shellSeedScene(mesh, "shape = \"edge\"\nedges = \"border\"\n"));
+    INFO(border);
+    CHECK(border.find("edges = \"border\"") != std::string::npos);
+    CHECK(border.find("memory_limit") != std::string::npos);
+    CHECK(lines(border) == 0);
+    // the same seeds on a small plate run
+    const std::string small = plateObj(tempDir("p25_seed_small"), 0.03);
+    CHECK(refusalOf(shellSeedScene(small, "shape = \"disc\"\nradius_fraction = 0.2\n")) == "");
+    CHECK(refusalOf(shellSeedScene(small, "shape = \"edge\"\nedges = \"border\"\n")) == "");
+}
+
+// ---- finding 12 -------------------------------------------------------------------------------
+
+TEST_CASE("Probe 25.12: a dense-region run checkpoints after its last frame, and resumes there to identical frames",
+          "[fast][probe][checkpoint]")
+{
+    // 20 steps per frame: not a multiple of the region cadence's 16
+    const std::string dir = tempDir("p25_dense_ckpt");
+    const std::string scene = dir + "/dense.toml";
+    std::ofstream(scene) << "[scene]\nname = \"dense\"\nframes = 2\nsteps_per_frame = 20\n[domain]\nsize = [40, 40]\n"
+                            "voxel_size = 0.001\n[region]\ndense = true\n[output]\npreview = \"none\"\n"
+                            "displacement_png = false\n[phase_field]\nnoise = 0.01\n";
+    const std::string ref = dir + "/ref", out = dir + "/out";
+    REQUIRE(waitFor(spawnBinary({"run", scene, "--out", ref, "-q"}, dir + "/ref.log")) == 0);
+    REQUIRE(waitFor(spawnBinary({"run", scene, "--out", out, "-q", "--frames", "1-1", "--checkpoint-every", "7"},
+                                dir + "/a.log")) == 0);
+    REQUIRE(waitFor(spawnBinary({"run", scene, "--resume", out, "-q", "--frames", "1-2"}, dir + "/b.log")) == 0);
+    const std::string json = readFile(out + "/run.json");
+    INFO(json << readFile(dir + "/b.log"));
+    CHECK(json.find("\"resumed_from_step\": 20") != std::string::npos);
+    // every grid bit for bit (the file metadata records each run's own command line)
+    for (const char* f : {"/dense.0001.vdb", "/dense.0002.vdb"}) {
+        openvdb::io::File fa(ref + f), fb(out + f);
+        fa.open();
+        fb.open();
+        auto ga = fa.getGrids(), gb = fb.getGrids();
+        REQUIRE(ga->size() == gb->size());
+        for (size_t i = 0; i < ga->size(); ++i) {
+            auto x = openvdb::gridPtrCast<openvdb::FloatGrid>((*ga)[i]);
+            auto y = openvdb::gridPtrCast<openvdb::FloatGrid>((*gb)[i]);
+            INFO(f << ": " << (*ga)[i]->getName());
+            REQUIRE((x && y));
+            CHECK(x->tree().hasSameTopology(y->tree()));
+            auto acc = y->getConstAccessor();
+            size_t differ = 0;
+            for (auto it = x->cbeginValueAll(); it; ++it)
+                differ += std::memcmp(&*it, &static_cast<const float&>(acc.getValue(it.getCoord())), sizeof(float)) != 0;
+            CHECK(differ == 0);
+        }
+    }
+}
+
+// ---- finding 2: the estimates against the measured peak --------------------------------------
+
+namespace {
+/// The run's memory estimate (`--estimate=0 --progress json`: the effects' estimates summed)
+/// and its peak resident memory (run.json's peak_memory_bytes) for one frame of @a scene.
+std::pair<double, double> estimateAndPeak(const std::string& dir, const std::string& name, const std::string& scene)
+{
+    const std::string path = dir + "/" + name + ".toml";
+    std::ofstream(path) << scene;
+    const std::string estLog = dir + "/" + name + ".estimate";
+    REQUIRE(waitFor(spawnBinary({"run", path, "--estimate=0", "--progress", "json", "--frames", "1-1"}, estLog)) == 0);
+    const std::string est = readFile(estLog);
+    const size_t at = est.find("\"memory_bytes\":");
+    REQUIRE(at != std::string::npos);
+    const double estimate = std::stod(est.substr(at + 15));
+    const std::string out = dir + "/" + name + "_out";
+    REQUIRE(waitFor(spawnBinary({"run", path, "--out", out, "-q", "--frames", "1-1"}, dir + "/" + name + ".log")) == 0);
+    const std::string json = readFile(out + "/run.json");
+    const size_t p = json.find("\"peak_memory_bytes\":");
+    REQUIRE(p != std::string::npos);
+    return {estimate, std::stod(json.substr(p + 20))};
+}
+} // namespace
+
+TEST_CASE("Probe 25.2: the memory estimate of each effect and domain is within 1.5x of the measured peak",
+          "[fast][probe][memory]")
+{
+    // One frame of one step per scene, sized so that what the estimate counts dominates the
+    // program's own ~50 MiB (libraries, OpenVDB and TBB): ratio = estimate / peak resident memory.
+    const std::string dir = tempDir("p25_ratio");
+    {
+        std::ofstream(dir + "/tilted.obj") << "v -0.15 -0.15 -0.05\nv 0.15 -0.15 -0.05\nv 0.15 0.15 0.07\n"
+                                              "v -0.15 0.15 0.07\nf 1 2 3\nf 1 3 4\n";
+        std::ofstream(dir + "/flat.obj") << "v -0.4 -0.4 0\nv 0.4 -0.4 0\nv 0.4 0.4 0\nv -0.4 0.4 0\nf 1 2 3\nf 1 3 4\n";
+    }
+    const std::string head = "[scene]\nname = \"m\"\nframes = 1\nsteps_per_frame = 1\n[run]\nmemory_limit = 2\n";
+    const std::string shell = "[output]\npreview = \"none\"\n[domain]\nkind = \"shell\"\nvoxel_size = 0.001\n";
+    const std::string plane = "[output]\npreview = \"none\"\ndisplacement_png = false\n";
+    const std::vector<std::pair<std::string, std::string>> scenes = {
+        {"shell_dense", head + shell + "mesh = \"tilted.obj\"\n[region]\ndense = true\n[phase_field]\n"},
+        {"shell_dla", head + shell + "mesh = \"tilted.obj\"\n[dla]\n[[crystal.seed]]\nshape = \"point\"\n"},
+        {"shell_dense_dla", head + shell + "mesh = \"tilted.obj\"\n[region]\ndense = true\n[phase_field]\n[dla]\n"},
+        {"shell_flat_dense", head + shell + "mesh = \"flat.obj\"\n[region]\ndense = true\n[phase_field]\n"},
+        {"plane_dense", head + "[domain]\nsize = [1024, 1024]\nvoxel_size = 0.001\n[region]\ndense = true\n" + plane +
+                            "[phase_field]\n[[crystal.seed]]\nshape = \"disc\"\nradius_fraction = 0.3\n"},
+    };
+    for (const auto& [name, text] : scenes) {
+        const auto [estimate, peak] = estimateAndPeak(dir, name, text);
+        const double ratio = estimate / peak;
+        INFO(name << ": estimate " << estimate / 1048576.0 << " MiB, peak " << peak / 1048576.0 << " MiB, ratio "
+                  << ratio);
+        WARN(name << ": estimate " << estimate / 1048576.0 << " MiB, peak " << peak / 1048576.0 << " MiB, ratio "
+                  << ratio);
+        CHECK(ratio <= 1.5);
+        CHECK(ratio >= 1.0 / 1.5);
+    }
+}
+
+TEST_CASE("Probe 25.2: a shell's whole band is held to run.memory_limit, once, at domain.voxel_size",
+          "[fast][probe][memory][shell]")
+{
+    // A tilted 0.3 m plate at 1 mm: the whole band is estimated at about 83 MiB.
+    const std::string dir = tempDir("p25_shell_band");
+    std::ofstream(dir + "/tilted.obj") << "v -0.15 -0.15 -0.05\nv 0.15 -0.15 -0.05\nv 0.15 0.15 0.07\n"
+                                          "v -0.15 0.15 0.07\nf 1 2 3\nf 1 3 4\n";
+    auto scene = [&](double limit, const std::string& effects) {
+        return "[scene]\nframes = 1\nsteps_per_frame = 1\n[run]\nmemory_limit = " + std::to_string(limit) +
+               "\n[output]\npreview = \"none\"\n[domain]\nkind = \"shell\"\nvoxel_size = 0.001\nmesh = \"" + dir +
+               "/tilted.obj\"\n" + effects;
+    };
+    const std::string dense = "[region]\ndense = true\n[phase_field]\n";
+    for (const std::string& fx : {dense, std::string("[dla]\n"), dense + "[dla]\n"}) {
+        const std::string e = refusalOf(scene(0.05, fx));
+        INFO(fx << ": " << e);
+        CHECK(e.find("domain.voxel_size: needs about 83") != std::string::npos);
+        CHECK(e.find("run.memory_limit") != std::string::npos);
+        CHECK(e.find("domain.size") == std::string::npos); // the plane's key, not in this scene
+    }
+    // [dla] and a dense region build one band: counted once (twice would be 166 MiB)
+    CHECK(refusalOf(scene(0.12, dense + "[dla]\n")) == "");
+}

@@ -302,6 +302,18 @@ void Simulation::refuseOutputClashes(const std::vector<DeclaredEffect>& declared
                 }
 }
 
+namespace {
+/// True when @a m is an allocation already in @a counted (two effects that use one structure,
+/// e.g. a shell's whole band for [phase_field] and [dla], report the same estimate); else adds it.
+bool sharedEstimate(std::vector<MemoryEstimate>& counted, const MemoryEstimate& m)
+{
+    for (const auto& c : counted)
+        if (m.bytes > 0 && c.key == m.key && c.detail == m.detail && c.bytes == m.bytes) return true;
+    counted.push_back(m);
+    return false;
+}
+} // namespace
+
 void Simulation::checkMemoryBudget() const
 {
     // The displacement PNG is one raster over the whole plane (core/Export.h): 4-byte floats and
@@ -311,11 +323,13 @@ void Simulation::checkMemoryBudget() const
                                              "the displacement PNG raster (output.displacement_png)"),
                             mWorld.memoryLimitBytes, mWorld.sceneLabel);
     MemoryEstimate total;
+    std::vector<MemoryEstimate> counted;
     for (auto& e : mEffects) {
         MemoryEstimate m;
         atSection(e->name(), "memory estimate", [&] { m = e->memoryEstimate(mWorld); });
         if (m.key.empty()) m.key = e->name();
         checkMemoryEstimate(m, mWorld.memoryLimitBytes, mWorld.sceneLabel);
+        if (sharedEstimate(counted, m)) continue; // one allocation two effects use (a shell's whole band)
         if (m.bytes > total.bytes) total.key = m.key;
         total.bytes += m.bytes;
     }
@@ -826,6 +840,7 @@ RunEstimate Simulation::estimate(const RunOptions& opt, double probeSeconds)
     est.frames = last - first + 1;
     est.steps = (stateless ? est.frames : last) * mWorld.stepsPerFrame;
     est.memoryLimitBytes = mWorld.memoryLimitBytes;
+    std::vector<MemoryEstimate> counted;
     if (mOutput.displacementPng && mWorld.domain.flat()) {
         est.memory.push_back(perVoxelEstimate(double(mWorld.domain.bbox().volume()), 8.0, "domain.size",
                                               "the displacement PNG raster (output.displacement_png)"));
@@ -835,7 +850,7 @@ RunEstimate Simulation::estimate(const RunOptions& opt, double probeSeconds)
         MemoryEstimate m;
         atSection(e->name(), "memory estimate", [&] { m = e->memoryEstimate(mWorld); });
         if (m.key.empty()) m.key = e->name();
-        est.memoryBytes += m.bytes;
+        if (!sharedEstimate(counted, m)) est.memoryBytes += m.bytes;
         est.memory.push_back(m);
     }
     mWorld.progress = false;

@@ -18,6 +18,7 @@
 
 #include <algorithm>
 #include <cctype>
+#include <cstdio>
 #include <cmath>
 #include <filesystem>
 #include <map>
@@ -569,6 +570,90 @@ FieldDeclaration CrystalEffect::declaration() const
     if (hasSeeds()) d.use(kPhase, kInitialises);
     if (hasMelt()) d.use(kMelt, kInitialises);
     return d;
+}
+
+namespace {
+/// Cells of a ball of radius @a r (cells) about @a c, clipped to @a box: per z layer, the
+/// smaller of the layer's disc and the box's layer.
+double ballCellsInBox(const Vec3d& c, double r, const openvdb::CoordBBox& box)
+{
+    if (box.empty()) return 0.0;
+    const double rect = double(box.dim().x()) * double(box.dim().y());
+    double n = 0;
+    const double z0 = std::max(double(box.min().z()), std::floor(c.z() - r)),
+                 z1 = std::min(double(box.max().z()), std::ceil(c.z() + r));
+    for (double z = z0; z <= z1; z += 1.0) {
+        const double dz = z - c.z(), rz2 = r * r - dz * dz;
+        n += std::min(rect, 3.14159265358979 * std::max(rz2, 0.0) + 1.0);
+    }
+    return n;
+}
+
+/// Bytes a sparse float grid spends per stamped cell: 8^3 leaves of floats (2 KiB and their
+/// masks), full where the stamp is thicker than a leaf, one layer of 64 cells on a flat domain.
+double gridBytesPerCell(const openvdb::CoordBBox& box)
+{
+    const double layers = std::clamp(double(box.dim().z()), 1.0, 8.0);
+    return 2200.0 / (64.0 * layers);
+}
+} // namespace
+
+MemoryEstimate CrystalEffect::memoryEstimate(const World& world) const
+{
+    // Each shape is stamped cell by cell into a sparse grid (p or melt) before any effect runs.
+    // A disc's radius is a fraction of the domain's bounds, so on a large shell its ball (clipped
+    // to the bounds) can hold far more cells than any memory; so can a line or a scatter of
+    // large discs. (A shell's border band is checked by the shell domain, which knows its border.)
+    const Domain& dom = world.domain;
+    const openvdb::CoordBBox& bb = dom.bbox();
+    const double perCell = gridBytesPerCell(bb);
+    double bytes = 0, biggest = -1, cells = 0;
+    std::string key = "crystal.seed";
+    auto add = [&](const CrystalShape& s, const std::string& table) {
+        double n = 0;
+        std::string k = table;
+        switch (s.kind) {
+        case CrystalShape::Kind::Point:
+        case CrystalShape::Kind::Disc: {
+            const Vec3d c = indexOf(dom, s.position, s.world);
+            n = ballCellsInBox(c, s.radius, window(dom, c, c, s.radius));
+            k += s.kind == CrystalShape::Kind::Disc ? ".radius_fraction" : ".radius";
+            break;
+        }
+        case CrystalShape::Kind::Scatter: {
+            const Vec3d c = bb.getCenter();
+            n = double(s.count) * ballCellsInBox(c, s.radius, window(dom, c, c, s.radius));
+            k += ".count";
+            break;
+        }
+        case CrystalShape::Kind::Line: {
+            const Vec3d a = indexOf(dom, s.from, s.world), b = indexOf(dom, s.to, s.world);
+            const double hw = 0.5 * s.width;
+            const Vec3d m = 0.5 * (a + b);
+            n = ((geo(dom, b) - geo(dom, a)).length() + 1.0) * ballCellsInBox(m, hw, window(dom, m, m, hw)) /
+                std::max(1.0, 2.0 * hw);
+            k += ".width";
+            break;
+        }
+        case CrystalShape::Kind::Edge: {
+            const double w = std::max(1.0, std::ceil(s.width - 1e-9));
+            const double x = bb.dim().x(), y = bb.dim().y(), z = bb.dim().z();
+            if (dom.flat()) n = 2.0 * (x + y) * w;
+            else if (dom.intrinsicDimension() == 3) n = 2.0 * (x * y + y * z + x * z) * w;
+            k += ".width";
+            break;
+        }
+        }
+        cells += n;
+        bytes += n * perCell;
+        if (n > biggest) biggest = n, key = k;
+    };
+    for (const auto& s : mSeeds) add(s, "crystal.seed");
+    for (const auto& s : mMelt) add(s, "crystal.melt");
+    char detail[200];
+    std::snprintf(detail, sizeof detail, "%.4g cells stamped by the seed and melt shapes x %.1f bytes in their sparse grids",
+                  cells, perCell);
+    return {bytes, key, detail};
 }
 
 void CrystalEffect::initialize(World& world)

@@ -19,6 +19,7 @@
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 #include <frostvdb/ice/IceState.h>
+#include <frostvdb/shell/ShellBudget.h>
 #include <frostvdb/shell/ShellDomain.h>
 #include <frostvdb/shell/ShellGrids.h>
 #include <frostvdb/shell/ShellPhaseField.h>
@@ -43,6 +44,8 @@ public:
     explicit ShellDlaEffect(const ice::DlaParams& p) : mParams(p) {}
 
     std::string name() const override { return "dla"; }
+    /// The whole band the walkers built (makeShellDla); the phase field reports the same one.
+    MemoryEstimate memoryEstimate(const World& world) const override { return wholeBandEstimate(world.domain); }
 
     FieldDeclaration declaration() const override
     {
@@ -498,10 +501,7 @@ std::unique_ptr<Effect> makeShellDla(const ice::DlaParams& params, ParamDict& d,
     // [dla] memory follows the mesh's area; the phase field's active region still steps only
     // the leaves near the ice).
     const auto band = bandOf(world.domain);
-    checkMemoryEstimate(perVoxelEstimate(band->surfaceVoxels(), band->bytesPerSurfaceCell(), "domain.voxel_size",
-                                         "walkers build the whole shell band: bytes per surface cell x mesh area / "
-                                         "voxel_size^2"),
-                        world.memoryLimitBytes, world.sceneLabel);
+    checkMemoryEstimate(wholeBandEstimate(world.domain), world.memoryLimitBytes, world.sceneLabel);
     try {
         band->materialiseAll();
     } catch (const std::runtime_error& e) {

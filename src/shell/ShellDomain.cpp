@@ -5,13 +5,16 @@
 /// thick band (`"closest_point"`, the reference) (shell/ShellPhaseField.h). The band is built lazily, leaf by leaf, where the ice and its
 /// heat need it ([region] tolerance; dense = true builds it whole): memory follows the ice.
 #include <frostvdb/shell/ShellDomain.h>
+#include <frostvdb/shell/ShellBudget.h>
 
 #include <frostvdb/core/Error.h>
 #include <frostvdb/core/Random.h>
+#include <frostvdb/io/InputFiles.h>
 #include <frostvdb/io/Mesh.h>
 #include <frostvdb/shell/ShellTexture.h>
 
 #include <algorithm>
+#include <cstdio>
 #include <filesystem>
 #include <stdexcept>
 #include <tuple>
@@ -67,6 +70,7 @@ public:
     }
 
     const std::shared_ptr<const shell::ShellBand>& band() const { return mBand; }
+    const TriangleMesh& mesh() const { return mMesh; }
 
     std::string kind() const override { return "shell"; }
     /// The phase field and the walkers pick their shell back ends by it (ice/PhaseFieldBackend.h).
@@ -107,6 +111,7 @@ public:
                               const std::function<void(const openvdb::Coord&)>& fn) const override
     {
         if (name != "border") return;
+        checkBorderBudget(double(width));
         for (size_t i : mBand->nearBorder(double(width))) fn(mBand->coord(i));
     }
     // Its phase field and walkers are back ends registered for "surface" and "closest_point"
@@ -117,6 +122,28 @@ public:
     void setTextures(std::shared_ptr<const shell::SurfaceTextures> t) { mTextures = std::move(t); }
 
 private:
+    /// A lazy band builds its leaves along the whole border before the border's voxels are
+    /// visited (ShellBand::nearBorder): the leaves within width + the half-width + 1 of each
+    /// border edge, on both sides of it (the ghost ring beyond), about (twice that reach + a leaf)
+    /// surface cells per voxel of border, at the band's bytes per surface cell (measured: a 1 m
+    /// plate at 1 mm builds 53,433 nodes, 13.4 per voxel of border; estimated 17.2). Refused against run.memory_limit before they are built
+    /// (issue 25, finding 1: a border seed on a large plate took gigabytes, then bad_alloc).
+    void checkBorderBudget(double width) const
+    {
+        if (mBand->whole()) return;
+        double length = 0;
+        for (size_t e = 0; e < mBand->borderEdgeCount(); ++e) {
+            const auto [a, b] = mBand->borderEdge(e);
+            length += (b - a).length();
+        }
+        const double reach = width + mBand->halfWidth() + 1.0;
+        const double cells = length * (2.0 * reach + 8.0);
+        char what[200];
+        std::snprintf(what, sizeof what, "the band along the mesh's %.4g m border (%.3g surface cells x %.0f bytes)",
+                      length * mBand->voxelSize(), cells, mBand->bytesPerSurfaceCell());
+        checkInputMemory("edges = \"border\"", cells * mBand->bytesPerSurfaceCell(), what);
+    }
+
     std::shared_ptr<const shell::ShellBand> mBand;
     std::shared_ptr<const shell::SurfaceTextures> mTextures;
     TriangleMesh mMesh;            ///< world metres, for sampleSupport
@@ -258,6 +285,49 @@ const SurfaceTextures* texturesOf(const Domain& domain)
     if (!domain) return nullptr;
     const auto* s = dynamic_cast<const ShellDomain*>(&domain.impl());
     return s ? s->textures() : nullptr;
+}
+
+double wholeBandCells(const Domain& domain)
+{
+    if (!domain) return 0.0;
+    const auto* s = dynamic_cast<const ShellDomain*>(&domain.impl());
+    if (!s) return 0.0;
+    const ShellBand& band = *s->band();
+    const TriangleMesh& mesh = s->mesh();
+    // A surface-node band keeps the voxels within kLayerReach of the mesh: a slab 2 kLayerReach
+    // thick holds that many voxel centres per cell on average, whatever its orientation, except
+    // when it lies in a lattice plane: then it holds the whole layers within reach of its offset.
+    // (The closest-point band's voxels within its half-width: the same reasoning, 11.5 per cell,
+    // already in its bytes per cell.)
+    if (!band.surfaceNodes()) return band.surfaceVoxels();
+    const double reach = kLayerReach, h = band.voxelSize();
+    double area = 0, weighted = 0;
+    for (size_t t = 0; t < mesh.triangles.size(); ++t) {
+        const auto& f = mesh.triangles[t];
+        const Vec3d a(mesh.points[f[0]]), b(mesh.points[f[1]]), c(mesh.points[f[2]]);
+        Vec3d n = (b - a).cross(c - a);
+        const double twice = n.length();
+        if (!(twice > 0)) continue;
+        n /= twice;
+        double layers = 2.0 * reach;
+        for (int k = 0; k < 3; ++k)
+            if (std::fabs(n[k]) > 1.0 - 1e-9) {
+                const double d = a[k] / h; // the plane's offset in voxels (voxel centres at integers)
+                layers = std::floor(d + reach) - std::ceil(d - reach) + 1.0;
+            }
+        area += 0.5 * twice;
+        weighted += 0.5 * twice * layers;
+    }
+    return area > 0 ? band.surfaceVoxels() * weighted / (area * 2.0 * reach) : band.surfaceVoxels();
+}
+
+MemoryEstimate wholeBandEstimate(const Domain& domain)
+{
+    const auto band = bandOf(domain);
+    if (!band) return {};
+    return perVoxelEstimate(wholeBandCells(domain), band->bytesPerSurfaceCell(), "domain.voxel_size",
+                            "the whole shell band and the arrays stepped on it, per surface cell (mesh area / "
+                            "voxel_size^2)");
 }
 
 Domain makeShellDomain(const TriangleMesh& mesh, const BandSettings& settings, double spacing)

@@ -7,6 +7,7 @@
 #include <frostvdb/ice/IceState.h>
 #include <frostvdb/ice/PhaseFieldBackend.h>
 #include <frostvdb/io/Mesh.h>
+#include <frostvdb/shell/ShellBudget.h>
 #include <frostvdb/shell/ShellDomain.h>
 #include <frostvdb/shell/ShellGrids.h>
 #include <frostvdb/shell/ShellPhaseField.h>
@@ -47,10 +48,11 @@ public:
 
     MemoryEstimate memoryEstimate(const World& world) const override
     {
+        // the whole band (dense, or built whole by [dla] or the potential flow): the same estimate
+        // as [dla]'s, so the driver counts the band once (issue 25, finding 2)
         const auto band = bandOf(world.domain);
-        if (!world.region.dense && !band->whole()) return {};
-        return perVoxelEstimate(band->surfaceVoxels(), band->bytesPerSurfaceCell(), "domain.voxel_size",
-                                "the shell band and the phase field's arrays, per surface cell (mesh area / voxel_size^2)");
+        if (!world.region.dense && !band->whole() && !mOptions.potentialWind) return {};
+        return wholeBandEstimate(world.domain);
     }
 
     void initialize(World& world) override

@@ -117,6 +117,10 @@ public:
     bool supportsCheckpoint() const override { return true; }
     void saveState(const World&, StateWriter&) const override {}
     void loadState(World&, const StateReader&) override {}
+    /// The cells the seed and melt shapes stamp into their sparse grids (a disc's ball clipped to
+    /// the domain's bounds, a line's capsule, the scatter discs, the edge bands of a plane or a
+    /// box), refused by the shape's key before anything is stamped (issue 25, finding 1).
+    MemoryEstimate memoryEstimate(const World& world) const override;
 
     bool hasSeeds() const { return !mSeeds.empty() || mSeedMap.has; }
     bool hasMelt() const { return !mMelt.empty() || mMeltMap.has || mMeltValue != 1.0; }
