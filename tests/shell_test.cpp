@@ -787,3 +787,35 @@ TEST_CASE("Shell scene: the active region at tolerance 0 writes the whole band's
     CHECK(ice[0] == ice[1]);
     std::filesystem::remove(obj);
 }
+
+TEST_CASE("Shell run summary: each frame's active voxels are the fields of that frame, not the last one's",
+          "[fast][shell]")
+{
+    // The shell phase field keeps its fields in band arrays and writes them into World's grids
+    // only when published (frames, checkpoints); run.json's active_voxels were counted before the
+    // frame's publication, so each entry showed the previous frame's fields (the seeds at frame 1).
+    const std::string text = "[scene]\nname = \"shav\"\nseed = 3\nframes = 2\nsteps_per_frame = 30\n"
+                             "[domain]\nkind = \"shell\"\nvoxel_size = 0.0001\nsphere_radius = 0.0012\n"
+                             "[[crystal.seed]]\nshape = \"point\"\nspace = \"world\"\nposition = [0, 0, 0.0012]\n"
+                             "radius = 4\n[phase_field]\n";
+    std::vector<uint64_t> expected;
+    {
+        Simulation sim = test::makeSim(text);
+        for (int frame = 0; frame < 2; ++frame) {
+            for (int s = 0; s < 30; ++s) sim.step();
+            expected.push_back(sim.world().fields.activeVoxels()); // world(): published first
+        }
+    }
+    Simulation sim = test::makeSim(text);
+    RunOptions ro;
+    ro.progress = false;
+    ro.outDir = test::tempDir("shell_active_voxels");
+    const RunSummary sum = sim.run(ro);
+    REQUIRE(sum.activeVoxels.size() == 2);
+    CHECK(expected[0] < expected[1]); // the heat and the ice spread: the counts differ per frame
+    for (size_t f = 0; f < 2; ++f) {
+        INFO("frame " << f + 1);
+        CHECK(sum.activeVoxels[f].first == int64_t(30 * (f + 1)));
+        CHECK(sum.activeVoxels[f].second == expected[f]);
+    }
+}

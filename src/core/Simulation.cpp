@@ -767,6 +767,7 @@ void Simulation::returnFreePages()
 void Simulation::writeFrameOutputs(int64_t f, int64_t last, const std::string& dir, RunSummary& sum)
 {
     Frame frame = currentFrame(f);
+    sum.activeVoxels.emplace_back(mStep, mWorld.fields.activeVoxels()); // the fields as published for this frame
     // The PNGs first and the VDB last, so that it can consume the frame (one resampled grid at
     // a time); the summary lists them in the usual order.
     const std::vector<std::string> displacement = writeDisplacement(frame, dir);
@@ -804,8 +805,11 @@ void Simulation::simulateFrames(int64_t first, int64_t last, const RunOptions& o
             step();
             progress.update(++done, f, last);
         }
-        sum.activeVoxels.emplace_back(mStep, mWorld.fields.activeVoxels());
-        if (f < first || !opt.writeFiles) continue;
+        if (f < first || !opt.writeFiles) {
+            publishFields(); // effects that keep their state elsewhere (a shell's band arrays) write it back
+            sum.activeVoxels.emplace_back(mStep, mWorld.fields.activeVoxels());
+            continue;
+        }
         const auto t0 = Clock::now();
         returnFreePages(); // the output's copies then start from what the fields hold
         const size_t before = sum.files.size();

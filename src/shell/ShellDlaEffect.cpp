@@ -137,6 +137,7 @@ public:
 private:
     /// One step's shared state between its stages (step() lists them).
     struct StepContext {
+        StepContext(World& w, const ice::IceShared& s) : world(w), shared(s) {}
         World& world;
         const ice::IceShared& shared;
         ShellPhaseField* solver = nullptr; ///< [phase_field]'s arrays, borrowed for the step
@@ -280,7 +281,7 @@ private:
 void ShellDlaEffect::step(World& world, const StepInfo& info)
 {
     const ice::IceShared& sh = ice::shared(world);
-    StepContext ctx{world, sh};
+    StepContext ctx(world, sh);
     ctx.time = sh.timeAtStep(info.step);
     ctx.heat = sh.temperatureEvolves && mHeat != 0;
     auto t0 = Clock::now();
