@@ -291,6 +291,17 @@ public:
 
 private:
     void updateSteam(World& world);
+    // step()'s stages
+    /// The engine's distances brought in line with p (the listed crossings, or all of p).
+    void syncDistances(World& world, const openvdb::FloatGrid& p);
+    /// The walks' inputs (melt map, steam release, flow drift); returns the steam's extra walkers.
+    int64_t walkerInputs(World& world, const StepInfo& info, double dt, int64_t H, const openvdb::FloatGrid* melt,
+                         const openvdb::Vec3SGrid* vel, DlaEngine::Inputs& in);
+    /// Where a walker whose stick cell froze earlier in its batch goes on from (-1: nowhere).
+    int64_t resumeStart(const WalkEnd& e, const Domain& domain, int64_t step, uint64_t walker) const;
+    /// dla_hits written from the touched counts; counts under ice and emptied leaves dropped.
+    void updateHitCounts(const openvdb::FloatGrid& p, openvdb::Int32Grid& hits, std::vector<int64_t>& touched,
+                         int64_t step);
 
     DlaParams mParams;
     double mHeat = 0; ///< L in use
