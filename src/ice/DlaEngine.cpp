@@ -9,6 +9,7 @@
 /// the brick it is in; a hash probe happens only when it crosses into another brick.
 #include <frostvdb/ice/Dla.h>
 #include <frostvdb/core/Error.h>
+#include <frostvdb/geometry/HexLattice.h>
 
 #include <openvdb/tree/LeafManager.h>
 
@@ -301,10 +302,10 @@ DlaEngine::DlaEngine(const Domain& domain, const DlaParams& params, uint64_t see
     mDigits = std::max(1, int(48.0 / std::log2(double(mNbr.size()))));
     // A unit displacement in the lattice plane moves the index by at most this (Chebyshev): 1 on
     // the square lattice, 2/sqrt(3) on the hexagonal one (axial coordinates).
-    mSphereScale = domain.lattice().kind() == LatticeKind::Hexagonal ? 2.0 / std::sqrt(3.0) : 1.0;
+    mSphereScale = domain.lattice().kind() == LatticeKind::Hexagonal ? 1.0 / hex::kRowHeight : 1.0;
     // and the lattice (graph) distance by at most this: sqrt(2) (square, L1), 2/sqrt(3)
     // (hexagonal), sqrt(3) (cubic)
-    mGraphScale = domain.lattice().kind() == LatticeKind::Hexagonal ? 2.0 / std::sqrt(3.0)
+    mGraphScale = domain.lattice().kind() == LatticeKind::Hexagonal ? 1.0 / hex::kRowHeight
                                                                      : (mDim == 3 ? std::sqrt(3.0) : std::sqrt(2.0));
 
     // jump tables: every radius up to 16, then ~20% apart, up to the largest useful one
@@ -318,7 +319,7 @@ DlaEngine::DlaEngine(const Domain& domain, const DlaParams& params, uint64_t see
             radii.push_back(r);
         if (!radii.empty() && radii.back() != rmax && rmax >= params.jumpMinRadius) radii.push_back(rmax);
         mTables.resize(radii.size());
-        tbb::parallel_for(size_t(0), radii.size(), [&](size_t i) { mTables[i] = shellTable(mNbr, radii[i]); });
+        tbb::parallel_for(size_t(0), radii.size(), [&](size_t i) { mTables[i] = sphereTable(mNbr, radii[i]); });
         if (!radii.empty()) {
             mTableForRadius.assign(size_t(radii.back()) + 1, -1);
             for (size_t i = 0; i < radii.size(); ++i)
@@ -826,7 +827,7 @@ namespace {
 struct WalkContext {
     const DlaParams& P;
     const DlaEngine::Sparse& sparse;
-    const std::vector<std::shared_ptr<const ShellTable>>& tables;
+    const std::vector<std::shared_ptr<const SphereTable>>& tables;
     const std::vector<int16_t>& tableForRadius;
     int dim, cap, nx, ny, nz, maxR, sphereMin, coarseSlack;
     bool spheres, hex, anyIce, coarse, drift;
@@ -851,7 +852,7 @@ inline openvdb::Coord sphereJumpOffset(WalkerRng& rng, double rho, int dim, bool
     }
     double di = px, dj = py;
     if (hexagonal) { // plane (X, Y) -> axial (i, j): Y = j sqrt(3)/2, X = i + j/2
-        dj = py * (2.0 / std::sqrt(3.0));
+        dj = py * (1.0 / hex::kRowHeight);
         di = px - 0.5 * dj;
     }
     return openvdb::Coord(int(std::lround(di)), int(std::lround(dj)), int(std::lround(pz)));
@@ -923,7 +924,7 @@ inline double emptySpaceJump(const WalkContext& c, WalkerRng& rng, DlaEngine::Wa
         r = std::min(r, c.maxR);
         const int ti = r >= c.P.jumpMinRadius ? c.tableForRadius[size_t(r)] : -1;
         if (ti >= 0) {
-            const ShellTable& t = *c.tables[size_t(ti)];
+            const SphereTable& t = *c.tables[size_t(ti)];
             openvdb::Coord o = t.sampleExit(rng.next());
             if (c.P.testJumpBias > 0 && rng.uniform() < c.P.testJumpBias) {
                 const openvdb::Coord o2 = t.sampleExit(rng.next());
