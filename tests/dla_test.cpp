@@ -496,12 +496,12 @@ TEST_CASE("Walker distances beyond the cap are lower bounds within two blocks of
     }
 }
 
-TEST_CASE("Shell tables are normalised and lattice symmetric", "[fast][dla][jumps]")
+TEST_CASE("Lattice sphere tables are normalised and lattice symmetric", "[fast][dla][jumps]")
 {
     for (auto kind : {LatticeKind::Hexagonal, LatticeKind::Square}) {
         const Domain dom = makePlaneDomain(Lattice(kind), openvdb::Coord(64, 64, 1), 1e-4);
         for (int r : {2, 5, 16}) {
-            auto t = ice::shellTable(ice::walkerNeighbours(dom), r);
+            auto t = ice::sphereTable(ice::walkerNeighbours(dom), r);
             CHECK(t->exits.size() == size_t(kind == LatticeKind::Hexagonal ? 6 * r : 4 * r));
             double sum = 0, mx = 0;
             openvdb::Vec2d mean(0.0);
@@ -519,7 +519,7 @@ TEST_CASE("Shell tables are normalised and lattice symmetric", "[fast][dla][jump
         }
     }
     const Domain box = makeBoxDomain(Lattice(LatticeKind::Square), openvdb::Coord(32, 32, 32), 1e-4);
-    auto t = ice::shellTable(ice::walkerNeighbours(box), 6);
+    auto t = ice::sphereTable(ice::walkerNeighbours(box), 6);
     CHECK(t->exits.size() == size_t(4 * 36 + 2));
 }
 

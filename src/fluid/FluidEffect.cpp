@@ -3,6 +3,7 @@
 #include <frostvdb/fluid/Fluid.h>
 #include <frostvdb/core/ActiveRegion.h>
 #include <frostvdb/core/Error.h>
+#include <frostvdb/geometry/HexLattice.h>
 #include <frostvdb/ice/IceState.h>
 #include <frostvdb/io/Png.h>
 
@@ -30,7 +31,6 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 double since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
-const double kSqrt3Over2 = std::sqrt(3.0) / 2.0;
 
 ice::FluidEdge parseEdge(const std::string& s)
 {
@@ -128,7 +128,7 @@ std::unique_ptr<Effect> FluidEffect::create(ParamDict& d, const World& world)
 openvdb::Vec2d FluidEffect::auxPosition(double i, double j) const
 {
     if (!mHex) return {i, j};
-    return {i + 0.5 * j, j * kSqrt3Over2};
+    return {i + 0.5 * j, j * hex::kRowHeight};
 }
 
 FieldDeclaration FluidEffect::declaration() const
@@ -156,7 +156,7 @@ void FluidEffect::initialize(World& world)
     int ax = nx, ay = ny;
     if (mHex) { // the axis-aligned rectangle around the sheared domain, same spacing
         ax = int(std::ceil(nx - 1 + 0.5 * (ny - 1) - 1e-9)) + 1;
-        ay = int(std::ceil((ny - 1) * kSqrt3Over2 - 1e-9)) + 1;
+        ay = int(std::ceil((ny - 1) * hex::kRowHeight - 1e-9)) + 1;
     }
     mFluid = std::make_unique<ice::StableFluid2D>(mParams, ax, ay, dom.lattice().spacing());
     updateObstacles(world);
@@ -201,7 +201,7 @@ void FluidEffect::updateObstacles(World& world)
                     if (!mHex) {
                         v = acc.getValue(mOrigin + openvdb::Coord(a, b, 0));
                     } else {
-                        const double j = b / kSqrt3Over2, i = a - 0.5 * j;
+                        const double j = b / hex::kRowHeight, i = a - 0.5 * j;
                         v = openvdb::tools::BoxSampler::sample(acc, mOrigin.asVec3d() + openvdb::Vec3R(i, j, 0.0));
                     }
                     solid[size_t(b) * W + a] = v > thr ? 1 : 0;
@@ -273,7 +273,7 @@ void FluidEffect::advectTemperature(World& world, double dt)
                 if (u.x() == 0.0 && u.y() == 0.0) { it.setValue(acc.getValue(c)); continue; }
                 const double x = q.x() - s * u.x(), y = q.y() - s * u.y();
                 double i = x, j = y;
-                if (mHex) { j = y / kSqrt3Over2; i = x - 0.5 * j; }
+                if (mHex) { j = y / hex::kRowHeight; i = x - 0.5 * j; }
                 it.setValue(openvdb::tools::BoxSampler::sample(
                     acc, openvdb::Vec3R(i + mOrigin.x(), j + mOrigin.y(), double(c.z()))));
             }
@@ -356,7 +356,7 @@ bool FluidEffect::writePreview(World& world, const Frame& frame, const std::stri
             for (int x = 0; x < width; ++x) {
                 const double qx = x * px, qy = (height - 1 - y) * px;
                 double i = qx, j = qy;
-                if (mHex) { j = qy / kSqrt3Over2; i = qx - 0.5 * j; }
+                if (mHex) { j = qy / hex::kRowHeight; i = qx - 0.5 * j; }
                 i += mOrigin.x();
                 j += mOrigin.y();
                 if (i < bb.min().x() - 0.5 || i > bb.max().x() + 0.5 || j < bb.min().y() - 0.5 || j > bb.max().y() + 0.5) {

@@ -104,6 +104,26 @@ std::unique_ptr<Effect> DlaEffect::create(ParamDict& d, const World& world)
 
 namespace {
 
+/// A walk's end in the step's statistics.
+void accountWalk(DlaStats& stats, const WalkEnd& e)
+{
+    stats.moves += e.moves;
+    stats.jumps += e.jumps;
+    stats.latticeSteps += e.latticeSteps;
+    if (e.kind == WalkEnd::Killed) ++stats.killed;
+    if (e.kind == WalkEnd::Exhausted) ++stats.exhausted;
+}
+
+/// A step of millions of walkers is one long step (minutes with a high humidity on a small
+/// domain, where every walker must find the ice): a progress bar says how far it is instead of
+/// going silent (null for shorter steps, or without a terminal).
+std::unique_ptr<Progress> stepProgress(const World& world, int64_t step, uint64_t total)
+{
+    constexpr uint64_t kProgressWalkers = uint64_t(1) << 20;
+    if (!world.progress || total < kProgressWalkers) return nullptr;
+    return std::make_unique<Progress>("dla step " + std::to_string(step), int64_t(total), "walkers");
+}
+
 std::unique_ptr<Effect> makeLatticeDla(const DlaParams& p, ParamDict&, const World& world)
 {
     if (world.domain && world.domain.bbox().min() != openvdb::Coord(0)) // the dense walker arrays index from 0
@@ -263,6 +283,130 @@ void DlaEffect::updateSteam(World& world)
     mSteamSum = sum;
 }
 
+void DlaEffect::syncDistances(World& world, const openvdb::FloatGrid& p)
+{
+    // The cells where p crossed 1/2 since the last step, when every other writer of p lists
+    // them (core/FieldEdits.h); else all of p is read. FROSTVDB_FULL_DISTANCE_SYNC=1 forces
+    // the full read (tests compare the two).
+    FieldEdits& edits = world.state<FieldEdits>();
+    const FieldWriters* w = world.hasState<FieldWriters>() ? &world.state<FieldWriters>() : nullptr;
+    const char* full = std::getenv("FROSTVDB_FULL_DISTANCE_SYNC");
+    const bool listed = w && w->of(kPhase.name) - 1 == edits.crossingReporters(kPhase.name) &&
+                        !(full && *full && std::string(full) != "0");
+    auto& cells = edits.crossingCells(kPhase.name);
+    if (listed) mEngine->syncCells(p, cells);
+    else mEngine->sync(p);
+    cells.clear();
+}
+
+int64_t DlaEffect::walkerInputs(World& world, const StepInfo& info, double dt, int64_t H,
+                                const openvdb::FloatGrid* melt, const openvdb::Vec3SGrid* vel, DlaEngine::Inputs& in)
+{
+    int64_t extra = 0;
+    in.melt = melt;
+    in.baseWalkers = H;
+    if (mParams.steamHumidity > 0) {
+        const auto t0 = Clock::now();
+        updateSteam(world);
+        if (mSteamSum > 0) {
+            const double e = double(H) * mParams.steamHumidity * mSteamSum / double(mEngine->cellCount());
+            extra = int64_t(std::floor(e));
+            if (toUnit(hashCounters(mEngine->seed(), 0x57EA4ull, uint64_t(info.step))) < e - std::floor(e)) ++extra;
+            in.steamCdf = &mSteamCdf;
+            in.steamCells = &mSteamCells;
+        }
+        mStats.steamSeconds += since(t0);
+    }
+    if (vel) {
+        in.vel = vel;
+        in.velOnDomainTransform = vel->transform() == *world.domain.transform();
+        // world displacement -> index cells, times dt and the user's scale
+        const auto xf = world.domain.transform();
+        const openvdb::Vec3d o = xf->worldToIndex(openvdb::Vec3d(0.0));
+        for (int b = 0; b < 3; ++b) {
+            openvdb::Vec3d e(0.0);
+            e[b] = 1.0;
+            const openvdb::Vec3d col = xf->worldToIndex(e) - o;
+            for (int a = 0; a < 3; ++a) in.velToCells(a, b) = col[a] * dt * mParams.flowDrift;
+        }
+    }
+    return extra;
+}
+
+int64_t DlaEffect::resumeStart(const WalkEnd& e, const Domain& domain, int64_t step, uint64_t walker) const
+{
+    int64_t start = e.prev >= 0 && !mEngine->isIce(e.prev) ? e.prev : -1;
+    if (start < 0) {
+        const auto& nb = mEngine->neighbours();
+        const openvdb::Coord c = mEngine->coord(e.cell);
+        const uint64_t h = hashCounters(mEngine->seed(), kResumeSalt, uint64_t(step), walker);
+        for (size_t k = 0; k < nb.size() && start < 0; ++k) {
+            const openvdb::Coord q = c + nb[(h + k) % nb.size()];
+            if (domain.contains(q) && !mEngine->isIce(mEngine->index(q))) start = mEngine->index(q);
+        }
+    }
+    return start;
+}
+
+void DlaEffect::updateHitCounts(const openvdb::FloatGrid& p, openvdb::Int32Grid& hits, std::vector<int64_t>& touched,
+                                int64_t step)
+{
+    std::sort(touched.begin(), touched.end());
+    touched.erase(std::unique(touched.begin(), touched.end()), touched.end());
+    // dla_hits may be folded (core/PlaneFold.h): cells are plane cells, leaves stored leaves
+    const bool fold = plane::isFolded(hits);
+    auto stored = [fold](const openvdb::Coord& c) { return fold ? plane::fold(c) : c; };
+    auto hAcc = hits.getAccessor();
+    std::vector<openvdb::Coord> emptied; // stored leaves where a count went back to 0 (the cell froze)
+    for (int64_t cell : touched) {
+        const int32_t* found = mHitCount.find(uint64_t(cell));
+        const int32_t n = found ? *found : 0;
+        const openvdb::Coord c = stored(mEngine->coord(cell));
+        if (n > 0) hAcc.setValue(c, n);
+        else {
+            hAcc.setValueOff(c, 0);
+            emptied.push_back(c & ~openvdb::Coord::ValueType(openvdb::Int32Tree::LeafNodeType::DIM - 1));
+        }
+    }
+    // Counts live at the front only. A count under ice (p > 1/2, frozen by the walkers or
+    // grown over by the phase field) is dead: walkers stick beside the ice, never on it, and
+    // a cell that melts again starts from zero. Leaves left without counts are deleted, so
+    // the field follows the front, not the ice (it held a leaf wherever ice grew: 150 MB on
+    // the 16384^2 pane). The sweep over all counts runs every 16th step (keyed by the step,
+    // so a resumed run sweeps when an uninterrupted one does); every step it cost Figure 7
+    // 0.5 s.
+    const bool sweep = (step + 1) % 16 == 0;
+    if (sweep) {
+        auto pAcc = p.getConstAccessor();
+        std::vector<openvdb::Coord> underIce;
+        for (auto it = hits.cbeginValueOn(); it; ++it) {
+            const openvdb::Coord c = fold ? plane::unfold(it.getCoord()) : it.getCoord();
+            if (pAcc.getValue(c) > 0.5f) underIce.push_back(c);
+        }
+        for (const auto& c : underIce) {
+            hAcc.setValueOff(stored(c), 0);
+            if (int32_t* n = mHitCount.find(uint64_t(mEngine->index(c)))) *n = 0;
+            emptied.push_back(stored(c) & ~(openvdb::Int32Tree::LeafNodeType::DIM - 1));
+        }
+    }
+    std::sort(emptied.begin(), emptied.end());
+    emptied.erase(std::unique(emptied.begin(), emptied.end()), emptied.end());
+    hAcc.clear(); // leaves are deleted below
+    for (const auto& o : emptied) {
+        using HitLeaf = openvdb::Int32Tree::LeafNodeType;
+        const HitLeaf* leaf = hits.tree().probeConstLeaf(o);
+        if (leaf && leaf->isEmpty()) delete hits.tree().stealNode<HitLeaf>(o, 0, false);
+    }
+    // The map keeps a slot for every cell ever hit (zeroed when it froze): rebuilt from the
+    // live counts when those are under a quarter of it, so it follows the front as well.
+    if (sweep && mHitCount.size() > 4 * hits.activeVoxelCount() + 4096) {
+        KeyMap<int32_t> fresh;
+        for (auto it = hits.cbeginValueOn(); it; ++it)
+            *fresh.insert(uint64_t(mEngine->index(fold ? plane::unfold(it.getCoord()) : it.getCoord()))).first = *it;
+        mHitCount = std::move(fresh);
+    }
+}
+
 void DlaEffect::step(World& world, const StepInfo& info)
 {
     IceShared& sh = shared(world);
@@ -279,52 +423,12 @@ void DlaEffect::step(World& world, const StepInfo& info)
     auto vel = world.fields.get<openvdb::Vec3SGrid>(kVelocity);
 
     auto t0 = Clock::now();
-    {
-        // The cells where p crossed 1/2 since the last step, when every other writer of p lists
-        // them (core/FieldEdits.h); else all of p is read. FROSTVDB_FULL_DISTANCE_SYNC=1 forces
-        // the full read (tests compare the two).
-        FieldEdits& edits = world.state<FieldEdits>();
-        const FieldWriters* w = world.hasState<FieldWriters>() ? &world.state<FieldWriters>() : nullptr;
-        const char* full = std::getenv("FROSTVDB_FULL_DISTANCE_SYNC");
-        const bool listed = w && w->of(kPhase.name) - 1 == edits.crossingReporters(kPhase.name) &&
-                            !(full && *full && std::string(full) != "0");
-        auto& cells = edits.crossingCells(kPhase.name);
-        if (listed) mEngine->syncCells(*p, cells);
-        else mEngine->sync(*p);
-        cells.clear();
-    }
+    syncDistances(world, *p);
     mStats.syncSeconds += since(t0);
 
     const int64_t H = mParams.humidityAt(info.step);
-    int64_t extra = 0;
     DlaEngine::Inputs in;
-    in.melt = melt.get();
-    in.baseWalkers = H;
-    if (mParams.steamHumidity > 0) {
-        t0 = Clock::now();
-        updateSteam(world);
-        if (mSteamSum > 0) {
-            const double e = double(H) * mParams.steamHumidity * mSteamSum / double(mEngine->cellCount());
-            extra = int64_t(std::floor(e));
-            if (toUnit(hashCounters(mEngine->seed(), 0x57EA4ull, uint64_t(info.step))) < e - std::floor(e)) ++extra;
-            in.steamCdf = &mSteamCdf;
-            in.steamCells = &mSteamCells;
-        }
-        mStats.steamSeconds += since(t0);
-    }
-    if (vel) {
-        in.vel = vel.get();
-        in.velOnDomainTransform = vel->transform() == *world.domain.transform();
-        // world displacement -> index cells, times dt and the user's scale
-        const auto xf = world.domain.transform();
-        const openvdb::Vec3d o = xf->worldToIndex(openvdb::Vec3d(0.0));
-        for (int b = 0; b < 3; ++b) {
-            openvdb::Vec3d e(0.0);
-            e[b] = 1.0;
-            const openvdb::Vec3d col = xf->worldToIndex(e) - o;
-            for (int a = 0; a < 3; ++a) in.velToCells(a, b) = col[a] * sh.dt * mParams.flowDrift;
-        }
-    }
+    const int64_t extra = walkerInputs(world, info, sh.dt, H, melt.get(), vel.get(), in);
 
     ownTree(*growth); // written in place: a frame may share the trees
     ownTree(*freeze);
@@ -370,23 +474,12 @@ void DlaEffect::step(World& world, const StepInfo& info)
             freezeCell(cell);
         }
     };
-    auto account = [&](const WalkEnd& e) {
-        mStats.moves += e.moves;
-        mStats.jumps += e.jumps;
-        mStats.latticeSteps += e.latticeSteps;
-        if (e.kind == WalkEnd::Killed) ++mStats.killed;
-        if (e.kind == WalkEnd::Exhausted) ++mStats.exhausted;
-    };
+    auto account = [this](const WalkEnd& e) { accountWalk(mStats, e); };
 
     const uint64_t total = uint64_t(H + extra);
     mStats.released += total;
     std::vector<WalkEnd> ends;
-    // A step of millions of walkers is one long step (minutes with a high humidity on a small
-    // domain, where every walker must find the ice): say how far it is instead of going silent.
-    constexpr uint64_t kProgressWalkers = uint64_t(1) << 20;
-    std::unique_ptr<Progress> progress;
-    if (world.progress && total >= kProgressWalkers)
-        progress = std::make_unique<Progress>("dla step " + std::to_string(info.step), int64_t(total), "walkers");
+    std::unique_ptr<Progress> progress = stepProgress(world, info.step, total);
     for (uint64_t first = 0; first < total; first += uint64_t(mParams.batch)) {
         const uint64_t count = std::min<uint64_t>(uint64_t(mParams.batch), total - first);
         t0 = Clock::now();
@@ -411,16 +504,7 @@ void DlaEffect::step(World& world, const StepInfo& info)
                 // its cell froze earlier in this batch: the walker goes on from where it came
                 // from (or a free neighbour), serially, against the current ice
                 ++mStats.conflicts;
-                int64_t start = e.prev >= 0 && !mEngine->isIce(e.prev) ? e.prev : -1;
-                if (start < 0) {
-                    const auto& nb = mEngine->neighbours();
-                    const openvdb::Coord c = mEngine->coord(e.cell);
-                    const uint64_t h = hashCounters(mEngine->seed(), kResumeSalt, uint64_t(info.step), first + w);
-                    for (size_t k = 0; k < nb.size() && start < 0; ++k) {
-                        const openvdb::Coord q = c + nb[(h + k) % nb.size()];
-                        if (world.domain.contains(q) && !mEngine->isIce(mEngine->index(q))) start = mEngine->index(q);
-                    }
-                }
+                const int64_t start = resumeStart(e, world.domain, info.step, first + w);
                 if (start < 0) continue;
                 mEngine->flushDistances();
                 e = mEngine->walk(info.step, first + w, kResumeSalt, start, in);
@@ -436,60 +520,7 @@ void DlaEffect::step(World& world, const StepInfo& info)
     if (progress) progress->finish();
     if (counting) {
         t0 = Clock::now();
-        std::sort(touched.begin(), touched.end());
-        touched.erase(std::unique(touched.begin(), touched.end()), touched.end());
-        // dla_hits may be folded (core/PlaneFold.h): cells are plane cells, leaves stored leaves
-        const bool fold = plane::isFolded(*hitsGrid);
-        auto stored = [fold](const openvdb::Coord& c) { return fold ? plane::fold(c) : c; };
-        auto hAcc = hitsGrid->getAccessor();
-        std::vector<openvdb::Coord> emptied; // stored leaves where a count went back to 0 (the cell froze)
-        for (int64_t cell : touched) {
-            const int32_t* found = mHitCount.find(uint64_t(cell));
-            const int32_t n = found ? *found : 0;
-            const openvdb::Coord c = stored(mEngine->coord(cell));
-            if (n > 0) hAcc.setValue(c, n);
-            else {
-                hAcc.setValueOff(c, 0);
-                emptied.push_back(c & ~openvdb::Coord::ValueType(openvdb::Int32Tree::LeafNodeType::DIM - 1));
-            }
-        }
-        // Counts live at the front only. A count under ice (p > 1/2, frozen by the walkers or
-        // grown over by the phase field) is dead: walkers stick beside the ice, never on it, and
-        // a cell that melts again starts from zero. Leaves left without counts are deleted, so
-        // the field follows the front, not the ice (it held a leaf wherever ice grew: 150 MB on
-        // the 16384^2 pane). The sweep over all counts runs every 16th step (keyed by the step,
-        // so a resumed run sweeps when an uninterrupted one does); every step it cost Figure 7
-        // 0.5 s.
-        const bool sweep = (info.step + 1) % 16 == 0;
-        if (sweep) {
-            auto pAcc = p->getConstAccessor();
-            std::vector<openvdb::Coord> underIce;
-            for (auto it = hitsGrid->cbeginValueOn(); it; ++it) {
-                const openvdb::Coord c = fold ? plane::unfold(it.getCoord()) : it.getCoord();
-                if (pAcc.getValue(c) > 0.5f) underIce.push_back(c);
-            }
-            for (const auto& c : underIce) {
-                hAcc.setValueOff(stored(c), 0);
-                if (int32_t* n = mHitCount.find(uint64_t(mEngine->index(c)))) *n = 0;
-                emptied.push_back(stored(c) & ~(openvdb::Int32Tree::LeafNodeType::DIM - 1));
-            }
-        }
-        std::sort(emptied.begin(), emptied.end());
-        emptied.erase(std::unique(emptied.begin(), emptied.end()), emptied.end());
-        hAcc.clear(); // leaves are deleted below
-        for (const auto& o : emptied) {
-            using HitLeaf = openvdb::Int32Tree::LeafNodeType;
-            const HitLeaf* leaf = hitsGrid->tree().probeConstLeaf(o);
-            if (leaf && leaf->isEmpty()) delete hitsGrid->tree().stealNode<HitLeaf>(o, 0, false);
-        }
-        // The map keeps a slot for every cell ever hit (zeroed when it froze): rebuilt from the
-        // live counts when those are under a quarter of it, so it follows the front as well.
-        if (sweep && mHitCount.size() > 4 * hitsGrid->activeVoxelCount() + 4096) {
-            KeyMap<int32_t> fresh;
-            for (auto it = hitsGrid->cbeginValueOn(); it; ++it)
-                *fresh.insert(uint64_t(mEngine->index(fold ? plane::unfold(it.getCoord()) : it.getCoord()))).first = *it;
-            mHitCount = std::move(fresh);
-        }
+        updateHitCounts(*p, *hitsGrid, touched, info.step);
         mStats.applySeconds += since(t0);
     }
     mTime = sh.timeAtStep(info.step + 1);

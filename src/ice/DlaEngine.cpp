@@ -9,6 +9,7 @@
 /// the brick it is in; a hash probe happens only when it crosses into another brick.
 #include <frostvdb/ice/Dla.h>
 #include <frostvdb/core/Error.h>
+#include <frostvdb/geometry/HexLattice.h>
 
 #include <openvdb/tree/LeafManager.h>
 
@@ -301,10 +302,10 @@ DlaEngine::DlaEngine(const Domain& domain, const DlaParams& params, uint64_t see
     mDigits = std::max(1, int(48.0 / std::log2(double(mNbr.size()))));
     // A unit displacement in the lattice plane moves the index by at most this (Chebyshev): 1 on
     // the square lattice, 2/sqrt(3) on the hexagonal one (axial coordinates).
-    mSphereScale = domain.lattice().kind() == LatticeKind::Hexagonal ? 2.0 / std::sqrt(3.0) : 1.0;
+    mSphereScale = domain.lattice().kind() == LatticeKind::Hexagonal ? 1.0 / hex::kRowHeight : 1.0;
     // and the lattice (graph) distance by at most this: sqrt(2) (square, L1), 2/sqrt(3)
     // (hexagonal), sqrt(3) (cubic)
-    mGraphScale = domain.lattice().kind() == LatticeKind::Hexagonal ? 2.0 / std::sqrt(3.0)
+    mGraphScale = domain.lattice().kind() == LatticeKind::Hexagonal ? 1.0 / hex::kRowHeight
                                                                      : (mDim == 3 ? std::sqrt(3.0) : std::sqrt(2.0));
 
     // jump tables: every radius up to 16, then ~20% apart, up to the largest useful one
@@ -318,7 +319,7 @@ DlaEngine::DlaEngine(const Domain& domain, const DlaParams& params, uint64_t see
             radii.push_back(r);
         if (!radii.empty() && radii.back() != rmax && rmax >= params.jumpMinRadius) radii.push_back(rmax);
         mTables.resize(radii.size());
-        tbb::parallel_for(size_t(0), radii.size(), [&](size_t i) { mTables[i] = shellTable(mNbr, radii[i]); });
+        tbb::parallel_for(size_t(0), radii.size(), [&](size_t i) { mTables[i] = sphereTable(mNbr, radii[i]); });
         if (!radii.empty()) {
             mTableForRadius.assign(size_t(radii.back()) + 1, -1);
             for (size_t i = 0; i < radii.size(); ++i)
@@ -820,6 +821,177 @@ void DlaEngine::walkBatch(int64_t step, uint64_t first, uint64_t count, const In
     });
 }
 
+namespace {
+
+/// What one walk reads and never changes (the stages of DlaEngine::walkFrom take it).
+struct WalkContext {
+    const DlaParams& P;
+    const DlaEngine::Sparse& sparse;
+    const std::vector<std::shared_ptr<const SphereTable>>& tables;
+    const std::vector<int16_t>& tableForRadius;
+    int dim, cap, nx, ny, nz, maxR, sphereMin, coarseSlack;
+    bool spheres, hex, anyIce, coarse, drift;
+    double graphScale, sphereScale;
+};
+
+/// A walk-on-spheres jump of plane radius @a rho: a uniform point on the circle (sphere in a
+/// box), in cells (axial cells on a hexagonal plane), rounded to the nearest cell.
+inline openvdb::Coord sphereJumpOffset(WalkerRng& rng, double rho, int dim, bool hexagonal)
+{
+    const double u = rng.uniform(), w = rng.uniform();
+    double px, py, pz = 0.0;
+    if (dim == 2) {
+        const double a = 2.0 * M_PI * u;
+        px = rho * std::cos(a);
+        py = rho * std::sin(a);
+    } else {
+        const double c = 2.0 * u - 1.0, sn = std::sqrt(std::max(0.0, 1.0 - c * c)), a = 2.0 * M_PI * w;
+        px = rho * sn * std::cos(a);
+        py = rho * sn * std::sin(a);
+        pz = rho * c;
+    }
+    double di = px, dj = py;
+    if (hexagonal) { // plane (X, Y) -> axial (i, j): Y = j sqrt(3)/2, X = i + j/2
+        dj = py * (1.0 / hex::kRowHeight);
+        di = px - 0.5 * dj;
+    }
+    return openvdb::Coord(int(std::lround(di)), int(std::lround(dj)), int(std::lround(pz)));
+}
+
+/// The empty-space jump from the walker's cell, whose fine distance is @a f (block distance
+/// @a db): the largest jump the ice and the domain edge allow, a walk-on-spheres circle beyond
+/// the tables or an exact first-passage table below. Moves the walker and returns the expected
+/// lattice steps the jump stands for (0: none taken); @a v is the drift read at the start.
+template <typename VelocityAt>
+inline double emptySpaceJump(const WalkContext& c, WalkerRng& rng, DlaEngine::Walker& W, int f, int db, int& levelHint,
+                             VelocityAt&& velocityAt, openvdb::Vec3d& v)
+{
+    int &x = W.x, &y = W.y, &z = W.z;
+    // exact lattice (graph) distance below the cap, else the pyramid's Chebyshev bound
+    const bool exact = f < c.cap;
+    int dIce;      // a lower bound of the lattice (graph) distance to the ice
+    int cheb = -1; // a Chebyshev bound from the pyramid, when one was read
+    if (exact) {
+        dIce = f;
+    } else if (c.coarse) {
+        // the block distance; beyond its cap the pyramid's Chebyshev bound as well
+        dIce = std::max(c.cap, kCoarse * db - c.coarseSlack);
+        if (db >= kCoarseCap) {
+            cheb = std::max(c.cap, c.sparse.bound(x, y, z, c.anyIce, levelHint));
+            dIce = std::max(dIce, cheb);
+        }
+    } else {
+        dIce = std::max(c.cap, c.sparse.bound(x, y, z, c.anyIce, levelHint));
+    }
+    int dOut = 1 + std::min(std::min(x, c.nx - 1 - x), std::min(y, c.ny - 1 - y));
+    if (c.dim == 3) dOut = std::min(dOut, 1 + std::min(z, c.nz - 1 - z));
+    // interior of the ball inside the domain (r <= dOut), no cell of it next to ice and the
+    // landing cell at least 2 from the ice (r <= dIce - 2): the walk inside is a free walk
+    int r = std::min(dIce - 2, dOut);
+    double rhoMax = 1e300;
+    if (c.drift) {
+        v = velocityAt(x, y, z);
+        const double vm = v.length();
+        // the drift over the jump's mean time (~r^2 steps) must stay under half a cell
+        if (vm > 0) {
+            rhoMax = std::sqrt(0.5 / vm);
+            r = std::min(r, int(rhoMax));
+        }
+    }
+    // beyond the largest table: a circle (sphere) of plane radius rho whose cells, with a
+    // cell of rounding, stay 2 away from the ice and inside the domain. A graph distance
+    // covers a disc of radius d / mGraphScale, a Chebyshev bound one of d / mSphereScale.
+    // Both scales are >= 1, so no circle is larger than dIce - 3: the divisions only
+    // where a circle can beat the tables.
+    double rho = 0;
+    if (c.spheres && dIce - 3 > c.sphereMin) {
+        double rhoIce;
+        if (exact || !c.coarse) rhoIce = double(dIce - 3) / (exact ? c.graphScale : c.sphereScale);
+        else {
+            rhoIce = double(std::max(c.cap, kCoarse * db - c.coarseSlack) - 3) / c.graphScale;
+            if (cheb >= 0) rhoIce = std::max(rhoIce, double(cheb - 3) / c.sphereScale);
+        }
+        rho = std::min(std::min(rhoMax, rhoIce), double(dOut - 1) / c.sphereScale);
+    }
+    double jumpSteps = 0;
+    if (c.spheres && rho > double(c.sphereMin)) {
+        const openvdb::Coord o = sphereJumpOffset(rng, rho, c.dim, c.hex);
+        x += o.x();
+        y += o.y();
+        z += o.z();
+        jumpSteps = rho * rho; // E[exit time] = rho^2 / E|step|^2, unit steps
+    } else {
+        r = std::min(r, c.maxR);
+        const int ti = r >= c.P.jumpMinRadius ? c.tableForRadius[size_t(r)] : -1;
+        if (ti >= 0) {
+            const SphereTable& t = *c.tables[size_t(ti)];
+            openvdb::Coord o = t.sampleExit(rng.next());
+            if (c.P.testJumpBias > 0 && rng.uniform() < c.P.testJumpBias) {
+                const openvdb::Coord o2 = t.sampleExit(rng.next());
+                if (o2.x() > o.x()) o = o2;
+            }
+            x += o.x();
+            y += o.y();
+            z += o.z();
+            jumpSteps = t.meanSteps;
+        }
+    }
+    return jumpSteps;
+}
+
+/// One random lattice step: a direction from the walker's digits of @a bits (@a left of them
+/// unused); ice cannot be entered (the walker stays: only a cell next to ice, f == 1, has an ice
+/// neighbour). Returns false when the step leaves the domain.
+template <typename Outside>
+inline bool latticeStep(WalkerRng& rng, uint64_t& bits, int& left, int digits, const std::vector<openvdb::Coord>& nbr,
+                        int f, DlaEngine::Walker& W, int64_t& prev, Outside&& outside)
+{
+    const int deg = int(nbr.size());
+    if (left == 0) {
+        bits = rng.next();
+        left = digits;
+    }
+    const unsigned dir = unsigned((static_cast<unsigned __int128>(bits) * unsigned(deg)) >> 64);
+    bits *= uint64_t(deg);
+    --left;
+    const int i = W.x + nbr[dir].x(), j = W.y + nbr[dir].y(), k = W.z + nbr[dir].z();
+    if (outside(i, j, k)) return false;
+    if (f != 1 || W.fine(i, j, k) != 0) {
+        prev = int64_t(packKey(W.x, W.y, W.z));
+        W.x = i;
+        W.y = j;
+        W.z = k;
+    }
+    return true;
+}
+
+/// The drift carried in @a acc, moved whole cells at a time along each axis; a push against the
+/// ice spends it. Returns false when it carries the walker out of the domain.
+template <typename Outside>
+inline bool applyDrift(openvdb::Vec3d& acc, int dim, DlaEngine::Walker& W, int64_t& prev, Outside&& outside)
+{
+    for (int a = 0; a < dim; ++a) {
+        while (std::fabs(acc[a]) >= 1.0) {
+            const int s = acc[a] > 0 ? 1 : -1;
+            int i = W.x, j = W.y, k = W.z;
+            (a == 0 ? i : a == 1 ? j : k) += s;
+            if (outside(i, j, k)) return false;
+            if (W.fine(i, j, k) == 0) { // pushed against the ice: the drift is spent
+                acc[a] = 0;
+                break;
+            }
+            prev = int64_t(packKey(W.x, W.y, W.z));
+            W.x = i;
+            W.y = j;
+            W.z = k;
+            acc[a] -= s;
+        }
+    }
+    return true;
+}
+
+} // namespace
+
 WalkEnd DlaEngine::walkFrom(WalkerRng& rng, int64_t idx, const Inputs& in, Probes& pr) const
 {
     const DlaParams& P = mParams;
@@ -828,7 +1000,6 @@ WalkEnd DlaEngine::walkFrom(WalkerRng& rng, int64_t idx, const Inputs& in, Probe
     auto& velAcc = pr.vel;
     WalkEnd end;
     const auto& nbr = mNbr;
-    const int deg = int(nbr.size());
     const int nx = int(mNx), ny = int(mNy), nz = int(mNz);
     const openvdb::Coord o0 = mOrigin;
     Walker W(*mSparse);
@@ -848,16 +1019,17 @@ WalkEnd DlaEngine::walkFrom(WalkerRng& rng, int64_t idx, const Inputs& in, Probe
     const int maxR = mTableForRadius.empty() ? 0 : int(mTableForRadius.size()) - 1;
     // walk on spheres beyond the tables: not for a hexagonal box (its walk is not isotropic)
     const bool spheres = P.jumps && P.sphereJumps && !(dim == 3 && mDomain.lattice().kind() == LatticeKind::Hexagonal);
-    const int sphereMin = std::max(maxR, P.jumpMinRadius);
-    const bool hex = mDomain.lattice().kind() == LatticeKind::Hexagonal;
     // the transform only when a velocity needs it (a shared_ptr copy per walk is two atomic
     // operations on one cache line that both threads write)
     openvdb::math::Transform::Ptr xform;
     if (drift && !in.velOnDomainTransform) xform = mDomain.transform();
-    const bool anyIce = mIceCount > 0;
     const bool coarse = mSparse->coarseOn;
     const int coarseSlack = mSparse->coarseSlack;
     int levelHint = -1; // the pyramid level of the last bound
+    const WalkContext ctx{P, *mSparse, mTables, mTableForRadius, dim, cap, nx, ny, nz, maxR,
+                          std::max(maxR, P.jumpMinRadius), coarseSlack, spheres,
+                          mDomain.lattice().kind() == LatticeKind::Hexagonal, mIceCount > 0, coarse, drift,
+                          mGraphScale, mSphereScale};
 
     auto abs = [&](int i, int j, int k) { return openvdb::Coord(i + o0.x(), j + o0.y(), k + o0.z()); };
     auto velocityAt = [&](int i, int j, int k) {
@@ -903,92 +1075,8 @@ WalkEnd DlaEngine::walkFrom(WalkerRng& rng, int64_t idx, const Inputs& in, Probe
         // empty-space jump
         bool jumped = false;
         if ((maxR > 0 || spheres) && f >= P.jumpMinRadius + 2) {
-            // exact lattice (graph) distance below the cap, else the pyramid's Chebyshev bound
-            const bool exact = f < cap;
-            int dIce;      // a lower bound of the lattice (graph) distance to the ice
-            int cheb = -1; // a Chebyshev bound from the pyramid, when one was read
-            if (exact) {
-                dIce = f;
-            } else if (coarse) {
-                // the block distance; beyond its cap the pyramid's Chebyshev bound as well
-                dIce = std::max(cap, kCoarse * db - coarseSlack);
-                if (db >= kCoarseCap) {
-                    cheb = std::max(cap, mSparse->bound(x, y, z, anyIce, levelHint));
-                    dIce = std::max(dIce, cheb);
-                }
-            } else {
-                dIce = std::max(cap, mSparse->bound(x, y, z, anyIce, levelHint));
-            }
-            int dOut = 1 + std::min(std::min(x, nx - 1 - x), std::min(y, ny - 1 - y));
-            if (dim == 3) dOut = std::min(dOut, 1 + std::min(z, nz - 1 - z));
-            // interior of the ball inside the domain (r <= dOut), no cell of it next to ice and the
-            // landing cell at least 2 from the ice (r <= dIce - 2): the walk inside is a free walk
-            int r = std::min(dIce - 2, dOut);
             openvdb::Vec3d v(0.0);
-            double rhoMax = 1e300;
-            if (drift) {
-                v = velocityAt(x, y, z);
-                const double vm = v.length();
-                // the drift over the jump's mean time (~r^2 steps) must stay under half a cell
-                if (vm > 0) {
-                    rhoMax = std::sqrt(0.5 / vm);
-                    r = std::min(r, int(rhoMax));
-                }
-            }
-            // beyond the largest table: a circle (sphere) of plane radius rho whose cells, with a
-            // cell of rounding, stay 2 away from the ice and inside the domain. A graph distance
-            // covers a disc of radius d / mGraphScale, a Chebyshev bound one of d / mSphereScale.
-            // Both scales are >= 1, so no circle is larger than dIce - 3: the divisions only
-            // where a circle can beat the tables.
-            double rho = 0;
-            if (spheres && dIce - 3 > sphereMin) {
-                double rhoIce;
-                if (exact || !coarse) rhoIce = double(dIce - 3) / (exact ? mGraphScale : mSphereScale);
-                else {
-                    rhoIce = double(std::max(cap, kCoarse * db - coarseSlack) - 3) / mGraphScale;
-                    if (cheb >= 0) rhoIce = std::max(rhoIce, double(cheb - 3) / mSphereScale);
-                }
-                rho = std::min(std::min(rhoMax, rhoIce), double(dOut - 1) / mSphereScale);
-            }
-            double jumpSteps = 0;
-            if (spheres && rho > double(sphereMin)) {
-                const double u = rng.uniform(), w = rng.uniform();
-                double px, py, pz = 0.0;
-                if (dim == 2) {
-                    const double a = 2.0 * M_PI * u;
-                    px = rho * std::cos(a);
-                    py = rho * std::sin(a);
-                } else {
-                    const double c = 2.0 * u - 1.0, sn = std::sqrt(std::max(0.0, 1.0 - c * c)), a = 2.0 * M_PI * w;
-                    px = rho * sn * std::cos(a);
-                    py = rho * sn * std::sin(a);
-                    pz = rho * c;
-                }
-                double di = px, dj = py;
-                if (hex) { // plane (X, Y) -> axial (i, j): Y = j sqrt(3)/2, X = i + j/2
-                    dj = py * (2.0 / std::sqrt(3.0));
-                    di = px - 0.5 * dj;
-                }
-                x += int(std::lround(di));
-                y += int(std::lround(dj));
-                z += int(std::lround(pz));
-                jumpSteps = rho * rho; // E[exit time] = rho^2 / E|step|^2, unit steps
-            } else {
-                r = std::min(r, maxR);
-                const int ti = r >= P.jumpMinRadius ? mTableForRadius[size_t(r)] : -1;
-                if (ti >= 0) {
-                    const ShellTable& t = *mTables[size_t(ti)];
-                    openvdb::Coord o = t.sampleExit(rng.next());
-                    if (P.testJumpBias > 0 && rng.uniform() < P.testJumpBias) {
-                        const openvdb::Coord o2 = t.sampleExit(rng.next());
-                        if (o2.x() > o.x()) o = o2;
-                    }
-                    x += o.x();
-                    y += o.y();
-                    z += o.z();
-                    jumpSteps = t.meanSteps;
-                }
-            }
+            const double jumpSteps = emptySpaceJump(ctx, rng, W, f, db, levelHint, velocityAt, v);
             if (jumpSteps > 0) {
                 steps += jumpSteps;
                 ++end.jumps;
@@ -1000,50 +1088,11 @@ WalkEnd DlaEngine::walkFrom(WalkerRng& rng, int64_t idx, const Inputs& in, Probe
             }
         }
         if (!jumped) {
-            // one random lattice step
-            if (left == 0) {
-                bits = rng.next();
-                left = digits;
-            }
-            const unsigned dir = unsigned((static_cast<unsigned __int128>(bits) * unsigned(deg)) >> 64);
-            bits *= uint64_t(deg);
-            --left;
-            const int i = x + nbr[dir].x(), j = y + nbr[dir].y(), k = z + nbr[dir].z();
-            if (outside(i, j, k)) break;
-            // ice cannot be entered: the walker stays (only a cell next to ice has an ice neighbour)
-            if (f != 1 || W.fine(i, j, k) != 0) {
-                prev = key(x, y, z);
-                x = i;
-                y = j;
-                z = k;
-            }
+            if (!latticeStep(rng, bits, left, digits, nbr, f, W, prev, outside)) break;
             steps += 1;
             if (drift) acc += velocityAt(x, y, z);
         }
-        if (drift) {
-            bool killed = false;
-            for (int a = 0; a < dim && !killed; ++a) {
-                while (std::fabs(acc[a]) >= 1.0) {
-                    const int s = acc[a] > 0 ? 1 : -1;
-                    int i = x, j = y, k = z;
-                    (a == 0 ? i : a == 1 ? j : k) += s;
-                    if (outside(i, j, k)) {
-                        killed = true;
-                        break;
-                    }
-                    if (W.fine(i, j, k) == 0) { // pushed against the ice: the drift is spent
-                        acc[a] = 0;
-                        break;
-                    }
-                    prev = key(x, y, z);
-                    x = i;
-                    y = j;
-                    z = k;
-                    acc[a] -= s;
-                }
-            }
-            if (killed) break;
-        }
+        if (drift && !applyDrift(acc, dim, W, prev, outside)) break;
     }
     end.kind = WalkEnd::Killed;
     end.latticeSteps = steps;

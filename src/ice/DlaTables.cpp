@@ -3,13 +3,13 @@
 ///
 /// For a lattice (its neighbour offsets) and a graph radius r, the ball B_r is every cell within r
 /// lattice steps of the origin (a diamond on the square lattice, a hexagon on the hexagonal one,
-/// an octahedron on the cubic one); its shell is the cells at distance exactly r. A walk started
-/// at the origin reaches the shell first at a cell s with probability
+/// an octahedron on the cubic one); its sphere is the cells at distance exactly r. A walk started
+/// at the origin reaches the sphere first at a cell s with probability
 ///     P(s) = sum over interior neighbours y of s of G(y) / deg,
-/// where G is the Green's function of the walk killed on the shell: (I - P_int) G = e_origin,
+/// where G is the Green's function of the walk killed on the sphere: (I - P_int) G = e_origin,
 /// P_int the transition matrix restricted to the interior (symmetric, since every cell has deg
 /// neighbours). G is solved with conjugate gradients in double precision to a relative residual
-/// of 1e-13; sum(G) is the mean number of steps to reach the shell. The tables depend only on
+/// of 1e-13; sum(G) is the mean number of steps to reach the sphere. The tables depend only on
 /// the neighbour set and r, so they are computed once per process and shared.
 #include <frostvdb/ice/Dla.h>
 #include <frostvdb/solver/ConjugateGradient.h>
@@ -47,7 +47,7 @@ private:
     double mW;
 };
 
-std::shared_ptr<ShellTable> computeShell(const std::vector<openvdb::Coord>& nbr, int r)
+std::shared_ptr<SphereTable> computeLatticeSphere(const std::vector<openvdb::Coord>& nbr, int r)
 {
     bool hasZ = false;
     for (const auto& o : nbr) hasZ = hasZ || o.z() != 0;
@@ -74,9 +74,9 @@ std::shared_ptr<ShellTable> computeShell(const std::vector<openvdb::Coord>& nbr,
             }
         }
     }
-    // compact numbering: interior (d < r) first, then shell
+    // compact numbering: interior (d < r) first, then sphere
     std::vector<int> id(dist.size(), -1);
-    std::vector<openvdb::Coord> interior, shell;
+    std::vector<openvdb::Coord> interior, sphere;
     for (const auto& c : order) {
         if (dist[size_t(key(c))] < r) {
             id[size_t(key(c))] = int(interior.size());
@@ -85,12 +85,12 @@ std::shared_ptr<ShellTable> computeShell(const std::vector<openvdb::Coord>& nbr,
     }
     for (const auto& c : order) {
         if (dist[size_t(key(c))] == r) {
-            id[size_t(key(c))] = int(shell.size());
-            shell.push_back(c);
+            id[size_t(key(c))] = int(sphere.size());
+            sphere.push_back(c);
         }
     }
     const size_t n = interior.size(), deg = nbr.size();
-    // interior adjacency: index of the interior neighbour, or -1 - shellIndex for a shell one
+    // interior adjacency: index of the interior neighbour, or -1 - sphereIndex for a sphere one
     std::vector<int> adj(n * deg);
     for (size_t i = 0; i < n; ++i)
         for (size_t k = 0; k < deg; ++k) {
@@ -107,10 +107,10 @@ std::shared_ptr<ShellTable> computeShell(const std::vector<openvdb::Coord>& nbr,
                                                          solver::Blocks::serial(n), 100000,
                                                          [](const solver::Residual& r) { return !(r.sumSquares > 1e-26); });
     const double rs = cg.residual.sumSquares;
-    auto t = std::make_shared<ShellTable>();
+    auto t = std::make_shared<SphereTable>();
     t->radius = r;
-    t->exits = shell;
-    t->prob.assign(shell.size(), 0.0);
+    t->exits = sphere;
+    t->prob.assign(sphere.size(), 0.0);
     t->solverResidual = std::sqrt(rs);
     for (size_t i = 0; i < n; ++i) {
         t->meanSteps += x[i];
@@ -123,7 +123,7 @@ std::shared_ptr<ShellTable> computeShell(const std::vector<openvdb::Coord>& nbr,
     for (double q : t->prob) total += q;
     for (double& q : t->prob) q /= total; // total is 1 to the solver's accuracy
     // Vose's alias method (deterministic: fixed processing order)
-    const size_t m = shell.size();
+    const size_t m = sphere.size();
     std::vector<double> aliasProb(m, 1.0);
     t->alias.resize(m);
     std::vector<double> scaled(m);
@@ -151,7 +151,7 @@ std::shared_ptr<ShellTable> computeShell(const std::vector<openvdb::Coord>& nbr,
         t->aliasThreshold[i] = aliasProb[i] >= 1.0 ? 0xFFFFFFFFu : uint32_t(std::ldexp(aliasProb[i], 32));
     t->slots.resize(m);
     for (size_t i = 0; i < m; ++i) {
-        ShellTable::Slot& s = t->slots[i];
+        SphereTable::Slot& s = t->slots[i];
         s.threshold = t->aliasThreshold[i];
         const openvdb::Coord& a = t->exits[i];
         const openvdb::Coord& b = t->exits[t->alias[i]];
@@ -165,10 +165,10 @@ std::shared_ptr<ShellTable> computeShell(const std::vector<openvdb::Coord>& nbr,
 
 } // namespace
 
-std::shared_ptr<const ShellTable> shellTable(const std::vector<openvdb::Coord>& neighbours, int radius)
+std::shared_ptr<const SphereTable> sphereTable(const std::vector<openvdb::Coord>& neighbours, int radius)
 {
     static std::mutex mutex;
-    static std::map<std::string, std::shared_ptr<const ShellTable>> cache;
+    static std::map<std::string, std::shared_ptr<const SphereTable>> cache;
     std::ostringstream os;
     os << radius;
     for (const auto& o : neighbours) os << ' ' << o.x() << ',' << o.y() << ',' << o.z();
@@ -178,7 +178,7 @@ std::shared_ptr<const ShellTable> shellTable(const std::vector<openvdb::Coord>& 
         auto it = cache.find(key);
         if (it != cache.end()) return it->second;
     }
-    auto t = computeShell(neighbours, radius); // outside the lock; a duplicate is identical
+    auto t = computeLatticeSphere(neighbours, radius); // outside the lock; a duplicate is identical
     std::lock_guard<std::mutex> lock(mutex);
     auto& slot = cache[key];
     if (!slot) slot = t;

@@ -14,6 +14,35 @@ namespace frostvdb {
 
 namespace {
 inline int nbIndex(int dx, int dy, int dz) { return (dz + 1) * 9 + (dy + 1) * 3 + (dx + 1); }
+
+/// Leaf origin (in leaf units, origin >> 3) -> leaf index through a dense table over the leaves'
+/// bounding box: a few bytes per leaf of the domain, much faster than hashing 27 look-ups per leaf.
+struct LeafTable {
+    openvdb::Coord lo{std::numeric_limits<int>::max()}, hi{std::numeric_limits<int>::min()}, dim{0};
+    std::vector<int32_t> table;
+    explicit LeafTable(openvdb::tree::LeafManager<openvdb::FloatTree>& topology)
+    {
+        const size_t nLeaves = topology.leafCount();
+        for (size_t i = 0; i < nLeaves; ++i) {
+            lo.minComponent(topology.leaf(i).origin() >> 3);
+            hi.maxComponent(topology.leaf(i).origin() >> 3);
+        }
+        dim = nLeaves ? hi - lo + openvdb::Coord(1) : openvdb::Coord(0);
+        table.assign(size_t(dim.x()) * dim.y() * dim.z(), -1);
+        for (size_t i = 0; i < nLeaves; ++i) table[cell(topology.leaf(i).origin() >> 3)] = int32_t(i);
+    }
+    size_t cell(const openvdb::Coord& l) const
+    {
+        return (size_t(l.z() - lo.z()) * dim.y() + size_t(l.y() - lo.y())) * dim.x() + size_t(l.x() - lo.x());
+    }
+    /// The index of the leaf at @a l, -1 where there is none.
+    int32_t at(const openvdb::Coord& l) const
+    {
+        if (l.x() < lo.x() || l.y() < lo.y() || l.z() < lo.z() || l.x() > hi.x() || l.y() > hi.y() || l.z() > hi.z())
+            return -1;
+        return table[cell(l)];
+    }
+};
 } // namespace
 
 SlotLayout::SlotLayout(openvdb::tree::LeafManager<openvdb::FloatTree>& topology, const Stencil& stencil,
@@ -70,24 +99,7 @@ SlotLayout::SlotLayout(openvdb::tree::LeafManager<openvdb::FloatTree>& topology,
     slotRow.resize(nLeaves * size_t(slots));
     neighbours.resize(n * size_t(taps));
 
-    // Leaf origin -> index through a dense table over the leaves' bounding box (in leaf units):
-    // a few bytes per leaf of the domain, much faster than hashing 27 look-ups per leaf.
-    openvdb::Coord lo(std::numeric_limits<int>::max()), hi(std::numeric_limits<int>::min());
-    for (size_t i = 0; i < nLeaves; ++i) {
-        lo.minComponent(topology.leaf(i).origin() >> 3);
-        hi.maxComponent(topology.leaf(i).origin() >> 3);
-    }
-    const openvdb::Coord dim = nLeaves ? hi - lo + openvdb::Coord(1) : openvdb::Coord(0);
-    std::vector<int32_t> table(size_t(dim.x()) * dim.y() * dim.z(), -1);
-    auto cell = [&](const openvdb::Coord& l) {
-        return (size_t(l.z() - lo.z()) * dim.y() + size_t(l.y() - lo.y())) * dim.x() + size_t(l.x() - lo.x());
-    };
-    auto leafAt = [&](const openvdb::Coord& l) -> int32_t {
-        if (l.x() < lo.x() || l.y() < lo.y() || l.z() < lo.z() || l.x() > hi.x() || l.y() > hi.y() || l.z() > hi.z())
-            return -1;
-        return table[cell(l)];
-    };
-    for (size_t i = 0; i < nLeaves; ++i) table[cell(topology.leaf(i).origin() >> 3)] = int32_t(i);
+    const LeafTable leafTable(topology);
 
     // slot of leaf offset off: the offset itself in a box, its (x, y) part on a plane (one z)
     const int slotShift = plane ? 3 : 0;
@@ -114,7 +126,7 @@ SlotLayout::SlotLayout(openvdb::tree::LeafManager<openvdb::FloatTree>& topology,
             const openvdb::Coord o = topology.leaf(li).origin() >> 3;
             for (int dz = -1; dz <= 1; ++dz)
                 for (int dy = -1; dy <= 1; ++dy)
-                    for (int dx = -1; dx <= 1; ++dx) nbLeaf[nbIndex(dx, dy, dz)] = leafAt(o + openvdb::Coord(dx, dy, dz));
+                    for (int dx = -1; dx <= 1; ++dx) nbLeaf[nbIndex(dx, dy, dz)] = leafTable.at(o + openvdb::Coord(dx, dy, dz));
             const int32_t* own = &slotRow[li * size_t(slots)];
             forActive(li, [&](openvdb::Index off, const openvdb::Coord&) {
                 const int x = int(off >> 6), y = int((off >> 3) & 7), z = int(off & 7);

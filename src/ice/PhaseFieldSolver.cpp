@@ -746,6 +746,74 @@ void PhaseFieldSolver::step(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::Ptr&
     stepOnce(p, T, growth, freezeTime, stepIndex, time, seed, stats);
 }
 
+namespace {
+
+// stepOnce's stages that need no solver state.
+
+/// Forward Euler writes p and T in place: the trees are made this solver's own (a frame may
+/// share them) and given the region's topology when they do not have it yet.
+void prepareInPlace(openvdb::FloatGrid& p, openvdb::FloatGrid& T, const openvdb::MaskGrid& region, bool match, bool ours)
+{
+    ownTree(p);
+    ownTree(T);
+    if (match) {
+        matchTopology(p, region, ours);
+        matchTopology(T, region, ours);
+    }
+}
+
+/// The accumulators written in place by the step (a frame may share their trees).
+void bindAccumulators(Accumulators& acc, openvdb::FloatGrid* growth, openvdb::FloatGrid* freezeTime)
+{
+    if (growth) ownTree(*growth);
+    if (freezeTime) ownTree(*freezeTime);
+    acc.growth = growth ? &growth->tree() : nullptr;
+    acc.freeze = freezeTime ? &freezeTime->tree() : nullptr;
+    acc.foldG = growth && plane::isFolded(*growth);
+    acc.foldF = freezeTime && plane::isFolded(*freezeTime);
+}
+
+[[noreturn]] void throwBoundsFailure(const Failure& failure, const KobayashiParams& k, const Domain& domain,
+                                     int64_t stepIndex, double tNext)
+{
+    std::ostringstream os;
+    os << "phase field left its bounds: " << failure.field << " = " << failure.value << " at voxel "
+       << failure.where << " in step " << stepIndex + 1 << " (t = " << tNext << "); dt = " << k.dt
+       << ", stability limit " << k.stabilityLimit(domain.stencil(), !domain.flat())
+       << ". Lower phase_field.dt or the anisotropy/latent heat; nothing of this step was written.";
+    throw SimulationError(os.str());
+}
+
+/// The commit of a retiring step truncates (FusedTruncation), unless
+/// FROSTVDB_NO_FUSED_TRUNCATION=1 asks for the separate pass (tests compare the two).
+void armFusedTruncation(std::optional<FusedTruncation>& fused, double tolerance, const openvdb::FloatGrid& pNew,
+                        const openvdb::FloatGrid& tNew)
+{
+    const char* separate = std::getenv("FROSTVDB_NO_FUSED_TRUNCATION");
+    if (separate && *separate && std::string(separate) != "0") return;
+    fused.emplace();
+    fused->tol = float(tolerance);
+    fused->bgP = pNew.background();
+    fused->bgT = tNew.background();
+}
+
+/// The truncation of a retiring step: what the fused commit found, or the separate pass.
+bool truncateRetired(const FusedTruncation* fused, openvdb::FloatGrid& pNew, openvdb::FloatGrid& tNew, double tolerance)
+{
+    bool truncated = false;
+    if (fused) {
+        if (fused->emptiedP) openvdb::tools::pruneInactive(pNew.tree());
+        if (fused->emptiedT) openvdb::tools::pruneInactive(tNew.tree());
+        truncated = fused->changedP || fused->changedT;
+    } else {
+        truncated = truncateToTolerance(pNew, tolerance);
+        truncated = truncateToTolerance(tNew, tolerance) || truncated;
+    }
+    return truncated;
+}
+
+} // namespace
+
 void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::Ptr& T, openvdb::FloatGrid* growth,
                                 openvdb::FloatGrid* freezeTime, int64_t stepIndex, double time, uint64_t seed,
                                 PhaseFieldStepStats* stats)
@@ -789,12 +857,7 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
     const bool inPlace = mParams.scheme == PhaseFieldScheme::Euler;
     openvdb::FloatGrid::Ptr pNew, tNew;
     if (inPlace) {
-        ownTree(*p);
-        ownTree(*T);
-        if (inputGeneration != mGeneration) {
-            matchTopology(*p, *mRegionMask, ours);
-            matchTopology(*T, *mRegionMask, ours);
-        }
+        prepareInPlace(*p, *T, *mRegionMask, inputGeneration != mGeneration, ours);
         pNew = p;
         tNew = T;
         mSpareP.reset();
@@ -811,12 +874,7 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
         mGroupsGeneration = mGeneration;
     }
     Accumulators acc;
-    if (growth) ownTree(*growth); // written in place below; a frame may share the trees
-    if (freezeTime) ownTree(*freezeTime);
-    acc.growth = growth ? &growth->tree() : nullptr;
-    acc.freeze = freezeTime ? &freezeTime->tree() : nullptr;
-    acc.foldG = growth && plane::isFolded(*growth);
-    acc.foldF = freezeTime && plane::isFolded(*freezeTime);
+    bindAccumulators(acc, growth, freezeTime);
     if (stats) {
         stats->regionVoxels = mRegionVoxels;
         stats->regionSeconds += since(t0);
@@ -838,25 +896,13 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
     if (stats) stats->kernelSeconds += since(t0);
     if (failure.any) {
         mRegionMask.reset(); // the caller's grids are untouched; start afresh if called again
-        std::ostringstream os;
-        os << "phase field left its bounds: " << failure.field << " = " << failure.value << " at voxel "
-           << failure.where << " in step " << stepIndex + 1 << " (t = " << tNext << "); dt = " << k.dt
-           << ", stability limit " << k.stabilityLimit(mDomain.stencil(), !mDomain.flat())
-           << ". Lower phase_field.dt or the anisotropy/latent heat; nothing of this step was written.";
-        throw SimulationError(os.str());
+        throwBoundsFailure(failure, k, mDomain, stepIndex, tNext);
     }
     // The region retires after this step when it has one step left: the commit truncates then
     // (p and T are in place and share the region's topology).
     std::optional<FusedTruncation> fused;
-    // FROSTVDB_NO_FUSED_TRUNCATION=1: the separate pass (tests compare the two).
-    const char* separate = std::getenv("FROSTVDB_NO_FUSED_TRUNCATION");
-    if (staged && mCadence.stepsLeft() <= 1 && !mRegion.dense && tLeaves.leafCount() == pLeaves.leafCount() &&
-        !(separate && *separate && std::string(separate) != "0")) {
-        fused.emplace();
-        fused->tol = float(mRegion.tolerance);
-        fused->bgP = pNew->background();
-        fused->bgT = tNew->background();
-    }
+    if (staged && mCadence.stepsLeft() <= 1 && !mRegion.dense && tLeaves.leafCount() == pLeaves.leafCount())
+        armFusedTruncation(fused, mRegion.tolerance, *pNew, *tNew);
     if (staged) {
         t0 = Clock::now();
         commitStaged(pLeaves, tLeaves, *staged, fused ? &*fused : nullptr);
@@ -867,16 +913,7 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
     // Truncate when the region is retired: the next step rebuilds from what is left.
     const bool retire = mCadence.stepTaken();
     bool truncated = false;
-    if (retire && !mRegion.dense) {
-        if (fused) {
-            if (fused->emptiedP) openvdb::tools::pruneInactive(pNew->tree());
-            if (fused->emptiedT) openvdb::tools::pruneInactive(tNew->tree());
-            truncated = fused->changedP || fused->changedT;
-        } else {
-            truncated = truncateToTolerance(*pNew, mRegion.tolerance);
-            truncated = truncateToTolerance(*tNew, mRegion.tolerance) || truncated;
-        }
-    }
+    if (retire && !mRegion.dense) truncated = truncateRetired(fused ? &*fused : nullptr, *pNew, *tNew, mRegion.tolerance);
     mInputsTruncated = retire || mRegion.dense;
     mOutP = pNew.get();
     mOutT = tNew.get();
@@ -957,149 +994,135 @@ void gatherRect(const ConstAcc& acc, const Block& b, const openvdb::Coord& group
         }
 }
 
-} // namespace
 
-void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvdb::FloatGrid& T,
-                                       openvdb::tree::LeafManager<openvdb::FloatTree>& pLeaves,
-                                       openvdb::tree::LeafManager<openvdb::FloatTree>& tLeaves,
-                                       Accumulators& acc, int64_t stepIndex, double tNext, uint64_t seed,
-                                       Failure& failure,
-                                       PhaseFieldStepStats* stats)
+/// What the second-order rows of a step read: the fields at the step's start, the last step's
+/// start values (the midpoint extrapolation), the region's leaf groups and rows.
+struct SecondOrderInputs {
+    const KobayashiParams& k;
+    const Stencil& stencil;
+    bool plane;
+    int z0;
+    double theta;
+    float extrapolate;
+    const openvdb::FloatGrid &p, &T;
+    const openvdb::FloatGrid *melt, *dP, *dT; ///< null: no melt map, no last step
+    const LeafGroups& groups;
+    const SlotLayout& layout;
+    int64_t stepIndex;
+    uint64_t seed;
+};
+
+/// Second-order stage 1, the explicit parts: per leaf group on the padded block, p and T with
+/// their extrapolation to theta of the step, then each active voxel's row of the p system, the
+/// explicit half of the T rows and the start values p0, T0.
+void assembleSecondOrderRows(const SecondOrderInputs& in, openvdb::tree::LeafManager<openvdb::FloatTree>& pLeaves,
+                             ImplicitSystem& ps, ImplicitSystem& ts, std::vector<double>& p0, std::vector<double>& T0)
 {
-    const KobayashiParams& k = mParams;
-    const bool plane = mDomain.flat();
-    const Stencil stencil = mDomain.stencil();
-    // The layout depends only on the region's topology: built once per region.
-    if (!mLayout || mLayoutGeneration != mGeneration) {
-        // last step's layout lends its arrays (the systems that refer to it only lend theirs below)
-        mLayout = std::make_unique<SlotLayout>(pLeaves, stencil, plane, mLayout.get());
-        mLayoutGeneration = mGeneration;
-    }
-    const SlotLayout& layout = *mLayout;
-    const int z0 = mDomain.bbox().min().z();
-    // Last step's systems lend their arrays (every row is set below).
-    auto psOwned = mSystemP ? std::make_unique<ImplicitSystem>(layout, *mSystemP) : std::make_unique<ImplicitSystem>(layout);
-    auto tsOwned = mSystemT ? std::make_unique<ImplicitSystem>(layout, *mSystemT) : std::make_unique<ImplicitSystem>(layout);
-    ImplicitSystem &ps = *psOwned, &ts = *tsOwned;
-    ps.useCoefficients();
-    ps.setOutside(p.background());
-    ts.setOutside(T.background());
-    std::vector<double>& p0 = mStartP;
-    std::vector<double>& T0 = mStartT;
-    p0.resize(ps.rows());
-    T0.resize(ps.rows());
-    const double theta = mTheta;
-    ts.setUniform(1.0 + theta * k.dt * -stencil.wLapCentre, theta * k.dt); // every row: diag, scale
-    const openvdb::FloatGrid* dP = mLastInP.get();
-    const openvdb::FloatGrid* dT = mLastInT.get();
-    // Coefficients at theta of the step (the midpoint for Crank-Nicolson, the end for implicit
-    // Euler), extrapolated along the last step's increment, scaled to this step's dt.
-    const float extrapolate = dP ? float(theta * k.dt / mLastStepDt) : 0.f;
+    const KobayashiParams& k = in.k;
+    const bool plane = in.plane;
+    const Stencil& stencil = in.stencil;
+    const SlotLayout& layout = in.layout;
+    const openvdb::FloatGrid &p = in.p, &T = in.T;
+    const openvdb::FloatGrid *melt = in.melt, *dP = in.dP, *dT = in.dT;
+    const int z0 = in.z0;
+    const double theta = in.theta;
+    const float extrapolate = in.extrapolate;
+    const int64_t stepIndex = in.stepIndex;
+    const uint64_t seed = in.seed;
     const int taps = ps.taps();
 
-    // Explicit parts, per leaf on the padded block.
-    {
-        const Block proto(plane);
-        const FlatStencil st(stencil, proto.bx, std::ptrdiff_t(proto.bx) * proto.by);
-        const Anisotropy an(k);
-        tbb::enumerable_thread_specific<Block> blocks([plane] { return Block(plane); });
-        const LeafGroups& groups = *mGroups;
-        tbb::parallel_for(tbb::blocked_range<size_t>(0, groups.count(), 1), [&](const tbb::blocked_range<size_t>& r) {
-            Block& b = blocks.local();
-            std::vector<float>& incP = b.cx;
-            std::vector<float>& incT = b.cy;
-            const ConstAcc pAcc(p.tree()), tAcc(T.tree());
-            std::unique_ptr<ConstAcc> mAcc, dpAcc, dtAcc;
-            if (mMelt) mAcc = std::make_unique<ConstAcc>(mMelt->tree());
-            if (dP) dpAcc = std::make_unique<ConstAcc>(dP->tree());
-            if (dT) dtAcc = std::make_unique<ConstAcc>(dT->tree());
-            const FloatLeaf* present[kPlaneGroup * kPlaneGroup];
-            for (size_t g = r.begin(); g != r.end(); ++g) {
-                const openvdb::Coord origin = groups.origin[g];
-                const size_t first = groups.start[g], count = groups.start[g + 1] - first;
-                for (size_t q = 0; q < count; ++q) present[q] = &pLeaves.leaf(groups.leaves[first + q]);
-                markNeeded(b, origin, present, count);
-                const BlockRect rect = presentRect(b, origin, present, count);
-                gatherRect(pAcc, b, origin, z0, rect, b.p);
-                gatherRect(tAcc, b, origin, z0, rect, b.T);
-                if (mAcc) gatherRect(*mAcc, b, origin, z0, rect, b.melt);
-                // the block loops below: the rows of the rectangle (all of the block in a box)
-                auto forRect = [&](auto&& f) {
-                    for (int z = 0; z < b.bz; ++z)
-                        for (int y = rect.y0; y < rect.y1; ++y) {
-                            const size_t row = b.index(0, y, z);
-                            f(row + size_t(rect.x0), row + size_t(rect.x1));
-                        }
-                };
-                // cx, cy are free in this scheme and hold the increments since the last step's
-                // start, p - p^{n-1}: the last step's own change plus whatever other effects did
-                // since (a walker froze the cell, the flow carried heat), so the extrapolation
-                // starts from the p the step really sees (the last step's dp alone, after a walker
-                // set p = 1, put the reaction's tangent at the old p and pushed p to 1.013).
-                if (dpAcc) {
-                    gatherRect(*dpAcc, b, origin, z0, rect, incP);
-                    forRect([&](size_t i0, size_t i1) { for (size_t i = i0; i < i1; ++i) incP[i] = b.p[i] - incP[i]; });
-                } else std::fill(incP.begin(), incP.end(), 0.f);
-                if (dtAcc) {
-                    gatherRect(*dtAcc, b, origin, z0, rect, incT);
-                    forRect([&](size_t i0, size_t i1) { for (size_t i = i0; i < i1; ++i) incT[i] = b.T[i] - incT[i]; });
-                } else std::fill(incT.begin(), incT.end(), 0.f);
-                // pf (in gz, free in this scheme): p extrapolated to the end of the step.
-                forRect([&](size_t i0, size_t i1) {
-                    for (size_t i = i0; i < i1; ++i) {
-                        b.pe[i] = std::min(1.f, std::max(0.f, b.p[i] + extrapolate * incP[i]));
-                        b.te[i] = b.T[i] + extrapolate * incT[i];
-                        b.gz[i] = std::min(1.f, std::max(0.f, b.p[i] + extrapolate / float(theta) * incP[i]));
+    const Block proto(plane);
+    const FlatStencil st(stencil, proto.bx, std::ptrdiff_t(proto.bx) * proto.by);
+    const Anisotropy an(k);
+    tbb::enumerable_thread_specific<Block> blocks([plane] { return Block(plane); });
+    const LeafGroups& groups = in.groups;
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, groups.count(), 1), [&](const tbb::blocked_range<size_t>& r) {
+        Block& b = blocks.local();
+        std::vector<float>& incP = b.cx;
+        std::vector<float>& incT = b.cy;
+        const ConstAcc pAcc(p.tree()), tAcc(T.tree());
+        std::unique_ptr<ConstAcc> mAcc, dpAcc, dtAcc;
+        if (melt) mAcc = std::make_unique<ConstAcc>(melt->tree());
+        if (dP) dpAcc = std::make_unique<ConstAcc>(dP->tree());
+        if (dT) dtAcc = std::make_unique<ConstAcc>(dT->tree());
+        const FloatLeaf* present[kPlaneGroup * kPlaneGroup];
+        for (size_t g = r.begin(); g != r.end(); ++g) {
+            const openvdb::Coord origin = groups.origin[g];
+            const size_t first = groups.start[g], count = groups.start[g + 1] - first;
+            for (size_t q = 0; q < count; ++q) present[q] = &pLeaves.leaf(groups.leaves[first + q]);
+            markNeeded(b, origin, present, count);
+            const BlockRect rect = presentRect(b, origin, present, count);
+            gatherRect(pAcc, b, origin, z0, rect, b.p);
+            gatherRect(tAcc, b, origin, z0, rect, b.T);
+            if (mAcc) gatherRect(*mAcc, b, origin, z0, rect, b.melt);
+            // the block loops below: the rows of the rectangle (all of the block in a box)
+            auto forRect = [&](auto&& f) {
+                for (int z = 0; z < b.bz; ++z)
+                    for (int y = rect.y0; y < rect.y1; ++y) {
+                        const size_t row = b.index(0, y, z);
+                        f(row + size_t(rect.x0), row + size_t(rect.x1));
                     }
-                });
-                // eps^2 of the extrapolated phase on the cells the rows read (the voxels and their
-                // ring, for its gradient).
-                {
-                    forNeeded(b, [&](size_t i) { b.a[i] = float(kobayashiEpsSquared(b.pe.data(), i, st, an)); });
+            };
+            // cx, cy are free in this scheme and hold the increments since the last step's
+            // start, p - p^{n-1}: the last step's own change plus whatever other effects did
+            // since (a walker froze the cell, the flow carried heat), so the extrapolation
+            // starts from the p the step really sees (the last step's dp alone, after a walker
+            // set p = 1, put the reaction's tangent at the old p and pushed p to 1.013).
+            if (dpAcc) {
+                gatherRect(*dpAcc, b, origin, z0, rect, incP);
+                forRect([&](size_t i0, size_t i1) { for (size_t i = i0; i < i1; ++i) incP[i] = b.p[i] - incP[i]; });
+            } else std::fill(incP.begin(), incP.end(), 0.f);
+            if (dtAcc) {
+                gatherRect(*dtAcc, b, origin, z0, rect, incT);
+                forRect([&](size_t i0, size_t i1) { for (size_t i = i0; i < i1; ++i) incT[i] = b.T[i] - incT[i]; });
+            } else std::fill(incT.begin(), incT.end(), 0.f);
+            // pf (in gz, free in this scheme): p extrapolated to the end of the step.
+            forRect([&](size_t i0, size_t i1) {
+                for (size_t i = i0; i < i1; ++i) {
+                    b.pe[i] = std::min(1.f, std::max(0.f, b.p[i] + extrapolate * incP[i]));
+                    b.te[i] = b.T[i] + extrapolate * incT[i];
+                    b.gz[i] = std::min(1.f, std::max(0.f, b.p[i] + extrapolate / float(theta) * incP[i]));
                 }
-                for (size_t q = 0; q < count; ++q) {
-                  const size_t li = groups.leaves[first + q];
-                  forActiveVoxels(b, origin, z0, *present[q], [&](openvdb::Index n, size_t i, const openvdb::Coord& c) {
-                    const double chi = noiseDraw(k, seed, stepIndex, c);
-                    const SecondOrderRow row = kobayashiSecondOrderRow(
-                        b.p.data(), b.T.data(), b.pe.data(), b.te.data(), b.gz.data(), b.a.data(), i, st, k,
-                        meltTemperatureAt(k, b, i, mMelt != nullptr), chi, theta);
-                    const size_t s = size_t(layout.rowAt(li, n));
-                    ps.diag[s] = row.diag;
-                    // fixed-length copies: a memcpy call per row cost 3 % of the run
-                    double* coefOut = &ps.coef[s * size_t(taps)];
-                    if (taps == 6) for (int q = 0; q < 6; ++q) coefOut[q] = row.coef[q];
-                    else if (taps == 4) for (int q = 0; q < 4; ++q) coefOut[q] = row.coef[q];
-                    else std::copy(row.coef, row.coef + taps, coefOut);
-                    ps.rhs[s] = row.rhs;
-                    ps.x[s] = row.predictor;
-                    p0[s] = b.p[i];
-                    T0[s] = b.T[i];
-                    // Temperature: theta-weighted lap T; the latent heat is added once p' is known.
-                    ts.rhs[s] = b.T[i] + (1.0 - theta) * k.dt * row.lapT;
-                  });
-                }
+            });
+            // eps^2 of the extrapolated phase on the cells the rows read (the voxels and their
+            // ring, for its gradient).
+            {
+                forNeeded(b, [&](size_t i) { b.a[i] = float(kobayashiEpsSquared(b.pe.data(), i, st, an)); });
             }
-        });
-    }
-    auto t0 = Clock::now();
-    const LinearSolverKind kind = k.useBiCGSTAB ? LinearSolverKind::BiCGSTAB : LinearSolverKind::GaussSeidel;
-    const SolveReport rp = ps.solve(kind, k.solverTolerance, k.solverMaxIterations);
-    // Each row is a convex combination of in-bound values (positive coefficients, the bounded
-    // reaction split, Kobayashi.h), and so is every Gauss-Seidel sweep from the bounded
-    // predictor: p' leaves [0, 1] only by the rounding of that combination (1 + 2e-16, set back
-    // silently), or where a solve is not a positive scheme (BiCGSTAB stopped early): such p is
-    // clipped back within [-0.25, 1.25] and counted (the latent heat below uses the clipped change);
-    // beyond that the guard stops the run.
+            for (size_t q = 0; q < count; ++q) {
+              const size_t li = groups.leaves[first + q];
+              forActiveVoxels(b, origin, z0, *present[q], [&](openvdb::Index n, size_t i, const openvdb::Coord& c) {
+                const double chi = noiseDraw(k, seed, stepIndex, c);
+                const SecondOrderRow row = kobayashiSecondOrderRow(
+                    b.p.data(), b.T.data(), b.pe.data(), b.te.data(), b.gz.data(), b.a.data(), i, st, k,
+                    meltTemperatureAt(k, b, i, melt != nullptr), chi, theta);
+                const size_t s = size_t(layout.rowAt(li, n));
+                ps.diag[s] = row.diag;
+                // fixed-length copies: a memcpy call per row cost 3 % of the run
+                double* coefOut = &ps.coef[s * size_t(taps)];
+                if (taps == 6) for (int q = 0; q < 6; ++q) coefOut[q] = row.coef[q];
+                else if (taps == 4) for (int q = 0; q < 4; ++q) coefOut[q] = row.coef[q];
+                else std::copy(row.coef, row.coef + taps, coefOut);
+                ps.rhs[s] = row.rhs;
+                ps.x[s] = row.predictor;
+                p0[s] = b.p[i];
+                T0[s] = b.T[i];
+                // Temperature: theta-weighted lap T; the latent heat is added once p' is known.
+                ts.rhs[s] = b.T[i] + (1.0 - theta) * k.dt * row.lapT;
+              });
+            }
+        }
+    });
+}
+
+/// Second-order stage 3, after the p solve: p' clipped back into [0, 1] where it left it by
+/// rounding or a stopped solve (returns how many voxels beyond rounding), and the latent heat of
+/// the clipped change, K (p' - p^n), added to the T rows and to the T solve's start.
+int64_t clipAndAddLatentHeat(const KobayashiParams& k, ImplicitSystem& ps, ImplicitSystem& ts,
+                             const std::vector<double>& p0, const std::vector<double>& T0)
+{
     constexpr double kRounding = 1e-12;
     std::atomic<int64_t> outside{0};
-    const auto tHeat = Clock::now();
-    // Latent heat, energy-consistent at any solver tolerance: K (p' - p^n) of the p actually
-    // taken enters T once, and the T solve starts from T^n + K dp. Its iterates are then convex
-    // combinations of that start, the explicit half's old values (positive weights below the
-    // stability limit) and the far field, so T never exceeds T^n + K max dp, even after one
-    // sweep at reduced precision (a forward-Euler start, dt |w0| > 1, did: frozen cells thawed).
-    // One pass with the clip above (a row's heat reads only its own clipped p').
     tbb::parallel_for(tbb::blocked_range<size_t>(0, ps.rows(), 4096), [&](const tbb::blocked_range<size_t>& r) {
         int64_t local = 0;
         for (size_t s = r.begin(); s != r.end(); ++s) {
@@ -1112,40 +1135,24 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
         }
         outside += local;
     });
-    const SolveReport rt = ts.solve(kind, k.solverTolerance, k.solverMaxIterations);
-    if (stats) {
-        stats->solveSeconds += since(t0);
-        stats->heatSeconds += since(tHeat);
-        stats->solverIterationsP += rp.iterations;
-        stats->solverIterationsT += rt.iterations;
-        stats->solves += 1;
-        if (!rp.converged || !rt.converged) stats->unconverged += 1;
-        stats->lastResidual = std::max(rp.residual, rt.residual);
-        stats->clippedVoxels += outside;
-    }
+    return outside;
+}
 
-    // Write back, record growth and freezing, remember this step's start values.
-    // Into last step's start-value grids when nobody else holds them (a checkpoint being written
-    // may), else fresh ones: only active voxels are written, off voxels keep the background.
-    auto startGrid = [&](openvdb::FloatGrid::Ptr& old, const openvdb::FloatGrid* ours, float background) {
-        openvdb::FloatGrid::Ptr g;
-        if (old && old.get() == ours && old.use_count() == 1 && old->treePtr().use_count() == 2) g = old;
-        if (!g) {
-            g = openvdb::FloatGrid::create(background);
-            g->tree().topologyUnion(pLeaves.tree());
-        } else if (mLastInGeneration != mGeneration) {
-            matchTopology(*g, *mRegionMask);
-        }
-        return g;
-    };
-    auto lastDp = startGrid(mLastInP, mLastInOwned, p.background());
-    auto lastDt = startGrid(mLastInT, mLastInOwnedT, T.background());
-    openvdb::tree::LeafManager<openvdb::FloatTree> dpLeaves(lastDp->tree()), dtLeaves(lastDt->tree());
-    const float tn1 = float(tNext);
+/// Second-order stage 5, the write-back: the solutions into p and T (bounds checked), this
+/// step's start values into the history grids, growth and freeze time recorded, crossings of
+/// p = 1/2 listed.
+void writeBackSecondOrder(openvdb::tree::LeafManager<openvdb::FloatTree>& pLeaves,
+                          openvdb::tree::LeafManager<openvdb::FloatTree>& tLeaves,
+                          openvdb::tree::LeafManager<openvdb::FloatTree>& dpLeaves,
+                          openvdb::tree::LeafManager<openvdb::FloatTree>& dtLeaves, const SlotLayout& layout,
+                          const ImplicitSystem& ps, const ImplicitSystem& ts, const std::vector<double>& p0,
+                          const std::vector<double>& T0, Accumulators& acc, Failure& failure, float tn1,
+                          std::vector<openvdb::Coord>* crossings)
+{
     tbb::enumerable_thread_specific<std::vector<openvdb::Coord>> crossed;
     tbb::parallel_for(tbb::blocked_range<size_t>(0, pLeaves.leafCount(), 16), [&](const tbb::blocked_range<size_t>& r) {
         std::vector<Accumulators::Pending>* pending = nullptr;
-        std::vector<openvdb::Coord>* cross = mCrossings ? &crossed.local() : nullptr;
+        std::vector<openvdb::Coord>* cross = crossings ? &crossed.local() : nullptr;
         for (size_t li = r.begin(); li != r.end(); ++li) {
             FloatLeaf& pl = pLeaves.leaf(li);
             float* pv = pl.buffer().data();
@@ -1195,8 +1202,101 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
         }
     });
     acc.apply();
-    if (mCrossings)
-        for (auto& list : crossed) mCrossings->insert(mCrossings->end(), list.begin(), list.end());
+    if (crossings)
+        for (auto& list : crossed) crossings->insert(crossings->end(), list.begin(), list.end());
+}
+
+} // namespace
+
+void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvdb::FloatGrid& T,
+                                       openvdb::tree::LeafManager<openvdb::FloatTree>& pLeaves,
+                                       openvdb::tree::LeafManager<openvdb::FloatTree>& tLeaves,
+                                       Accumulators& acc, int64_t stepIndex, double tNext, uint64_t seed,
+                                       Failure& failure,
+                                       PhaseFieldStepStats* stats)
+{
+    const KobayashiParams& k = mParams;
+    const bool plane = mDomain.flat();
+    const Stencil stencil = mDomain.stencil();
+    // The layout depends only on the region's topology: built once per region.
+    if (!mLayout || mLayoutGeneration != mGeneration) {
+        // last step's layout lends its arrays (the systems that refer to it only lend theirs below)
+        mLayout = std::make_unique<SlotLayout>(pLeaves, stencil, plane, mLayout.get());
+        mLayoutGeneration = mGeneration;
+    }
+    const SlotLayout& layout = *mLayout;
+    const int z0 = mDomain.bbox().min().z();
+    // Last step's systems lend their arrays (every row is set below).
+    auto psOwned = mSystemP ? std::make_unique<ImplicitSystem>(layout, *mSystemP) : std::make_unique<ImplicitSystem>(layout);
+    auto tsOwned = mSystemT ? std::make_unique<ImplicitSystem>(layout, *mSystemT) : std::make_unique<ImplicitSystem>(layout);
+    ImplicitSystem &ps = *psOwned, &ts = *tsOwned;
+    ps.useCoefficients();
+    ps.setOutside(p.background());
+    ts.setOutside(T.background());
+    std::vector<double>& p0 = mStartP;
+    std::vector<double>& T0 = mStartT;
+    p0.resize(ps.rows());
+    T0.resize(ps.rows());
+    const double theta = mTheta;
+    ts.setUniform(1.0 + theta * k.dt * -stencil.wLapCentre, theta * k.dt); // every row: diag, scale
+    const openvdb::FloatGrid* dP = mLastInP.get();
+    const openvdb::FloatGrid* dT = mLastInT.get();
+    // Coefficients at theta of the step (the midpoint for Crank-Nicolson, the end for implicit
+    // Euler), extrapolated along the last step's increment, scaled to this step's dt.
+    const float extrapolate = dP ? float(theta * k.dt / mLastStepDt) : 0.f;
+
+    // Explicit parts, per leaf on the padded block.
+    assembleSecondOrderRows({k, stencil, plane, z0, theta, extrapolate, p, T, mMelt, dP, dT, *mGroups, layout, stepIndex, seed},
+                            pLeaves, ps, ts, p0, T0);
+    auto t0 = Clock::now();
+    const LinearSolverKind kind = k.useBiCGSTAB ? LinearSolverKind::BiCGSTAB : LinearSolverKind::GaussSeidel;
+    const SolveReport rp = ps.solve(kind, k.solverTolerance, k.solverMaxIterations);
+    // Each row is a convex combination of in-bound values (positive coefficients, the bounded
+    // reaction split, Kobayashi.h), and so is every Gauss-Seidel sweep from the bounded
+    // predictor: p' leaves [0, 1] only by the rounding of that combination (1 + 2e-16, set back
+    // silently), or where a solve is not a positive scheme (BiCGSTAB stopped early): such p is
+    // clipped back within [-0.25, 1.25] and counted (the latent heat below uses the clipped change);
+    // beyond that the guard stops the run.
+    const auto tHeat = Clock::now();
+    // Latent heat, energy-consistent at any solver tolerance: K (p' - p^n) of the p actually
+    // taken enters T once, and the T solve starts from T^n + K dp. Its iterates are then convex
+    // combinations of that start, the explicit half's old values (positive weights below the
+    // stability limit) and the far field, so T never exceeds T^n + K max dp, even after one
+    // sweep at reduced precision (a forward-Euler start, dt |w0| > 1, did: frozen cells thawed).
+    // One pass with the clip above (a row's heat reads only its own clipped p').
+    const int64_t outside = clipAndAddLatentHeat(k, ps, ts, p0, T0);
+    const SolveReport rt = ts.solve(kind, k.solverTolerance, k.solverMaxIterations);
+    if (stats) {
+        stats->solveSeconds += since(t0);
+        stats->heatSeconds += since(tHeat);
+        stats->solverIterationsP += rp.iterations;
+        stats->solverIterationsT += rt.iterations;
+        stats->solves += 1;
+        if (!rp.converged || !rt.converged) stats->unconverged += 1;
+        stats->lastResidual = std::max(rp.residual, rt.residual);
+        stats->clippedVoxels += outside;
+    }
+
+    // Write back, record growth and freezing, remember this step's start values.
+    // Into last step's start-value grids when nobody else holds them (a checkpoint being written
+    // may), else fresh ones: only active voxels are written, off voxels keep the background.
+    auto startGrid = [&](openvdb::FloatGrid::Ptr& old, const openvdb::FloatGrid* ours, float background) {
+        openvdb::FloatGrid::Ptr g;
+        if (old && old.get() == ours && old.use_count() == 1 && old->treePtr().use_count() == 2) g = old;
+        if (!g) {
+            g = openvdb::FloatGrid::create(background);
+            g->tree().topologyUnion(pLeaves.tree());
+        } else if (mLastInGeneration != mGeneration) {
+            matchTopology(*g, *mRegionMask);
+        }
+        return g;
+    };
+    auto lastDp = startGrid(mLastInP, mLastInOwned, p.background());
+    auto lastDt = startGrid(mLastInT, mLastInOwnedT, T.background());
+    openvdb::tree::LeafManager<openvdb::FloatTree> dpLeaves(lastDp->tree()), dtLeaves(lastDt->tree());
+    const float tn1 = float(tNext);
+    writeBackSecondOrder(pLeaves, tLeaves, dpLeaves, dtLeaves, layout, ps, ts, p0, T0, acc, failure, tn1,
+                         mCrossings);
     mLastInP = lastDp;
     mLastInT = lastDt;
     mLastInOwned = mLastInP.get();

@@ -30,6 +30,11 @@ struct Axial {
     bool operator==(const Axial& o) const { return q == o.q && r == o.r; }
 };
 
+/// sqrt(3)/2, the distance between rows of cells in cell spacings (a literal: the double nearest
+/// sqrt(3)/2, bit for bit std::sqrt(3.0) / 2.0). Plane (x, y) -> axial: r = y / kRowHeight,
+/// q = x - r/2.
+constexpr double kRowHeight = 0.8660254037844386467637231707529361834714;
+
 /// Neighbour offsets in counter-clockwise order.
 constexpr std::array<Axial, 6> kNeighbours{{{1, 0}, {0, 1}, {-1, 1}, {-1, 0}, {0, -1}, {1, -1}}};
 
@@ -56,7 +61,7 @@ inline Axial canonical(int q, int r)
 /// Position of axial (q, r) in the plane, in cell spacings.
 inline std::array<double, 2> position(double q, double r)
 {
-    return {q + 0.5 * r, r * std::sqrt(3.0) / 2.0};
+    return {q + 0.5 * r, r * kRowHeight};
 }
 
 /// Nearest hexagonal cell to a fractional axial position (cube rounding).
@@ -74,7 +79,7 @@ inline Axial roundAxial(double fq, double fr)
 /// A plane position in cell spacings to the hexagonal cell that contains it.
 inline Axial cellAt(double x, double y)
 {
-    const double r = y / (std::sqrt(3.0) / 2.0);
+    const double r = y / kRowHeight;
     return roundAxial(x - 0.5 * r, r);
 }
 

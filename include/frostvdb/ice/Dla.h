@@ -87,14 +87,14 @@ struct DlaParams {
 /// First-passage (exit) distribution of the lattice random walk started at the centre of the
 /// lattice ball of graph radius r (a diamond on the square lattice, a hexagon on the hexagonal
 /// one, an octahedron in a box): solved exactly (conjugate gradients on the Green's function of
-/// the walk killed on the shell), sampled in O(1) with an alias table.
-struct ShellTable {
+/// the walk killed on the sphere), sampled in O(1) with an alias table.
+struct SphereTable {
     int radius = 0;
-    std::vector<openvdb::Coord> exits; ///< shell offsets (graph distance exactly r)
+    std::vector<openvdb::Coord> exits; ///< sphere offsets (graph distance exactly r)
     std::vector<double> prob;          ///< exit probability of each
     std::vector<uint32_t> aliasThreshold; ///< Vose alias table: keep i when low word < threshold
     std::vector<uint32_t> alias;
-    double meanSteps = 0;              ///< expected number of lattice steps to reach the shell
+    double meanSteps = 0;              ///< expected number of lattice steps to reach the sphere
     double solverResidual = 0;         ///< CG relative residual reached
 
     /// Draws an exit index from one uniform 64-bit word (high half: slot, low half: alias test).
@@ -120,7 +120,7 @@ struct ShellTable {
 };
 
 /// The table for a neighbour set and radius, computed once per process and cached.
-std::shared_ptr<const ShellTable> shellTable(const std::vector<openvdb::Coord>& neighbours, int radius);
+std::shared_ptr<const SphereTable> sphereTable(const std::vector<openvdb::Coord>& neighbours, int radius);
 
 /// The lattice neighbours a walker moves between: the plane's 4 or 6, plus (0,0,+-1) in a box.
 std::vector<openvdb::Coord> walkerNeighbours(const Domain& domain);
@@ -257,7 +257,7 @@ private:
     std::unique_ptr<Sparse> mSparse;
     std::unique_ptr<SyncCache> mSyncCache;
     std::vector<int64_t> mQueue;
-    std::vector<std::shared_ptr<const ShellTable>> mTables;
+    std::vector<std::shared_ptr<const SphereTable>> mTables;
     std::vector<int16_t> mTableForRadius; ///< radius -> index in mTables of the largest <= it (-1)
     int mDigits = 1;
 
@@ -291,6 +291,17 @@ public:
 
 private:
     void updateSteam(World& world);
+    // step()'s stages
+    /// The engine's distances brought in line with p (the listed crossings, or all of p).
+    void syncDistances(World& world, const openvdb::FloatGrid& p);
+    /// The walks' inputs (melt map, steam release, flow drift); returns the steam's extra walkers.
+    int64_t walkerInputs(World& world, const StepInfo& info, double dt, int64_t H, const openvdb::FloatGrid* melt,
+                         const openvdb::Vec3SGrid* vel, DlaEngine::Inputs& in);
+    /// Where a walker whose stick cell froze earlier in its batch goes on from (-1: nowhere).
+    int64_t resumeStart(const WalkEnd& e, const Domain& domain, int64_t step, uint64_t walker) const;
+    /// dla_hits written from the touched counts; counts under ice and emptied leaves dropped.
+    void updateHitCounts(const openvdb::FloatGrid& p, openvdb::Int32Grid& hits, std::vector<int64_t>& touched,
+                         int64_t step);
 
     DlaParams mParams;
     double mHeat = 0; ///< L in use
