@@ -1,7 +1,6 @@
 /// @file MeshConstraint.cpp
 #include <frostvdb/dla3d/MeshConstraint.h>
 
-#include <frostvdb/core/Random.h>
 
 #include <openvdb/tools/Interpolation.h>
 #include <openvdb/tools/MeshToVolume.h>
@@ -23,35 +22,14 @@ MeshConstraint::MeshConstraint(TriangleMesh mesh, double reach, double voxelSize
     mUdf = openvdb::tools::meshToUnsignedDistanceField<openvdb::FloatGrid>(*xform, mMesh.points, mMesh.triangles,
                                                                           std::vector<openvdb::Vec4I>(), bandVoxels);
     mBand = mUdf->background();
-    // triangle buckets: cell about the reach, so a test visits a handful of cells
-    mCell = std::max(reach, voxelSize);
-    for (uint32_t t = 0; t < mMesh.triangles.size(); ++t) {
-        openvdb::BBoxd b;
-        for (int v = 0; v < 3; ++v) b.expand(Vec3d(mMesh.points[mMesh.triangles[t][v]]));
-        const auto lo = b.min() / mCell, hi = b.max() / mCell;
-        for (int64_t x = int64_t(std::floor(lo.x())); x <= int64_t(std::floor(hi.x())); ++x)
-            for (int64_t y = int64_t(std::floor(lo.y())); y <= int64_t(std::floor(hi.y())); ++y)
-                for (int64_t z = int64_t(std::floor(lo.z())); z <= int64_t(std::floor(hi.z())); ++z)
-                    mCells[cellKey(x, y, z)].push_back(t);
-    }
-}
-
-uint64_t MeshConstraint::cellKey(int64_t x, int64_t y, int64_t z) const
-{
-    return coordKey(int32_t(x), int32_t(y), int32_t(z));
+    mPoints.assign(mMesh.points.begin(), mMesh.points.end());
+    mBvh = geometry::TriangleBvh(mPoints, mMesh.triangles);
 }
 
 std::vector<uint32_t> MeshConstraint::candidates(const Vec3d& lo, const Vec3d& hi) const
 {
     std::vector<uint32_t> out;
-    for (int64_t x = int64_t(std::floor(lo.x() / mCell)); x <= int64_t(std::floor(hi.x() / mCell)); ++x)
-        for (int64_t y = int64_t(std::floor(lo.y() / mCell)); y <= int64_t(std::floor(hi.y() / mCell)); ++y)
-            for (int64_t z = int64_t(std::floor(lo.z() / mCell)); z <= int64_t(std::floor(hi.z() / mCell)); ++z) {
-                auto it = mCells.find(cellKey(x, y, z));
-                if (it != mCells.end()) out.insert(out.end(), it->second.begin(), it->second.end());
-            }
-    std::sort(out.begin(), out.end());
-    out.erase(std::unique(out.begin(), out.end()), out.end());
+    mBvh.query(openvdb::BBoxd(lo, hi), out);
     return out;
 }
 

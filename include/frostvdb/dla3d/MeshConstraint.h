@@ -4,14 +4,14 @@
 /// mesh, and the new particle's sphere may not reach into it. Tested only when a walker is about
 /// to attach (never during the walk): first against a VDB unsigned distance field (one trilinear
 /// look-up rules out most attachments far from the surface), then against the exact triangles
-/// bucketed in a hashed grid.
+/// the bounding-volume hierarchy finds (geometry/TriangleBvh.h, the shell band's index too).
 #include <frostvdb/geometry/Triangle.h>
+#include <frostvdb/geometry/TriangleBvh.h>
 #include <frostvdb/io/Mesh.h>
 
 #include <openvdb/openvdb.h>
 
 #include <atomic>
-#include <unordered_map>
 #include <vector>
 
 namespace frostvdb::dla3d {
@@ -37,15 +37,15 @@ public:
     uint64_t exactTests() const { return mExact.load(); }
 
 private:
+    /// Triangles whose bounding boxes overlap the box (@a lo, @a hi), ascending.
     std::vector<uint32_t> candidates(const openvdb::Vec3d& lo, const openvdb::Vec3d& hi) const;
-    uint64_t cellKey(int64_t x, int64_t y, int64_t z) const;
 
     TriangleMesh mMesh;
     double mReach;
     openvdb::FloatGrid::Ptr mUdf;
     double mBand = 0; ///< the UDF's background: distances beyond it read as this
-    double mCell;
-    std::unordered_map<uint64_t, std::vector<uint32_t>> mCells;
+    std::vector<openvdb::Vec3d> mPoints; ///< the mesh's points in double, for the index
+    geometry::TriangleBvh mBvh;          ///< the shell band's triangle index (geometry/TriangleBvh.h)
     mutable std::atomic<uint64_t> mExact{0}; ///< statistics only
 };
 

@@ -31,6 +31,7 @@
 /// the band: those calls are serialised by a mutex, and must not run while another thread reads
 /// the band's arrays (the solver and the seeding call them between their parallel loops).
 #include <frostvdb/core/Domain.h>
+#include <frostvdb/geometry/TriangleBvh.h>
 #include <frostvdb/io/Mesh.h>
 
 #include <openvdb/openvdb.h>
@@ -97,36 +98,7 @@ struct SurfaceTap {
     float lap = 0, du = 0, dv = 0;
 };
 
-/// A bounding-volume hierarchy over a mesh's triangles (index space): the triangles whose
-/// bounding boxes overlap a box, and the closest point on the mesh.
-class TriangleBvh {
-public:
-    TriangleBvh() = default;
-    TriangleBvh(const std::vector<openvdb::Vec3d>& points, const std::vector<openvdb::Vec3I>& triangles);
-    /// Triangles whose bounding box overlaps @a box, sorted by index.
-    void query(const openvdb::BBoxd& box, std::vector<uint32_t>& out) const;
-    /// The closest point on the mesh to @a p; @a tri gets its triangle (lowest index on ties).
-    openvdb::Vec3d closestPoint(const openvdb::Vec3d& p, uint32_t* tri = nullptr) const;
-    /// The same among the points within sqrt(@a maxDistSqr) of @a p: false when there is none.
-    bool closestPointWithin(const openvdb::Vec3d& p, double maxDistSqr, openvdb::Vec3d& out, uint32_t& tri,
-                            double& distSqr) const;
-    size_t memoryBytes() const;
-    const openvdb::BBoxd& box(uint32_t t) const { return mBoxes[t]; }
-
-private:
-    struct Node {
-        openvdb::BBoxd box;
-        int32_t left = -1, right = -1; ///< children, -1 in a leaf
-        uint32_t first = 0, count = 0; ///< range of mOrder in a leaf
-    };
-    int32_t buildNode(std::vector<uint32_t>& order, uint32_t first, uint32_t count, std::vector<openvdb::BBoxd>& boxes,
-                      std::vector<openvdb::Vec3d>& centres);
-    const std::vector<openvdb::Vec3d>* mPoints = nullptr;
-    const std::vector<openvdb::Vec3I>* mTriangles = nullptr;
-    std::vector<Node> mNodes;
-    std::vector<uint32_t> mOrder;
-    std::vector<openvdb::BBoxd> mBoxes; ///< per triangle
-};
+using geometry::TriangleBvh;
 
 class ShellBand {
 public:
