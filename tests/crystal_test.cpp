@@ -3,7 +3,7 @@
 
 #include <frostvdb/core/Error.h>
 #include <frostvdb/ice/Crystal.h>
-#include <frostvdb/ice/IceState.h>
+#include <frostvdb/icephysics/IceState.h>
 #include <frostvdb/io/Png.h>
 
 #include <openvdb/io/File.h>

@@ -4,7 +4,7 @@
 
 #include <frostvdb/core/ActiveRegion.h>
 #include <frostvdb/core/Error.h>
-#include <frostvdb/ice/IceState.h>
+#include <frostvdb/icephysics/IceState.h>
 
 #include <catch2/catch.hpp>
 

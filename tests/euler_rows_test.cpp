@@ -5,7 +5,7 @@
 #include <catch2/catch.hpp>
 
 #include <frostvdb/core/Lattice.h>
-#include <frostvdb/ice/EulerRows.h>
+#include <frostvdb/icephysics/EulerRows.h>
 
 #include <cstring>
 #include <random>

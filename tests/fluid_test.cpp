@@ -6,7 +6,7 @@
 
 #include <frostvdb/core/Error.h>
 #include <frostvdb/fluid/Fluid.h>
-#include <frostvdb/ice/IceState.h>
+#include <frostvdb/icephysics/IceState.h>
 
 #include <catch2/catch.hpp>
 

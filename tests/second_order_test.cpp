@@ -3,8 +3,8 @@
 #include "test_util.h"
 
 #include <frostvdb/core/Error.h>
-#include <frostvdb/ice/ImplicitSystem.h>
-#include <frostvdb/ice/Kobayashi.h>
+#include <frostvdb/icephysics/ImplicitSystem.h>
+#include <frostvdb/icephysics/Kobayashi.h>
 
 #include <catch2/catch.hpp>
 

@@ -20,7 +20,7 @@
 #include "test_util.h"
 
 #include <frostvdb/core/Error.h>
-#include <frostvdb/ice/IceState.h>
+#include <frostvdb/icephysics/IceState.h>
 
 #include <catch2/catch.hpp>
 

@@ -4,7 +4,7 @@
 #include <frostvdb/core/ActiveRegion.h>
 #include <frostvdb/core/Error.h>
 #include <frostvdb/geometry/HexLattice.h>
-#include <frostvdb/ice/IceState.h>
+#include <frostvdb/icephysics/IceState.h>
 #include <frostvdb/io/Png.h>
 
 #include <openvdb/tools/Interpolation.h>

@@ -5,7 +5,7 @@
 #include <frostvdb/fluid/Fluid.h>
 #include <frostvdb/core/ActiveRegion.h>
 #include <frostvdb/core/Error.h>
-#include <frostvdb/ice/IceState.h>
+#include <frostvdb/icephysics/IceState.h>
 #include <frostvdb/io/Png.h>
 
 #include <openvdb/tools/Interpolation.h>

@@ -3,7 +3,7 @@
 #include <frostvdb/io/VdbIO.h>
 #include <frostvdb/core/Error.h>
 #include <frostvdb/core/Random.h>
-#include <frostvdb/ice/IceState.h>
+#include <frostvdb/icephysics/IceState.h>
 #include <frostvdb/io/Png.h>
 #include <frostvdb/io/VdbCheck.h>
 

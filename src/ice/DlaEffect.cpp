@@ -7,7 +7,7 @@
 #include <frostvdb/core/Progress.h>
 #include <frostvdb/core/Error.h>
 #include <frostvdb/core/Random.h>
-#include <frostvdb/ice/IceState.h>
+#include <frostvdb/icephysics/IceState.h>
 #include <frostvdb/ice/DlaBackend.h>
 
 #include <tbb/blocked_range.h>

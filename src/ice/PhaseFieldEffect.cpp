@@ -1,6 +1,6 @@
 #include <frostvdb/ice/PhaseFieldEffect.h>
 #include <frostvdb/core/Error.h>
-#include <frostvdb/ice/IceState.h>
+#include <frostvdb/icephysics/IceState.h>
 
 #include <algorithm>
 #include <cmath>

@@ -3,7 +3,7 @@
 /// ice/PhaseFieldSolver.h stepping World's grids in place, its region cadence checkpointed.
 #include <frostvdb/core/FieldEdits.h>
 #include <frostvdb/core/FieldWriters.h>
-#include <frostvdb/ice/IceState.h>
+#include <frostvdb/icephysics/IceState.h>
 #include <frostvdb/ice/PhaseFieldBackend.h>
 #include <frostvdb/ice/PhaseFieldSolver.h>
 

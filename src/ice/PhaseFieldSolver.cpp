@@ -3,8 +3,8 @@
 #include <frostvdb/core/Error.h>
 #include <frostvdb/core/PlaneFold.h>
 #include <frostvdb/core/Random.h>
-#include <frostvdb/ice/EulerRows.h>
-#include <frostvdb/ice/ImplicitSystem.h>
+#include <frostvdb/icephysics/EulerRows.h>
+#include <frostvdb/icephysics/ImplicitSystem.h>
 
 #include <openvdb/tools/Prune.h>
 #include <openvdb/tree/LeafManager.h>

@@ -18,7 +18,7 @@
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
-#include <frostvdb/ice/IceState.h>
+#include <frostvdb/icephysics/IceState.h>
 #include <frostvdb/shell/ShellBudget.h>
 #include <frostvdb/shell/ShellDomain.h>
 #include <frostvdb/shell/ShellGrids.h>
@@ -172,6 +172,7 @@ private:
     std::vector<size_t> mSynced; ///< voxels whose ice syncIce added or removed this step
     bool mFullSync = true, mMeltedSinceFullSync = false;
     std::vector<openvdb::Vec3d> mSticks; ///< stick points added since the last full sync
+    std::vector<uint32_t> mCrossedLeaves; ///< scratch: leaves where p crossed 1/2 (ShellPhaseField)
     // steam humidity (the plane's rule, DlaEffect::updateSteam): per layer site, the largest
     // density x (1 - h / reach) along its outward normal up to steam_reach; rebuilt when the gas
     // publishes a new density grid
@@ -225,9 +226,11 @@ private:
     /// every kFullSyncSteps steps when ice melted since the last full sync the stick points go
     /// (a melted node's stick points with them), which leaves what a full build would.
     static constexpr int64_t kFullSyncSteps = 64;
-    void syncIce(int64_t step)
+    void syncIce(int64_t step, ShellPhaseField* solver)
     {
         mSynced.clear();
+        // the leaves where [phase_field] moved p across 1/2 since our last look (when it knows)
+        const bool onlyCrossed = solver && solver->takeCrossedLeaves(mCrossedLeaves);
         mFullSync = mPLeft.size() != mP.size();
         if (mFullSync) {
             mWalkers->sync(mP);
@@ -235,19 +238,27 @@ private:
             mMeltedSinceFullSync = false;
             return;
         }
-        // in parallel over fixed chunks, joined in order (the same lists at any thread count)
+        // index ranges to compare, in ascending order: the crossed leaves' (a leaf's voxels are
+        // contiguous, and later slots hold later voxels), or everything in fixed chunks
         constexpr size_t kChunk = size_t(1) << 16;
-        const size_t chunks = (mP.size() + kChunk - 1) / kChunk;
-        std::vector<std::vector<size_t>> grownIn(chunks), meltedIn(chunks);
-        tbb::parallel_for(size_t(0), chunks, [&](size_t c) {
-            for (size_t i = c * kChunk, e = std::min(mP.size(), i + kChunk); i < e; ++i) {
+        std::vector<std::pair<size_t, size_t>> ranges;
+        if (onlyCrossed) {
+            const auto& leaves = mBand->leaves();
+            for (uint32_t s : mCrossedLeaves) ranges.emplace_back(leaves[s].begin, leaves[s].end);
+        } else {
+            for (size_t i = 0; i < mP.size(); i += kChunk) ranges.emplace_back(i, std::min(mP.size(), i + kChunk));
+        }
+        // in parallel over the ranges, joined in order (the same lists at any thread count)
+        std::vector<std::vector<size_t>> grownIn(ranges.size()), meltedIn(ranges.size());
+        tbb::parallel_for(size_t(0), ranges.size(), [&](size_t c) {
+            for (size_t i = ranges[c].first; i < ranges[c].second; ++i) {
                 const bool was = mPLeft[i] > 0.5f, is = mP[i] > 0.5f;
                 if (was && !is) meltedIn[c].push_back(i);
                 else if (is && !was) grownIn[c].push_back(i);
             }
         });
         std::vector<size_t> grown, melted;
-        for (size_t c = 0; c < chunks; ++c) {
+        for (size_t c = 0; c < ranges.size(); ++c) {
             grown.insert(grown.end(), grownIn[c].begin(), grownIn[c].end());
             melted.insert(melted.end(), meltedIn[c].begin(), meltedIn[c].end());
         }
@@ -286,7 +297,7 @@ void ShellDlaEffect::step(World& world, const StepInfo& info)
     ctx.heat = sh.temperatureEvolves && mHeat != 0;
     auto t0 = Clock::now();
     borrowPhase(ctx);
-    syncIce(info.step);
+    syncIce(info.step, ctx.solver);
     mStats.syncSeconds += since(t0);
     ShellWalkers::Inputs in;
     updateMelt(world, in);

@@ -357,8 +357,22 @@ void ShellPhaseField::restoreRegion(const openvdb::Int32Grid& boxes, const openv
     mSlotsSeen = leaves.size();
 }
 
+bool ShellPhaseField::takeCrossedLeaves(std::vector<uint32_t>& slots)
+{
+    slots.clear();
+    const bool known = !mCrossedAll;
+    for (uint32_t s = 0; s < mCrossed.size(); ++s)
+        if (mCrossed[s]) {
+            if (known) slots.push_back(s);
+            mCrossed[s] = 0;
+        }
+    mCrossedAll = false;
+    return known;
+}
+
 void ShellPhaseField::extendAll()
 {
+    mCrossedAll = true;
     updateRegion();
     const ShellBand& b = *mBand;
     b.extendPhase(mP, mPn, mPhi, &mStepped, &mStepped);
@@ -371,6 +385,8 @@ void ShellPhaseField::extendAll()
 
 void ShellPhaseField::step(double time, int64_t stepIndex, uint64_t seed, ShellStepStats* stats)
 {
+    if (!mBand->surfaceNodes() || mParams.scheme == PhaseFieldScheme::SecondOrder)
+        mCrossedAll = true; // only the surface nodes' explicit step records where p crossed 1/2
     if (mParams.scheme == PhaseFieldScheme::SecondOrder) {
         updateRegion();
         const double dt = mParams.dt;
@@ -463,7 +479,15 @@ void ShellPhaseField::stepSurface(double time, int64_t stepIndex, uint64_t seed,
     const float* T = mT.data();
     b.forEachVoxel(&mStepped, [&](size_t i) {
         const VoxelFrame& f = b.frame(i);
-        const double gu = tapSum<&SurfaceTap::du>(b, P, i) * invH, gv = tapSum<&SurfaceTap::dv>(b, P, i) * invH;
+        // both derivatives in one pass over the taps (each sum in the taps' order, as tapSum's)
+        const double p0 = P[i];
+        double su = 0, sv = 0;
+        for (const SurfaceTap* t = b.tapsBegin(i); t != b.tapsEnd(i); ++t) {
+            const double dp = double(P[t->node]) - p0;
+            su += double(t->du) * dp;
+            sv += double(t->dv) * dp;
+        }
+        const double gu = su * invH, gv = sv * invH;
         double eps, epsPrime;
         mAniso(gu, gv, eps, epsPrime);
         // n x (gu t + gv b) = gu b - gv t
@@ -517,11 +541,22 @@ void ShellPhaseField::stepSurface(double time, int64_t stepIndex, uint64_t seed,
     // the new values become the fields, growth and freeze time recorded: a pass of its own (fused
     // into the kernel's second pass, with a swap when every leaf steps, it ran 4 % slower on the
     // pane: that pass then streams four arrays out instead of two)
-    b.forEachVoxel(&mStepped, [&](size_t i) {
-        const float d = mPn[i] - mP[i];
-        mP[i] = mPn[i];
-        mT[i] = mTn[i];
-        if (!b.ghost(i)) recordGrowth(mGrowth[i], mFreeze[i], d, mP[i], tNext);
+    // (per leaf, whether p crossed 1/2 anywhere in it: [dla] then rescans only those leaves)
+    const auto& leaves = b.leaves();
+    mCrossed.resize(leaves.size(), 0);
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, mStepped.size(), 2), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t k = r.begin(); k < r.end(); ++k) {
+            const ShellBand::Leaf& l = leaves[mStepped[k]];
+            bool crossed = false;
+            for (size_t i = l.begin; i < l.end; ++i) {
+                const float d = mPn[i] - mP[i];
+                crossed = crossed || ((mPn[i] > 0.5f) != (mP[i] > 0.5f));
+                mP[i] = mPn[i];
+                mT[i] = mTn[i];
+                if (!b.ghost(i)) recordGrowth(mGrowth[i], mFreeze[i], d, mP[i], tNext);
+            }
+            if (crossed) mCrossed[mStepped[k]] = 1;
+        }
     });
     addExplicitStats(stats, t0, t1, mUpdateCount);
 }

@@ -4,7 +4,7 @@
 /// only when the driver reads them (publishFields). Also reads the keys only shells have:
 /// frost_mesh, wind, wind_model.
 #include <frostvdb/core/Error.h>
-#include <frostvdb/ice/IceState.h>
+#include <frostvdb/icephysics/IceState.h>
 #include <frostvdb/ice/PhaseFieldBackend.h>
 #include <frostvdb/io/Mesh.h>
 #include <frostvdb/shell/ShellBudget.h>

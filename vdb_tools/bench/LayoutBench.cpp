@@ -14,7 +14,7 @@
 /// compute of the same group (the engine's row code, pass 1 + pass 2) and the vector dense loop.
 #include <frostvdb/core/Bench.h>
 #include <frostvdb/core/Domain.h>
-#include <frostvdb/ice/EulerRows.h>
+#include <frostvdb/icephysics/EulerRows.h>
 #include <frostvdb/ice/PhaseFieldSolver.h>
 
 #include <openvdb/openvdb.h>

@@ -166,9 +166,9 @@ void benchSchemes(const BenchArgs& a)
 }
 
 /// One half of the pane pair: `frostvdb run` on @a scene in a child process (this binary), so its
-/// peak memory is its own; wall seconds and peak RSS (MiB) from wait4.
+/// peak memory is its own; wall seconds, CPU seconds (user + system) and peak RSS (MiB) from wait4.
 struct ChildRun {
-    double seconds = 0, rssMiB = 0;
+    double seconds = 0, cpuSeconds = 0, rssMiB = 0;
     int status = -1;
 };
 
@@ -188,6 +188,8 @@ ChildRun runChild(const std::string& scene, const std::string& outDir, int threa
     wait4(pid, &status, 0, &ru);
     r.seconds = bench::since(t0);
     r.rssMiB = double(ru.ru_maxrss) / 1024.0;
+    r.cpuSeconds = double(ru.ru_utime.tv_sec) + 1e-6 * double(ru.ru_utime.tv_usec) + double(ru.ru_stime.tv_sec) +
+                   1e-6 * double(ru.ru_stime.tv_usec);
     r.status = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
     return r;
 }
@@ -235,13 +237,15 @@ int benchPane(const BenchArgs& a)
                              << std::string(common).replace(8, 0, "name = \"pane_" + std::string(names[k]) + "\"\n")
                              << bodies[k];
         runs[k] = runChild(scene, (dir / names[k]).string(), a.threads);
-        std::printf("  %-6s %8.1f s wall %8.0f MiB peak  (exit %d; scene and frames in %s)\n", names[k],
-                    runs[k].seconds, runs[k].rssMiB, runs[k].status, (dir / names[k]).string().c_str());
+        std::printf("  %-6s %8.1f s wall %8.1f s CPU %8.0f MiB peak  (exit %d; scene and frames in %s)\n", names[k],
+                    runs[k].seconds, runs[k].cpuSeconds, runs[k].rssMiB, runs[k].status,
+                    (dir / names[k]).string().c_str());
         std::fflush(stdout);
         if (runs[k].status != 0) return 1;
     }
-    std::printf("shell / plane: time %.2fx, memory %.2fx (issue 23: at most 3.0 each)\n",
-                runs[1].seconds / runs[0].seconds, runs[1].rssMiB / runs[0].rssMiB);
+    std::printf("shell / plane: time %.2fx, memory %.2fx (issue 23: at most 3.0 each); CPU time %.2fx\n",
+                runs[1].seconds / runs[0].seconds, runs[1].rssMiB / runs[0].rssMiB,
+                runs[1].cpuSeconds / runs[0].cpuSeconds);
     return 0;
 }
 

@@ -2,7 +2,7 @@
 // step in sparse and dense mode at several ice fractions, then the kernel's voxel-update rate with
 // the whole domain active against the plain dense-array loop of the same stencil (same run).
 #include <frostvdb/core/Bench.h>
-#include <frostvdb/ice/EulerRows.h>
+#include <frostvdb/icephysics/EulerRows.h>
 #include <frostvdb/ice/PhaseFieldSolver.h>
 
 #include <tbb/global_control.h>

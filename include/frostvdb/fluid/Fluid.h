@@ -14,7 +14,7 @@
 /// Units: lengths in the PDE's dimensionless units (one cell = h = [domain] spacing), time in
 /// the ice clock's units, so a velocity u moves a point by u * dt / h cells per step. The field
 /// `vel` in World (and in frames) holds u * voxel_size / h at every domain cell: world metres per
-/// unit of simulation time, as ice/IceState.h documents and [dla] reads it.
+/// unit of simulation time, as icephysics/IceState.h documents and [dla] reads it.
 #include <frostvdb/fluid/Boundary.h>
 #include <frostvdb/core/Effect.h>
 #include <frostvdb/fluid/SparseFluid.h>

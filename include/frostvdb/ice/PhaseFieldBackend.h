@@ -12,7 +12,7 @@
 ///   FROSTVDB_REGISTER_PHASE_FIELD_BACKEND(mine, {"my_discretisation"}, readMyKeys);
 /// @endcode
 #include <frostvdb/core/Effect.h>
-#include <frostvdb/ice/Kobayashi.h>
+#include <frostvdb/icephysics/Kobayashi.h>
 
 #include <functional>
 #include <memory>

@@ -16,8 +16,8 @@
 /// In dense mode the region is the whole domain: the same code is the dense reference.
 #include <frostvdb/core/ActiveRegion.h>
 #include <frostvdb/core/Domain.h>
-#include <frostvdb/ice/ImplicitSystem.h>
-#include <frostvdb/ice/Kobayashi.h>
+#include <frostvdb/icephysics/ImplicitSystem.h>
+#include <frostvdb/icephysics/Kobayashi.h>
 
 #include <openvdb/openvdb.h>
 #include <openvdb/tree/LeafManager.h>

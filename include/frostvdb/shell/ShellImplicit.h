@@ -21,7 +21,7 @@
 /// Values of nodes that are not rows (update-set voxels of leaves not stepped, which hold the
 /// background within the region's tolerance) are fixed: the caller moves them to the right-hand
 /// side (extendAt's fixed part).
-#include <frostvdb/ice/ImplicitSystem.h> // SolveReport
+#include <frostvdb/icephysics/ImplicitSystem.h> // SolveReport
 #include <frostvdb/shell/ShellBand.h>
 
 #include <cstdint>

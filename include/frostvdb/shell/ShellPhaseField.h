@@ -37,7 +37,7 @@
 ///
 /// Every array is indexed by band voxel; every output is one fixed sum: the result does not
 /// depend on the thread count.
-#include <frostvdb/ice/Kobayashi.h>
+#include <frostvdb/icephysics/Kobayashi.h>
 #include <frostvdb/shell/ShellBand.h>
 #include <frostvdb/shell/ShellImplicit.h>
 
@@ -70,7 +70,7 @@ public:
     const ShellBand& band() const { return *mBand; }
     /// The fields (band order). Non-const access marks them changed: the next step rescans
     /// every built leaf for the active region. Arrays grow with the band (see grow()).
-    std::vector<float>& p() { mDirty = true; return mP; }
+    std::vector<float>& p() { mDirty = mCrossedAll = true; return mP; }
     std::vector<float>& T() { mDirty = true; return mT; }
     const std::vector<float>& p() const { return mP; }
     const std::vector<float>& T() const { return mT; }
@@ -103,6 +103,11 @@ public:
     std::vector<float>& pForEdit() { return mP; }
     std::vector<float>& TForEdit() { return mT; }
     void touched(const std::vector<size_t>& voxels);
+    /// For that effect's next look at p's side of 1/2: the leaf slots (ascending) where a step
+    /// since the last call moved p across 1/2 on some voxel (surface nodes' explicit steps record
+    /// them in their copy-back pass). False when that is not known (another writer used p(), or a
+    /// step that does not record them ran): then every voxel may have changed side.
+    bool takeCrossedLeaves(std::vector<uint32_t>& slots);
     std::vector<float>& growthValues() { return mGrowth; }
     std::vector<float>& freezeValues() { return mFreeze; }
     /// A prescribed wind (PDE units: cells of spacing h per unit of ice time) that advects the
@@ -195,6 +200,8 @@ private:
     std::vector<char> mInStepped;                 ///< per leaf slot
     std::vector<uint32_t> mStepped;               ///< leaf slots stepped (sorted)
     std::vector<uint32_t> mTouched;               ///< leaf slots written by others since the last scan
+    std::vector<uint8_t> mCrossed;                ///< per leaf slot: p crossed 1/2 since takeCrossedLeaves
+    bool mCrossedAll = true;                      ///< unknown which: every leaf may have
     std::vector<float> mPhi;                      ///< extendPhase's atanh(2p - 1)
     size_t mSlotsSeen = 0;                        ///< leaf slots scanned for heat so far
     // lw_cn

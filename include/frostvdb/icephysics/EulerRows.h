@@ -9,7 +9,7 @@
 ///    has AVX2 and the stencil is the square plane's). The same IEEE operations in the same
 ///    order per cell (no FMA, no reassociation, std::min/max's operand order, libm atan per
 ///    cell), so both builds give the same bits; the tests compare them bit for bit.
-#include <frostvdb/ice/Kobayashi.h>
+#include <frostvdb/icephysics/Kobayashi.h>
 
 #include <cstddef>
 

@@ -28,7 +28,7 @@
 /// Both stop when the residual's max norm is at most the tolerance (GS measures the residual
 /// of each equation as it updates it; BiCGSTAB's 2-norm criterion is set to imply it).
 #include <frostvdb/core/Lattice.h>
-#include <frostvdb/ice/Kobayashi.h> // canonicalSum
+#include <frostvdb/icephysics/Kobayashi.h> // canonicalSum
 
 #include <openvdb/openvdb.h>
 #include <openvdb/tree/LeafManager.h>

@@ -1,4 +1,4 @@
-#include <frostvdb/ice/EulerRows.h>
+#include <frostvdb/icephysics/EulerRows.h>
 
 #include <cmath>
 #include <cstdlib>

@@ -1,4 +1,4 @@
-#include <frostvdb/ice/ImplicitSystem.h>
+#include <frostvdb/icephysics/ImplicitSystem.h>
 
 #include <Eigen/Sparse>
 

@@ -1,4 +1,4 @@
-#include <frostvdb/ice/IceState.h>
+#include <frostvdb/icephysics/IceState.h>
 
 #include <frostvdb/core/PlaneFold.h>
 
