@@ -1,6 +1,8 @@
 /// @file ShellGrids.cpp
 #include <frostvdb/shell/ShellGrids.h>
 
+#include <frostvdb/core/FieldKeys.h>
+
 #include <openvdb/tools/Composite.h>
 #include <openvdb/tools/MeshToVolume.h>
 #include <openvdb/tools/Prune.h>
@@ -101,7 +103,7 @@ openvdb::FloatGrid::Ptr frostFogOnNodes(const ShellBand& band, const std::vector
     });
     auto grid = openvdb::FloatGrid::create(0.f);
     grid->setTransform(band.transform()->copy());
-    grid->setName("ice");
+    grid->setName(out::kIce.name);
     for (auto& t : parts) { // one tree per thread; the max does not depend on the order
         openvdb::FloatGrid part(t);
         openvdb::tools::compMax(*grid, part);
@@ -161,7 +163,7 @@ openvdb::FloatGrid::Ptr frostLevelSetOnNodes(const ShellBand& band, const std::v
     }
     openvdb::tools::pruneLevelSet(grid->tree());
     grid->setGridClass(openvdb::GRID_LEVEL_SET);
-    grid->setName("ice_sdf");
+    grid->setName(out::kIceSdf.name);
     return grid;
 }
 
@@ -178,7 +180,7 @@ openvdb::FloatGrid::Ptr frostFog(const ShellBand& band, const std::vector<float>
         const double th = band.frostThickness() * std::min(1.0, double(std::max({0.f, growth[i], p[i]})));
         fog[i] = float(ramp(p[i]) * ramp(s + 0.5) * ramp(th - s + 0.5));
     }
-    auto grid = toGrid(band, fog, 0.f, "ice");
+    auto grid = toGrid(band, fog, 0.f, out::kIce.name);
     openvdb::tree::LeafManager<openvdb::FloatTree> leaves(grid->tree());
     leaves.foreach([](openvdb::FloatTree::LeafNodeType& leaf, size_t) {
         for (openvdb::Index n = 0; n < openvdb::FloatTree::LeafNodeType::SIZE; ++n)
@@ -214,7 +216,7 @@ openvdb::FloatGrid::Ptr frostLevelSet(const openvdb::FloatGrid& fog)
         sdf = openvdb::tools::meshToLevelSet<openvdb::FloatGrid>(fog.transform(), points, triangles, quads, 3.0f);
     }
     sdf->setGridClass(openvdb::GRID_LEVEL_SET);
-    sdf->setName("ice_sdf");
+    sdf->setName(out::kIceSdf.name);
     return sdf;
 }
 
