@@ -52,8 +52,6 @@ OVERRIDES = {
     "hero_windshield": {"domain.voxel_size": "0.004"},  # 1.4 x 0.8 m of glass: 8 times coarser
     "hero_pint_glass": {"domain.voxel_size": "0.0008"},  # 0.1 mm: 8 times coarser
     "hero_ornament": {"domain.voxel_size": "0.0008"},    # 0.1 mm: 8 times coarser
-    # as shipped the scene is refused (its potential wind needs the closest-point band)
-    "shell_sphere_walkers": {"domain.discretisation": "closest_point"},
 }
 # Scenes that are expected to fail (their exit code is recorded, not their grids).
 EXPECT_FAIL = {"unstable_refused"}
