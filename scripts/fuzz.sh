@@ -51,10 +51,13 @@ run() { # target seconds-or-empty runs-or-empty
   echo "fuzz: $target ${secs:+for $secs s}${runs:+for $runs runs}" >&2
   # leaks: OpenVDB's registries are process-lifetime; a leak is not what we hunt here
   ASAN_OPTIONS=detect_leaks=0:allocator_may_return_null=0 \
-    $b/bin/frostvdb_fuzz_$target "${extra[@]}" -timeout=10 -rss_limit_mb=2048 -max_len=65536 \
+    $b/bin/frostvdb_fuzz_$target "${extra[@]}" -timeout=30 -rss_limit_mb=2048 -max_len=65536 \
       -artifact_prefix=$b/crashes/$target- -print_final_stats=1 $b/corpus/$target 2>&1 |
-    grep -E "^(#[0-9]+ *(DONE|INITED)|stat::|==[0-9]+==ERROR|SUMMARY|artifact_prefix|Test unit written|frostvdb fuzz)" || true
-  return "${PIPESTATUS[0]}"
+    grep -E "^(#[0-9]+ *(DONE|INITED)|stat::|==[0-9]+== ?ERROR|SUMMARY|artifact_prefix|Test unit written|frostvdb fuzz)"
+  # the fuzzer's own status (read at once: a `|| true` here used to reset PIPESTATUS, so that
+  # with pipefail a failing fuzzer, a timeout or a crash, still returned 0)
+  local codes=("${PIPESTATUS[@]}")
+  return "${codes[0]}"
 }
 
 if [ "${1:-}" = "--runs" ]; then
