@@ -114,6 +114,14 @@ const VoxelFrame* frameWith(const ShellBand& b, IndexAccessor& acc, const Vec3d&
     return id < 0 ? nullptr : &b.frame(size_t(id));
 }
 
+/// Surface nodes: the node a stick point at @a x flags (nearest, closest point within half a
+/// voxel), or -1.
+int32_t nodeOfStick(const ShellBand& b, IndexAccessor& acc, const Vec3d& x)
+{
+    const int32_t k = nodeNear(b, acc, x);
+    return k >= 0 && (b.closestPoint(size_t(k)) - x).lengthSqr() < 0.25 ? k : -1;
+}
+
 /// Moves @a x by @a length along the tangent direction @a dir: sub-steps each projected back to
 /// the surface, the direction carried to the new tangent plane (a discrete geodesic). A sub-step
 /// of s leaves the surface by about s^2 kappa / 2: its length follows the curvature kappa measured
@@ -350,7 +358,7 @@ ShellWalkers::ShellWalkers(std::shared_ptr<const ShellBand> band, const ice::Dla
     for (size_t i = 0; i < b.size(); ++i) {
         // beyond an open border (near the surface's plane): the closest point is on the border
         if (open && b.lateralOffset(i) > 0.5f && std::fabs(b.normalOffset(i)) <= 1.0f) mBorder.insert(b.closestPoint(i));
-        else if (std::fabs(b.normalOffset(i)) <= 0.5f && b.lateralOffset(i) <= 0.25f) mLayer.push_back(i);
+        else if (inLayer(i)) mLayer.push_back(i);
     }
     if (open && b.surfaceNodes()) // no voxels beyond the border: the border edges themselves
         for (size_t e = 0; e < b.borderEdgeCount(); ++e) {
@@ -376,25 +384,22 @@ void ShellWalkers::sync(const std::vector<float>& p)
     mIce.assign(ice);
 }
 
-int32_t ShellWalkers::nodeOfStick(const Vec3d& x) const
-{
-    if (mIceNode.empty()) return -1;
-    auto acc = mBand->indexGrid().getConstAccessor();
-    const int32_t k = nodeNear(*mBand, acc, x);
-    return k >= 0 && (mBand->closestPoint(size_t(k)) - x).lengthSqr() < 0.25 ? k : -1;
-}
-
 void ShellWalkers::addIce(const Vec3d& x)
 {
     mIce.insert(x);
-    if (const int32_t k = nodeOfStick(x); k >= 0) mIceNode[size_t(k)] = 1;
+    if (mIceNode.empty()) return;
+    auto acc = mBand->indexGrid().getConstAccessor();
+    if (const int32_t k = nodeOfStick(*mBand, acc, x); k >= 0) mIceNode[size_t(k)] = 1;
 }
 
 void ShellWalkers::forgetSticks(const std::vector<Vec3d>& sticks, const std::vector<float>& p)
 {
+    auto acc = mBand->indexGrid().getConstAccessor();
     for (const Vec3d& x : sticks) {
         mIce.erase(x); // one copy: a stick on a node's closest point leaves the node's own
-        if (const int32_t k = nodeOfStick(x); k >= 0) mIceNode[size_t(k)] = inLayer(size_t(k)) && p[size_t(k)] > 0.5f;
+        if (mIceNode.empty()) continue;
+        if (const int32_t k = nodeOfStick(*mBand, acc, x); k >= 0)
+            mIceNode[size_t(k)] = inLayer(size_t(k)) && p[size_t(k)] > 0.5f;
     }
 }
 

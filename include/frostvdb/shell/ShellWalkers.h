@@ -213,9 +213,6 @@ private:
     SurfacePointIndex mIce, mBorder;
     /// Surface nodes: 1 where the node is ice (its closest point is in mIce), for the graph step.
     std::vector<uint8_t> mIceNode;
-    /// Surface nodes: the node a stick point at @a x flags (nearest, closest point within half a
-    /// voxel), or -1.
-    int32_t nodeOfStick(const openvdb::Vec3d& x) const;
     /// A surface-layer voxel: a release site, and ice when p > 1/2.
     bool inLayer(size_t i) const
     {
