@@ -415,7 +415,7 @@ void Simulation::publishFields()
     for (auto& e : mEffects) e->publishFields(mWorld);
 }
 
-Frame Simulation::currentFrame(int64_t frameNumber)
+Frame Simulation::buildFrame(int64_t frameNumber)
 {
     initialize();
     Frame frame;
@@ -423,12 +423,30 @@ Frame Simulation::currentFrame(int64_t frameNumber)
     frame.step = mStep;
     for (auto& e : mEffects)
         if (e->time() > 0.0) { frame.time = e->time(); break; }
-    for (auto& e : mEffects) atEffect(*e, "output", [&] { e->publishFields(mWorld); });
+    // No publishFields: an effect that keeps its fields elsewhere makes its grids from them.
     for (auto& e : mEffects) {
         atEffect(*e, "output", [&] { e->addToFrame(mWorld, frame); });
         traceMemory("output", e->name(), mStep);
     }
     return frame;
+}
+
+Frame Simulation::currentFrame(int64_t frameNumber)
+{
+    Frame frame = buildFrame(frameNumber);
+    frame.makeDeferred();
+    return frame;
+}
+
+uint64_t Simulation::fieldActiveVoxels() const
+{
+    std::map<std::string, uint64_t> perField;
+    for (const auto& name : mWorld.fields.names()) perField[name] = mWorld.fields.grid(name)->activeVoxelCount();
+    if (mInitialized)
+        for (const auto& e : mEffects) e->countKeptFields(perField);
+    uint64_t n = 0;
+    for (const auto& [name, count] : perField) n += count;
+    return n;
 }
 
 std::string Simulation::writeFrame(const Frame& frame, const std::string& dir)
@@ -766,10 +784,13 @@ void Simulation::returnFreePages()
 /// Writes frame @a f's files; each is listed in the summary only once it is complete.
 void Simulation::writeFrameOutputs(int64_t f, int64_t last, const std::string& dir, RunSummary& sum)
 {
-    Frame frame = currentFrame(f);
-    sum.activeVoxels.emplace_back(mStep, mWorld.fields.activeVoxels()); // the fields as published for this frame
+    Frame frame = buildFrame(f);
+    sum.activeVoxels.emplace_back(mStep, fieldActiveVoxels());
     // The PNGs first and the VDB last, so that it can consume the frame (one resampled grid at
-    // a time); the summary lists them in the usual order.
+    // a time); the summary lists them in the usual order. The grids the PNGs read are made now
+    // if an effect deferred them.
+    if (mOutput.displacementPng && mWorld.domain.flat()) frame.makeNamed(out::kGrowth.name);
+    if (mOutput.preview && !mOutput.previewGrid.empty()) frame.makeNamed(mOutput.previewGrid);
     const std::vector<std::string> displacement = writeDisplacement(frame, dir);
     std::string preview;
     if (mOutput.preview && (mOutput.previewEvery || f == last)) preview = writeFramePreview(frame, f, dir);
@@ -806,8 +827,7 @@ void Simulation::simulateFrames(int64_t first, int64_t last, const RunOptions& o
             progress.update(++done, f, last);
         }
         if (f < first || !opt.writeFiles) {
-            publishFields(); // effects that keep their state elsewhere (a shell's band arrays) write it back
-            sum.activeVoxels.emplace_back(mStep, mWorld.fields.activeVoxels());
+            sum.activeVoxels.emplace_back(mStep, fieldActiveVoxels());
             continue;
         }
         const auto t0 = Clock::now();

@@ -135,6 +135,11 @@ void PhaseFieldEffect::step(World& world, const StepInfo& info)
 
 void PhaseFieldEffect::publishFields(World& world) { mBackend->publishFields(world); }
 
+void PhaseFieldEffect::countKeptFields(std::map<std::string, uint64_t>& activeByField) const
+{
+    mBackend->countKeptFields(activeByField);
+}
+
 void PhaseFieldEffect::addToFrame(World& world, Frame& frame)
 {
     mBackend->addToFrame(world, frame); // ice::addIceOutputs and the back end's own grids

@@ -90,16 +90,21 @@ openvdb::GridBase::Ptr iceFog(const openvdb::FloatGrid& p)
 openvdb::GridBase::Ptr normalisedGrowth(const openvdb::FloatGrid& acc)
 {
     auto growth = plane::isFolded(acc) ? plane::unfoldGrid(acc) : acc.deepCopy();
-    const float mx = growth->activeVoxelCount() > 0 ? openvdb::tools::minMax(growth->tree()).max() : 0.f;
-    const float scale = mx > 0 ? 1.f / mx : 0.f;
-    openvdb::tools::foreach(growth->beginValueOn(), [scale](const openvdb::FloatGrid::ValueOnIter& it) {
-        it.setValue(std::min(1.f, *it * scale));
-    });
-    growth->setName(out::kGrowth.name);
+    normaliseGrowth(*growth);
     return growth;
 }
 
 } // namespace
+
+void normaliseGrowth(openvdb::FloatGrid& growth)
+{
+    const float mx = growth.activeVoxelCount() > 0 ? openvdb::tools::minMax(growth.tree()).max() : 0.f;
+    const float scale = mx > 0 ? 1.f / mx : 0.f;
+    openvdb::tools::foreach(growth.beginValueOn(), [scale](const openvdb::FloatGrid::ValueOnIter& it) {
+        it.setValue(std::min(1.f, *it * scale));
+    });
+    growth.setName(out::kGrowth.name);
+}
 
 void addIceOutputs(World& world, Frame& frame)
 {

@@ -61,6 +61,12 @@ inline double tapSum(const ShellBand& b, const float* u, size_t i)
 inline double reactionAt(const KobayashiParams& k, const ShellBand& b, const std::vector<float>& melt, size_t i,
                          double p0, double t0v, uint64_t seed, int64_t stepIndex)
 {
+    // p(1 - p) is exactly 0 in the ice (p = 1) and in the heat halo away from it (p = 0): the
+    // reaction is a zero whatever m(T) is, so its atan (9 % of a pane's samples) is skipped. The
+    // zero's sign may differ from the full product's, which no stored value can show: it is added
+    // to a p of exactly 0 or 1 and, times K, to T.
+    const double weight = p0 * (1.0 - p0);
+    if (weight == 0.0) return weight;
     const double Te = k.localMeltTemperature(melt.empty() ? 1.0 : double(melt[i]));
     const double m = k.alpha / M_PI * std::atan(k.gamma * (Te - t0v));
     double chi = 0;
@@ -68,7 +74,7 @@ inline double reactionAt(const KobayashiParams& k, const ShellBand& b, const std
         const openvdb::Coord& c = b.coord(i);
         chi = toUnit(hashCounters(seed, uint64_t(stepIndex), coordKey(c.x(), c.y(), c.z()))) - 0.5;
     }
-    return p0 * (1.0 - p0) * (p0 - 0.5 + m + k.noise * chi);
+    return weight * (p0 - 0.5 + m + k.noise * chi);
 }
 /// The accumulated growth (positive dp) and the time p first exceeded 1/2, after a step.
 inline void recordGrowth(float& growth, float& freeze, float dp, float p, float time)
@@ -160,11 +166,12 @@ void ShellPhaseField::grow()
     double eps0, epsPrime0;
     mAniso(0.0, 0.0, eps0, epsPrime0);
     // lw_cn fades the anisotropy out where p is flat (the plane's kobayashiEpsSquared): eps_bar
-    mA.resize(n, mParams.scheme == PhaseFieldScheme::SecondOrder ? float(mParams.epsBar * mParams.epsBar)
-                                                                 : float(eps0 * eps0));
     if (b.surfaceNodes()) { // the surface-node step needs no extension or lw_cn arrays
-        for (auto* v : {&mPn, &mTn, &mCx, &mCy, &mCz, &mGx, &mGy}) v->resize(n, 0.f);
+        mCoef.resize(n, SurfaceCoefficients{float(eps0 * eps0), 0.f, 0.f, 0.f});
+        for (auto* v : {&mPn, &mTn, &mGx, &mGy}) v->resize(n, 0.f);
     } else {
+        mA.resize(n, mParams.scheme == PhaseFieldScheme::SecondOrder ? float(mParams.epsBar * mParams.epsBar)
+                                                                     : float(eps0 * eps0));
         mStartP.resize(n, 0.f);
         mStartT.resize(n, tInf);
         mPe.resize(n, 0.f);
@@ -492,14 +499,11 @@ void ShellPhaseField::stepSurface(double time, int64_t stepIndex, uint64_t seed,
         mAniso(gu, gv, eps, epsPrime);
         // n x (gu t + gv b) = gu b - gv t
         const openvdb::Vec3d c = (f.bitangent * gu - f.tangent * gv) * (eps * epsPrime);
-        mA[i] = float(eps * eps);
-        mCx[i] = float(c.x());
-        mCy[i] = float(c.y());
-        mCz[i] = float(c.z());
+        mCoef[i] = SurfaceCoefficients{float(eps * eps), float(c.x()), float(c.y()), float(c.z())};
         mGx[i] = float(gu);
         mGy[i] = float(gv);
     });
-    const float* A = mA.data();
+    const SurfaceCoefficients* C = mCoef.data();
     const float tNext = float(time);
     const float tInf = float(k.farTemperature);
     b.forEachVoxel(&mStepped, [&](size_t i) {
@@ -509,20 +513,20 @@ void ShellPhaseField::stepSurface(double time, int64_t stepIndex, uint64_t seed,
             return;
         }
         const VoxelFrame& f = b.frame(i);
-        const double p0 = P[i], t0v = T[i], a0 = A[i];
-        const openvdb::Vec3d c0(mCx[i], mCy[i], mCz[i]);
+        const double p0 = P[i], t0v = T[i], a0 = C[i].a;
+        const openvdb::Vec3d c0(C[i].cx, C[i].cy, C[i].cz);
         const double ct0 = c0.dot(f.tangent), cb0 = c0.dot(f.bitangent);
         double lapP = 0, lapT = 0, dau = 0, dav = 0, divC = 0, dtu = 0, dtv = 0;
         for (const SurfaceTap* t = b.tapsBegin(i); t != b.tapsEnd(i); ++t) {
             const size_t j = size_t(t->node);
-            const double dp = double(P[j]) - p0, dT = double(T[j]) - t0v, da = double(A[j]) - a0;
+            const double dp = double(P[j]) - p0, dT = double(T[j]) - t0v, da = double(C[j].a) - a0;
             lapP += t->lap * dp;
             lapT += t->lap * dT;
             dau += t->du * da;
             dav += t->dv * da;
             dtu += t->du * dT;
             dtv += t->dv * dT;
-            const openvdb::Vec3d cj(mCx[j], mCy[j], mCz[j]);
+            const openvdb::Vec3d cj(C[j].cx, C[j].cy, C[j].cz);
             divC += t->du * (cj.dot(f.tangent) - ct0) + t->dv * (cj.dot(f.bitangent) - cb0);
         }
         const double div = (a0 * lapP) * invH2 + (dau * mGx[i] + dav * mGy[i]) * invH + divC * invH;

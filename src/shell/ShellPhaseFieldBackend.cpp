@@ -97,20 +97,40 @@ public:
 
     void publishFields(World& world) override { scatter(world); }
 
-    void addToFrame(World& world, Frame& frame) override
+    void countKeptFields(std::map<std::string, uint64_t>& activeByField) const override
     {
+        // toGrid's topology: the band's voxels off the background
+        auto offBackground = [](const std::vector<float>& values, float background) {
+            uint64_t n = 0;
+            for (float v : values) n += v != background;
+            return n;
+        };
+        activeByField[ice::kPhase.name] = offBackground(mShell->p(), 0.f);
+        activeByField[ice::kTemperature.name] = offBackground(mShell->T(), float(mSetup.params.farTemperature));
+        activeByField[ice::kGrowth.name] = offBackground(mShell->growthValues(), 0.f);
+        activeByField[ice::kFreezeTime.name] = offBackground(mShell->freezeValues(), 0.f);
+    }
+
+    /// The frame's grids straight from the band arrays (World's grids are not published for a
+    /// frame): `ice` now (the preview draws it), the rest deferred (Frame::addDeferred), each made
+    /// as the writer reaches it, so a frame holds the fog and one other grid at a time.
+    void addToFrame(World&, Frame& frame) override
+    {
+        const ShellBand& band = mShell->band();
         // `ice` is the frost layer grown outward along the normal (not p on the band).
-        auto fog = frostFog(mShell->band(), mShell->p(), mShell->growthValues());
+        auto fog = frostFog(band, mShell->p(), mShell->growthValues());
         bool replaced = false;
         for (auto& g : frame.grids)
             if (g->getName() == out::kIce.name) g = fog, replaced = true;
         if (!replaced) { // else another effect wrote the ice outputs already
             frame.add(fog);
-            ice::addIceFieldOutputs(world, frame);
+            addFieldOutputs(frame);
         }
-        const ShellBand& band = mShell->band();
-        frame.add(band.surfaceNodes() ? frostLevelSetOnNodes(band, mShell->p(), mShell->growthValues())
-                                      : frostLevelSet(*fog));
+        if (band.surfaceNodes())
+            frame.addDeferred(out::kIceSdf, [this] {
+                return frostLevelSetOnNodes(mShell->band(), mShell->p(), mShell->growthValues());
+            });
+        else frame.add(frostLevelSet(*fog));
     }
 
     bool writePreview(World&, const Frame& frame, const std::string& pngPath) override
@@ -214,6 +234,25 @@ private:
         // the arrays now hold what these grids hold: read them again only when someone replaces them
         mP = world.fields.get<openvdb::FloatGrid>(ice::kPhase);
         mT = world.fields.get<openvdb::FloatGrid>(ice::kTemperature);
+    }
+
+    /// `ice_temperature`, `growth` and `freeze_time` as ice::addIceFieldOutputs writes them from
+    /// the published fields, made from the band arrays when the writer reaches them.
+    void addFieldOutputs(Frame& frame) const
+    {
+        frame.addDeferred(out::kIceTemperature, [this] {
+            auto T = toGrid(mShell->band(), mShell->T(), float(mSetup.params.farTemperature), out::kIceTemperature.name);
+            T->setGridClass(openvdb::GRID_UNKNOWN); // dimensionless: not the gas's Kelvin
+            return T;
+        });
+        frame.addDeferred(out::kGrowth, [this] {
+            auto growth = toGrid(mShell->band(), mShell->growthValues(), 0.f, ice::kGrowth.name);
+            ice::normaliseGrowth(*growth);
+            return growth;
+        });
+        frame.addDeferred(out::kFreezeTime, [this] {
+            return toGrid(mShell->band(), mShell->freezeValues(), 0.f, out::kFreezeTime.name);
+        });
     }
 
     /// The band arrays into World's grids.

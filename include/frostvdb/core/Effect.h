@@ -122,22 +122,49 @@ struct Frame {
         remake.push_back(std::move(again));
         grids.push_back(std::move(g));
     }
+    /// Adds a float grid named by @a key that @a make builds from its effect's own state only when
+    /// it is needed: the run loop's frame holds an empty placeholder of that name until the VDB
+    /// writer (or a PNG that asks for it by name, makeNamed) makes it, so a frame being written
+    /// holds one such grid at a time (a shell's outputs: docs/shells.md "Memory"). The effect's
+    /// state must not change before then: the run loop writes a frame before the next step, and
+    /// Simulation::currentFrame makes every deferred grid before it hands a frame out.
+    void addDeferred(const FieldKey& key, std::function<openvdb::GridBase::Ptr()> make)
+    {
+        auto placeholder = openvdb::FloatGrid::create();
+        addCopy(key, placeholder, std::move(make));
+        deferred.resize(grids.size(), false);
+        deferred.back() = true;
+    }
     /// Drops the grids addCopy made that can be made again (still the grids it made).
     void dropCopies()
     {
         for (size_t i = 0; i < remake.size(); ++i)
             if (remake[i] && grids[i] && grids[i].get() == made[i]) grids[i].reset();
     }
-    /// Grid @a i, made again if dropCopies dropped it.
+    /// Grid @a i, made again if dropCopies dropped it, or made for the first time if deferred.
     openvdb::GridBase::Ptr grid(size_t i)
     {
+        if (i < deferred.size() && deferred[i] && grids[i] && grids[i].get() == made[i]) grids[i].reset();
         if (!grids[i] && i < remake.size() && remake[i]) grids[i] = remake[i]();
+        if (i < deferred.size()) deferred[i] = false;
         return grids[i];
+    }
+    /// Makes the deferred grids named @a name (for a PNG that reads it).
+    void makeNamed(const std::string& name)
+    {
+        for (size_t i = 0; i < grids.size(); ++i)
+            if (grids[i] && grids[i]->getName() == name) grid(i);
+    }
+    /// Makes every deferred grid (a frame handed to a caller holds real grids only).
+    void makeDeferred()
+    {
+        for (size_t i = 0; i < deferred.size(); ++i) grid(i);
     }
 
 private:
     std::vector<std::function<openvdb::GridBase::Ptr()>> remake; ///< per grid; empty: not remakeable
     std::vector<const openvdb::GridBase*> made;                  ///< the grid addCopy made
+    std::vector<bool> deferred;                                  ///< per grid: a placeholder until made
 };
 
 /// Where an effect runs in a step: the ice paper's order (section 4), after the sources whose
@@ -183,9 +210,14 @@ public:
     /// Adds this effect's output grids to a frame.
     virtual void addToFrame(World& world, Frame& frame) = 0;
     /// Brings World's fields up to date before the driver reads them outside the step loop (a
-    /// frame, a checkpoint). An effect that keeps fields in its own layout between steps (the
-    /// phase field on a shell keeps them in band order) writes them back here. Default: nothing.
+    /// checkpoint, a caller of Simulation::world()). An effect that keeps fields in its own layout
+    /// between steps (the phase field on a shell keeps them in band order) writes them back here;
+    /// its addToFrame makes the frame's grids from its own state (frames do not publish: the
+    /// published grids would be held beside the frame's). Default: nothing.
     virtual void publishFields(World& world) { (void)world; }
+    /// The active voxels of the fields such an effect keeps in its own layout (what publishFields
+    /// would write), by field name: the driver counts a frame's fields without publishing them.
+    virtual void countKeptFields(std::map<std::string, uint64_t>& activeByField) const { (void)activeByField; }
     /// False for effects whose frame N is a pure function of N (procedural gas): the driver may
     /// then skip the steps of frames that are not written.
     virtual bool needsHistory() const { return true; }

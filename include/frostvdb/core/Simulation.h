@@ -155,8 +155,11 @@ public:
     int64_t stepsTaken() const { return mStep; }
     /// Initialisation and step order (indices into effects()), derived from the declarations.
     const EffectOrder& order() const { return mOrder; }
-    /// Gathers the current frame's grids without writing.
+    /// Gathers the current frame's grids without writing (every grid made: none deferred).
     Frame currentFrame(int64_t frameNumber);
+    /// Active voxels over all fields as they stand now: World's grids, and what effects that keep
+    /// fields in their own layout would publish (Effect::countKeptFields), without publishing.
+    uint64_t fieldActiveVoxels() const;
     /// Writes a frame file (+ metadata) and returns its path. Grids of a hexagonal domain are
     /// resampled to a square grid unless output.keep_lattice (core/Export.h).
     std::string writeFrame(const Frame& frame, const std::string& dir);
@@ -197,6 +200,9 @@ private:
     void simulateFrames(int64_t first, int64_t last, const RunOptions& opt, const std::string& dir,
                         RunSummary& sum);
     static void returnFreePages();
+    /// The frame as the run loop writes it: grids an effect deferred (Frame::addDeferred) are made
+    /// only as the writer reaches them.
+    Frame buildFrame(int64_t frameNumber);
     void writeFrameOutputs(int64_t f, int64_t last, const std::string& dir, RunSummary& sum);
     std::string writeFramePreview(const Frame& frame, int64_t f, const std::string& dir);
     void finishSummary(RunSummary& sum) const;

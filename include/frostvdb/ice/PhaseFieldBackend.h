@@ -42,6 +42,7 @@ public:
     /// One scene step (all its substeps) from time @a time; @a step: the scene step index.
     virtual void step(World& world, int64_t step, double time) = 0;
     virtual void publishFields(World& world) { (void)world; }
+    virtual void countKeptFields(std::map<std::string, uint64_t>& activeByField) const { (void)activeByField; }
     /// The effect's output grids: ice::addIceOutputs and the back end's own.
     virtual void addToFrame(World& world, Frame& frame) = 0;
     virtual bool writePreview(World& world, const Frame& frame, const std::string& pngPath)

@@ -25,6 +25,7 @@ public:
     void step(World& world, const StepInfo& info) override;
     void addToFrame(World& world, Frame& frame) override;
     void publishFields(World& world) override;
+    void countKeptFields(std::map<std::string, uint64_t>& activeByField) const override;
     /// On a shell with frost_mesh set: writes the frost layer as OBJ/PLY beside the preview.
     bool writePreview(World& world, const Frame& frame, const std::string& pngPath) override;
     double time() const override { return mTime; }

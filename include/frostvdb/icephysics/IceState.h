@@ -59,6 +59,9 @@ void addIceOutputs(World& world, Frame& frame);
 /// The same without `ice`, for a domain that writes its own (a shell's frost layer): computing
 /// the fog of p only to replace it cost a band-sized grid at every frame.
 void addIceFieldOutputs(World& world, Frame& frame);
+/// The `growth` output in place: the accumulated growth @a acc scaled to a maximum of 1 (plane
+/// layout), named by its output key.
+void normaliseGrowth(openvdb::FloatGrid& acc);
 
 } // namespace ice
 } // namespace frostvdb
