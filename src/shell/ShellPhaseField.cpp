@@ -61,12 +61,6 @@ inline double tapSum(const ShellBand& b, const float* u, size_t i)
 inline double reactionAt(const KobayashiParams& k, const ShellBand& b, const std::vector<float>& melt, size_t i,
                          double p0, double t0v, uint64_t seed, int64_t stepIndex)
 {
-    // p(1 - p) is exactly 0 in the ice (p = 1) and in the heat halo away from it (p = 0): the
-    // reaction is a zero whatever m(T) is, so its atan (9 % of a pane's samples) is skipped. The
-    // zero's sign may differ from the full product's, which no stored value can show: it is added
-    // to a p of exactly 0 or 1 and, times K, to T.
-    const double weight = p0 * (1.0 - p0);
-    if (weight == 0.0) return weight;
     const double Te = k.localMeltTemperature(melt.empty() ? 1.0 : double(melt[i]));
     const double m = k.alpha / M_PI * std::atan(k.gamma * (Te - t0v));
     double chi = 0;
@@ -74,7 +68,7 @@ inline double reactionAt(const KobayashiParams& k, const ShellBand& b, const std
         const openvdb::Coord& c = b.coord(i);
         chi = toUnit(hashCounters(seed, uint64_t(stepIndex), coordKey(c.x(), c.y(), c.z()))) - 0.5;
     }
-    return weight * (p0 - 0.5 + m + k.noise * chi);
+    return p0 * (1.0 - p0) * (p0 - 0.5 + m + k.noise * chi);
 }
 /// The accumulated growth (positive dp) and the time p first exceeded 1/2, after a step.
 inline void recordGrowth(float& growth, float& freeze, float dp, float p, float time)
