@@ -500,40 +500,40 @@ void ShellPhaseField::stepSurface(double time, int64_t stepIndex, uint64_t seed,
     const SurfaceCoefficients* C = mCoef.data();
     const float tNext = float(time);
     const float tInf = float(k.farTemperature);
-    b.forEachVoxel(&mStepped, [&](size_t i) {
+    // pass 2: node i's update from its tap sums (shell/SurfaceTapSums.h: four nodes at a time)
+    auto update = [&](size_t i, const TapSums& s) {
         if (b.ghost(i)) { // beyond an open border: the background, as outside a plane
             mPn[i] = 0.f;
             mTn[i] = tInf;
             return;
         }
-        const VoxelFrame& f = b.frame(i);
         const double p0 = P[i], t0v = T[i], a0 = C[i].a;
-        const openvdb::Vec3d c0(C[i].cx, C[i].cy, C[i].cz);
-        const double ct0 = c0.dot(f.tangent), cb0 = c0.dot(f.bitangent);
-        double lapP = 0, lapT = 0, dau = 0, dav = 0, divC = 0, dtu = 0, dtv = 0;
-        for (const SurfaceTap* t = b.tapsBegin(i); t != b.tapsEnd(i); ++t) {
-            const size_t j = size_t(t->node);
-            const double dp = double(P[j]) - p0, dT = double(T[j]) - t0v, da = double(C[j].a) - a0;
-            lapP += t->lap * dp;
-            lapT += t->lap * dT;
-            dau += t->du * da;
-            dav += t->dv * da;
-            dtu += t->du * dT;
-            dtv += t->dv * dT;
-            const openvdb::Vec3d cj(C[j].cx, C[j].cy, C[j].cz);
-            divC += t->du * (cj.dot(f.tangent) - ct0) + t->dv * (cj.dot(f.bitangent) - cb0);
-        }
-        const double div = (a0 * lapP) * invH2 + (dau * mGx[i] + dav * mGy[i]) * invH + divC * invH;
+        const double div = (a0 * s.lapP) * invH2 + (s.dau * mGx[i] + s.dav * mGy[i]) * invH + s.divC * invH;
         const double reaction = reactionAt(k, b, mMelt, i, p0, t0v, seed, stepIndex);
         const double dp = k.dt / k.tau * (div + reaction);
         const float pNew = float(p0 + dp);
         mPn[i] = pNew;
-        double heat = lapT * invH2;
+        double heat = s.lapT * invH2;
         if (!mWind.empty()) {
+            const VoxelFrame& f = b.frame(i);
             const double wu = f.tangent.dot(mWind[i]), wv = f.bitangent.dot(mWind[i]);
-            heat += -(wu * dtu + wv * dtv) * invH + 0.5 * std::sqrt(wu * wu + wv * wv) * lapT * invH;
+            heat += -(wu * s.dtu + wv * s.dtv) * invH + 0.5 * std::sqrt(wu * wu + wv * wv) * s.lapT * invH;
         }
         mTn[i] = float(t0v + k.dt * heat + k.latentHeat * dp);
+    };
+    const TapSums4 sums4 = fastestTapSums4();
+    const auto& slots = b.leaves();
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, mStepped.size(), 2), [&](const tbb::blocked_range<size_t>& r) {
+        TapSums s[4];
+        for (size_t q = r.begin(); q < r.end(); ++q) {
+            const ShellBand::Leaf& l = slots[mStepped[q]];
+            size_t i = l.begin;
+            for (; i + 4 <= l.end; i += 4) {
+                sums4(b, P, T, C, i, s);
+                for (size_t n = 0; n < 4; ++n) update(i + n, s[n]);
+            }
+            for (; i < l.end; ++i) update(i, tapSums(b, P, T, C, i));
+        }
     });
     const auto t1 = Clock::now();
     // the new values become the fields, growth and freeze time recorded: a pass of its own (fused

@@ -39,6 +39,7 @@
 /// depend on the thread count.
 #include <frostvdb/icephysics/Kobayashi.h>
 #include <frostvdb/shell/ShellBand.h>
+#include <frostvdb/shell/SurfaceTapSums.h>
 #include <frostvdb/shell/ShellImplicit.h>
 
 #include <functional>
@@ -191,13 +192,7 @@ private:
     std::vector<float> mP, mT, mPn, mTn, mPOld, mGrowth, mFreeze, mMelt;
     uint64_t mUpdateCount = 0; ///< voxels in the update set
     std::vector<float> mA, mCx, mCy, mCz, mGx, mGy, mGz;
-    /// Surface nodes: pass 1's coefficients of a node, read by its neighbours' pass 2 (one cache
-    /// line holds four nodes' where four arrays took four lines per tap).
-    struct SurfaceCoefficients {
-        float a;          ///< eps^2
-        float cx, cy, cz; ///< C = eps eps' (n x grad p), a world vector
-    };
-    std::vector<SurfaceCoefficients> mCoef;
+    std::vector<SurfaceCoefficients> mCoef; ///< surface nodes: pass 1's coefficients (shell/SurfaceTapSums.h)
     std::vector<openvdb::Vec3f> mWind; ///< tangential wind per voxel (empty: none)
     openvdb::Vec3d mWindWorld{0.0};
     bool mActive = false, mDirty = true;

@@ -1,0 +1,43 @@
+#pragma once
+/// @file SurfaceTapSums.h
+/// @brief The surface-node Euler step's second pass over a node's stencil taps
+/// (ShellPhaseField::stepSurface): the seven sums of differences to the neighbours that the
+/// node's update reads (about two thirds of the step's arithmetic: 40 double operations per tap).
+/// One node at a time, or four consecutive nodes at once on AVX2, which
+/// gives the same bits: each lane does the scalar code's IEEE operations on the same operands in
+/// the same order (no FMA in the target); a node with fewer taps than its group's largest reads
+/// extra taps of weight 0 on itself, whose products are zeros added to sums that started at +0
+/// and never become -0, so they change nothing.
+#include <frostvdb/shell/ShellBand.h>
+
+#include <cstddef>
+
+namespace frostvdb::shell {
+
+/// Pass 1's coefficients of a node, read by its neighbours' pass 2 (one struct: a cache line
+/// holds four nodes' where four arrays took four lines per tap).
+struct SurfaceCoefficients {
+    float a;          ///< eps^2
+    float cx, cy, cz; ///< C = eps eps' (n x grad p), a world vector
+};
+
+/// Sums over node i's taps j of w (u_j - u_i): the Laplace-Beltrami weight on p and T, the
+/// tangent and bitangent derivative weights on eps^2 and T, and div C = sum du (C_j . t_i - C_i .
+/// t_i) + dv (C_j . b_i - C_i . b_i) (node i's frame t, b).
+struct TapSums {
+    double lapP = 0, lapT = 0, dau = 0, dav = 0, divC = 0, dtu = 0, dtv = 0;
+};
+
+/// Node @a i's sums (the reference).
+TapSums tapSums(const ShellBand& band, const float* p, const float* T, const SurfaceCoefficients* c, std::size_t i);
+/// Nodes i .. i + 3 (band indices), bit for bit tapSums of each.
+using TapSums4 = void (*)(const ShellBand& band, const float* p, const float* T, const SurfaceCoefficients* c,
+                          std::size_t i, TapSums out[4]);
+/// tapSums of each of the four, one after the other.
+void tapSums4Plain(const ShellBand& band, const float* p, const float* T, const SurfaceCoefficients* c,
+                   std::size_t i, TapSums out[4]);
+/// The AVX2 version when the CPU has it and FROSTVDB_NO_VECTOR_ROWS is not set (read at every
+/// call, once per step, so a test compares both in one process), else tapSums4Plain.
+TapSums4 fastestTapSums4();
+
+} // namespace frostvdb::shell

@@ -1,0 +1,147 @@
+#include <frostvdb/shell/SurfaceTapSums.h>
+
+#include <algorithm>
+#include <cstdlib>
+#include <cstring>
+
+#if defined(__x86_64__) || defined(__i386__)
+#include <immintrin.h>
+#define FROSTVDB_HAVE_AVX2_TAPS 1
+#endif
+
+namespace frostvdb::shell {
+
+TapSums tapSums(const ShellBand& b, const float* P, const float* T, const SurfaceCoefficients* C, std::size_t i)
+{
+    const VoxelFrame& f = b.frame(i);
+    const double p0 = P[i], t0v = T[i], a0 = C[i].a;
+    const openvdb::Vec3d c0(C[i].cx, C[i].cy, C[i].cz);
+    const double ct0 = c0.dot(f.tangent), cb0 = c0.dot(f.bitangent);
+    TapSums s;
+    for (const SurfaceTap* t = b.tapsBegin(i); t != b.tapsEnd(i); ++t) {
+        const std::size_t j = std::size_t(t->node);
+        const double dp = double(P[j]) - p0, dT = double(T[j]) - t0v, da = double(C[j].a) - a0;
+        s.lapP += t->lap * dp;
+        s.lapT += t->lap * dT;
+        s.dau += t->du * da;
+        s.dav += t->dv * da;
+        s.dtu += t->du * dT;
+        s.dtv += t->dv * dT;
+        const openvdb::Vec3d cj(C[j].cx, C[j].cy, C[j].cz);
+        s.divC += t->du * (cj.dot(f.tangent) - ct0) + t->dv * (cj.dot(f.bitangent) - cb0);
+    }
+    return s;
+}
+
+namespace {
+
+#ifdef FROSTVDB_HAVE_AVX2_TAPS
+#define FV_AVX2 __attribute__((target("avx2")))
+
+FV_AVX2 inline __m256d add(__m256d a, __m256d b) { return _mm256_add_pd(a, b); }
+FV_AVX2 inline __m256d sub(__m256d a, __m256d b) { return _mm256_sub_pd(a, b); }
+FV_AVX2 inline __m256d mul(__m256d a, __m256d b) { return _mm256_mul_pd(a, b); }
+/// x . v per lane in Vec3d::dot's order: (x0 v0 + x1 v1) + x2 v2.
+FV_AVX2 inline __m256d dot(__m256d x0, __m256d x1, __m256d x2, const __m256d v[3])
+{
+    return add(add(mul(x0, v[0]), mul(x1, v[1])), mul(x2, v[2]));
+}
+/// One component of four frames' vectors, lane k from node k.
+FV_AVX2 inline __m256d lanes(const VoxelFrame* const f[4], openvdb::Vec3d VoxelFrame::*v, int axis)
+{
+    return _mm256_set_pd((f[3]->*v)[axis], (f[2]->*v)[axis], (f[1]->*v)[axis], (f[0]->*v)[axis]);
+}
+
+FV_AVX2 void tapSums4Avx2(const ShellBand& b, const float* P, const float* T, const SurfaceCoefficients* C,
+                          std::size_t i, TapSums out[4])
+{
+    static_assert(sizeof(SurfaceTap) == 16 && sizeof(SurfaceCoefficients) == 16, "four floats each");
+    const VoxelFrame* f[4] = {&b.frame(i), &b.frame(i + 1), &b.frame(i + 2), &b.frame(i + 3)};
+    const __m256d t[3] = {lanes(f, &VoxelFrame::tangent, 0), lanes(f, &VoxelFrame::tangent, 1),
+                          lanes(f, &VoxelFrame::tangent, 2)};
+    const __m256d bt[3] = {lanes(f, &VoxelFrame::bitangent, 0), lanes(f, &VoxelFrame::bitangent, 1),
+                           lanes(f, &VoxelFrame::bitangent, 2)};
+    const __m256d p0 = _mm256_cvtps_pd(_mm_loadu_ps(P + i)), t0 = _mm256_cvtps_pd(_mm_loadu_ps(T + i));
+    // the four nodes' coefficients, transposed: a, cx, cy, cz across the lanes
+    __m128 c0 = _mm_loadu_ps(&C[i].a), c1 = _mm_loadu_ps(&C[i + 1].a), c2 = _mm_loadu_ps(&C[i + 2].a),
+           c3 = _mm_loadu_ps(&C[i + 3].a);
+    _MM_TRANSPOSE4_PS(c0, c1, c2, c3);
+    const __m256d a0 = _mm256_cvtps_pd(c0);
+    const __m256d ct0 = dot(_mm256_cvtps_pd(c1), _mm256_cvtps_pd(c2), _mm256_cvtps_pd(c3), t);
+    const __m256d cb0 = dot(_mm256_cvtps_pd(c1), _mm256_cvtps_pd(c2), _mm256_cvtps_pd(c3), bt);
+
+    const SurfaceTap* first[4];
+    int count[4], most = 0;
+    SurfaceTap pad[4]; // weight 0 on the node itself: a finite difference times 0
+    for (int k = 0; k < 4; ++k) {
+        first[k] = b.tapsBegin(i + std::size_t(k));
+        count[k] = int(b.tapsEnd(i + std::size_t(k)) - first[k]);
+        most = std::max(most, count[k]);
+        pad[k].node = int32_t(i) + k;
+        pad[k].lap = pad[k].du = pad[k].dv = 0.f;
+    }
+    __m256d lapP = _mm256_setzero_pd(), lapT = lapP, dau = lapP, dav = lapP, divC = lapP, dtu = lapP, dtv = lapP;
+    for (int q = 0; q < most; ++q) {
+        const SurfaceTap* tp[4];
+        for (int k = 0; k < 4; ++k) tp[k] = q < count[k] ? first[k] + q : &pad[k];
+        // the four taps transposed: node indices (as bits), lap, du, dv
+        __m128 r0 = _mm_loadu_ps(reinterpret_cast<const float*>(tp[0])),
+               r1 = _mm_loadu_ps(reinterpret_cast<const float*>(tp[1])),
+               r2 = _mm_loadu_ps(reinterpret_cast<const float*>(tp[2])),
+               r3 = _mm_loadu_ps(reinterpret_cast<const float*>(tp[3]));
+        _MM_TRANSPOSE4_PS(r0, r1, r2, r3);
+        (void)r0;
+        const std::size_t j0 = std::size_t(tp[0]->node), j1 = std::size_t(tp[1]->node), j2 = std::size_t(tp[2]->node),
+                          j3 = std::size_t(tp[3]->node);
+        const __m256d lap = _mm256_cvtps_pd(r1), du = _mm256_cvtps_pd(r2), dv = _mm256_cvtps_pd(r3);
+        const __m256d dp = sub(_mm256_cvtps_pd(_mm_set_ps(P[j3], P[j2], P[j1], P[j0])), p0);
+        const __m256d dT = sub(_mm256_cvtps_pd(_mm_set_ps(T[j3], T[j2], T[j1], T[j0])), t0);
+        __m128 k0 = _mm_loadu_ps(&C[j0].a), k1 = _mm_loadu_ps(&C[j1].a), k2 = _mm_loadu_ps(&C[j2].a),
+               k3 = _mm_loadu_ps(&C[j3].a);
+        _MM_TRANSPOSE4_PS(k0, k1, k2, k3);
+        const __m256d da = sub(_mm256_cvtps_pd(k0), a0);
+        lapP = add(lapP, mul(lap, dp));
+        lapT = add(lapT, mul(lap, dT));
+        dau = add(dau, mul(du, da));
+        dav = add(dav, mul(dv, da));
+        dtu = add(dtu, mul(du, dT));
+        dtv = add(dtv, mul(dv, dT));
+        const __m256d cx = _mm256_cvtps_pd(k1), cy = _mm256_cvtps_pd(k2), cz = _mm256_cvtps_pd(k3);
+        divC = add(divC, add(mul(du, sub(dot(cx, cy, cz, t), ct0)), mul(dv, sub(dot(cx, cy, cz, bt), cb0))));
+    }
+    alignas(32) double v[7][4];
+    _mm256_store_pd(v[0], lapP);
+    _mm256_store_pd(v[1], lapT);
+    _mm256_store_pd(v[2], dau);
+    _mm256_store_pd(v[3], dav);
+    _mm256_store_pd(v[4], divC);
+    _mm256_store_pd(v[5], dtu);
+    _mm256_store_pd(v[6], dtv);
+    for (int k = 0; k < 4; ++k) out[k] = TapSums{v[0][k], v[1][k], v[2][k], v[3][k], v[4][k], v[5][k], v[6][k]};
+}
+
+bool cpuHasAvx2()
+{
+    static const bool has = __builtin_cpu_supports("avx2");
+    return has;
+}
+#endif
+
+} // namespace
+
+void tapSums4Plain(const ShellBand& b, const float* P, const float* T, const SurfaceCoefficients* C, std::size_t i,
+                   TapSums out[4])
+{
+    for (int k = 0; k < 4; ++k) out[k] = tapSums(b, P, T, C, i + std::size_t(k));
+}
+
+TapSums4 fastestTapSums4()
+{
+#ifdef FROSTVDB_HAVE_AVX2_TAPS
+    const char* v = std::getenv("FROSTVDB_NO_VECTOR_ROWS");
+    if (cpuHasAvx2() && !(v && *v && std::strcmp(v, "0") != 0)) return &tapSums4Avx2;
+#endif
+    return &tapSums4Plain;
+}
+
+} // namespace frostvdb::shell
