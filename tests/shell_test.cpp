@@ -898,7 +898,7 @@ TEST_CASE("Frame: a deferred grid is a named placeholder until the writer or a P
     CHECK(made == 2);
 }
 
-TEST_CASE("Surface tap sums: four nodes at a time (AVX2) give the scalar sums bit for bit", "[fast][shell]")
+TEST_CASE("Surface tap sums: four nodes at a time (AVX2) give the scalar passes bit for bit", "[fast][shell]")
 {
     // Random fields on a sphere's and a tilted plate's surface nodes (taps of every count, a
     // ghost ring on the plate): the vector sums of every group of four equal tapSums exactly,
@@ -941,5 +941,32 @@ TEST_CASE("Surface tap sums: four nodes at a time (AVX2) give the scalar sums bi
         CHECK(groups > 100);
         CHECK(zeros > 0);
         CHECK(differ == 0);
+
+        // pass 1: the coefficients, j = 6 and j = 4 (flat nodes take the zero-gradient branch)
+        for (const double j : {6.0, 4.0}) {
+            KobayashiParams kp;
+            kp.anisotropyMode = j;
+            kp.delta = 0.05;
+            kp.theta0 = j == 4.0 ? 0.3 : 0.0;
+            const Anisotropy an(kp);
+            const shell::SurfaceCoefficients4 fastC = shell::fastestSurfaceCoefficients4(an);
+            std::vector<shell::SurfaceCoefficients> c1(n), c2(n);
+            std::vector<float> gu1(n), gv1(n), gu2(n), gv2(n);
+            size_t coefDiffer = 0, flatNodes = 0;
+            for (const auto& leaf : band->leaves())
+                for (size_t i = leaf.begin; i + 4 <= leaf.end; i += 4) {
+                    fastC(*band, P.data(), an, 0.5, i, c1.data(), gu1.data(), gv1.data());
+                    for (size_t k = 0; k < 4; ++k) {
+                        shell::surfaceCoefficients(*band, P.data(), an, 0.5, i + k, c2.data(), gu2.data(), gv2.data());
+                        coefDiffer += std::memcmp(&c1[i + k], &c2[i + k], sizeof c1[0]) != 0 ||
+                                      std::memcmp(&gu1[i + k], &gu2[i + k], 4) != 0 ||
+                                      std::memcmp(&gv1[i + k], &gv2[i + k], 4) != 0;
+                        flatNodes += gu2[i + k] == 0.f && gv2[i + k] == 0.f;
+                    }
+                }
+            INFO("j = " << j);
+            CHECK(flatNodes > 0);
+            CHECK(coefDiffer == 0);
+        }
     }
 }

@@ -478,24 +478,16 @@ void ShellPhaseField::stepSurface(double time, int64_t stepIndex, uint64_t seed,
     const auto t0 = Clock::now();
     const float* P = mP.data();
     const float* T = mT.data();
-    b.forEachVoxel(&mStepped, [&](size_t i) {
-        const VoxelFrame& f = b.frame(i);
-        // both derivatives in one pass over the taps (each sum in the taps' order, as tapSum's)
-        const double p0 = P[i];
-        double su = 0, sv = 0;
-        for (const SurfaceTap* t = b.tapsBegin(i); t != b.tapsEnd(i); ++t) {
-            const double dp = double(P[t->node]) - p0;
-            su += double(t->du) * dp;
-            sv += double(t->dv) * dp;
+    // pass 1: the gradient and coefficients (shell/SurfaceTapSums.h: four nodes at a time)
+    const SurfaceCoefficients4 coefficients4 = fastestSurfaceCoefficients4(mAniso);
+    const auto& slots = b.leaves();
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, mStepped.size(), 2), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t q = r.begin(); q < r.end(); ++q) {
+            const ShellBand::Leaf& l = slots[mStepped[q]];
+            size_t i = l.begin;
+            for (; i + 4 <= l.end; i += 4) coefficients4(b, P, mAniso, invH, i, mCoef.data(), mGx.data(), mGy.data());
+            for (; i < l.end; ++i) surfaceCoefficients(b, P, mAniso, invH, i, mCoef.data(), mGx.data(), mGy.data());
         }
-        const double gu = su * invH, gv = sv * invH;
-        double eps, epsPrime;
-        mAniso(gu, gv, eps, epsPrime);
-        // n x (gu t + gv b) = gu b - gv t
-        const openvdb::Vec3d c = (f.bitangent * gu - f.tangent * gv) * (eps * epsPrime);
-        mCoef[i] = SurfaceCoefficients{float(eps * eps), float(c.x()), float(c.y()), float(c.z())};
-        mGx[i] = float(gu);
-        mGy[i] = float(gv);
     });
     const SurfaceCoefficients* C = mCoef.data();
     const float tNext = float(time);
@@ -522,7 +514,6 @@ void ShellPhaseField::stepSurface(double time, int64_t stepIndex, uint64_t seed,
         mTn[i] = float(t0v + k.dt * heat + k.latentHeat * dp);
     };
     const TapSums4 sums4 = fastestTapSums4();
-    const auto& slots = b.leaves();
     tbb::parallel_for(tbb::blocked_range<size_t>(0, mStepped.size(), 2), [&](const tbb::blocked_range<size_t>& r) {
         TapSums s[4];
         for (size_t q = r.begin(); q < r.end(); ++q) {

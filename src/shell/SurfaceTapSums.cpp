@@ -11,6 +11,28 @@
 
 namespace frostvdb::shell {
 
+void surfaceCoefficients(const ShellBand& b, const float* P, const Anisotropy& an, double invH, std::size_t i,
+                         SurfaceCoefficients* C, float* gx, float* gy)
+{
+    const VoxelFrame& f = b.frame(i);
+    // both derivatives in one pass over the taps (each sum in the taps' order)
+    const double p0 = P[i];
+    double su = 0, sv = 0;
+    for (const SurfaceTap* t = b.tapsBegin(i); t != b.tapsEnd(i); ++t) {
+        const double dp = double(P[t->node]) - p0;
+        su += double(t->du) * dp;
+        sv += double(t->dv) * dp;
+    }
+    const double gu = su * invH, gv = sv * invH;
+    double eps, epsPrime;
+    an(gu, gv, eps, epsPrime);
+    // n x (gu t + gv b) = gu b - gv t
+    const openvdb::Vec3d c = (f.bitangent * gu - f.tangent * gv) * (eps * epsPrime);
+    C[i] = SurfaceCoefficients{float(eps * eps), float(c.x()), float(c.y()), float(c.z())};
+    gx[i] = float(gu);
+    gy[i] = float(gv);
+}
+
 TapSums tapSums(const ShellBand& b, const float* P, const float* T, const SurfaceCoefficients* C, std::size_t i)
 {
     const VoxelFrame& f = b.frame(i);
@@ -52,6 +74,25 @@ FV_AVX2 inline __m256d lanes(const VoxelFrame* const f[4], openvdb::Vec3d VoxelF
     return _mm256_set_pd((f[3]->*v)[axis], (f[2]->*v)[axis], (f[1]->*v)[axis], (f[0]->*v)[axis]);
 }
 
+/// The taps of nodes i .. i + 3 slot by slot: tap(k, q) is node k's q-th, or a padding tap
+/// where it has fewer.
+struct TapGroup {
+    const SurfaceTap* first[4];
+    int count[4], most = 0;
+    SurfaceTap pad[4]; // weight 0 on the node itself: a difference of exactly 0 times 0
+    TapGroup(const ShellBand& b, std::size_t i)
+    {
+        for (int k = 0; k < 4; ++k) {
+            first[k] = b.tapsBegin(i + std::size_t(k));
+            count[k] = int(b.tapsEnd(i + std::size_t(k)) - first[k]);
+            most = std::max(most, count[k]);
+            pad[k].node = int32_t(i) + k;
+            pad[k].lap = pad[k].du = pad[k].dv = 0.f;
+        }
+    }
+    const SurfaceTap* tap(int k, int q) const { return q < count[k] ? first[k] + q : &pad[k]; }
+};
+
 FV_AVX2 void tapSums4Avx2(const ShellBand& b, const float* P, const float* T, const SurfaceCoefficients* C,
                           std::size_t i, TapSums out[4])
 {
@@ -70,20 +111,10 @@ FV_AVX2 void tapSums4Avx2(const ShellBand& b, const float* P, const float* T, co
     const __m256d ct0 = dot(_mm256_cvtps_pd(c1), _mm256_cvtps_pd(c2), _mm256_cvtps_pd(c3), t);
     const __m256d cb0 = dot(_mm256_cvtps_pd(c1), _mm256_cvtps_pd(c2), _mm256_cvtps_pd(c3), bt);
 
-    const SurfaceTap* first[4];
-    int count[4], most = 0;
-    SurfaceTap pad[4]; // weight 0 on the node itself: a finite difference times 0
-    for (int k = 0; k < 4; ++k) {
-        first[k] = b.tapsBegin(i + std::size_t(k));
-        count[k] = int(b.tapsEnd(i + std::size_t(k)) - first[k]);
-        most = std::max(most, count[k]);
-        pad[k].node = int32_t(i) + k;
-        pad[k].lap = pad[k].du = pad[k].dv = 0.f;
-    }
+    const TapGroup g(b, i);
     __m256d lapP = _mm256_setzero_pd(), lapT = lapP, dau = lapP, dav = lapP, divC = lapP, dtu = lapP, dtv = lapP;
-    for (int q = 0; q < most; ++q) {
-        const SurfaceTap* tp[4];
-        for (int k = 0; k < 4; ++k) tp[k] = q < count[k] ? first[k] + q : &pad[k];
+    for (int q = 0; q < g.most; ++q) {
+        const SurfaceTap* tp[4] = {g.tap(0, q), g.tap(1, q), g.tap(2, q), g.tap(3, q)};
         // the four taps transposed: node indices (as bits), lap, du, dv
         __m128 r0 = _mm_loadu_ps(reinterpret_cast<const float*>(tp[0])),
                r1 = _mm_loadu_ps(reinterpret_cast<const float*>(tp[1])),
@@ -120,6 +151,50 @@ FV_AVX2 void tapSums4Avx2(const ShellBand& b, const float* P, const float* T, co
     for (int k = 0; k < 4; ++k) out[k] = TapSums{v[0][k], v[1][k], v[2][k], v[3][k], v[4][k], v[5][k], v[6][k]};
 }
 
+FV_AVX2 void surfaceCoefficients4Avx2(const ShellBand& b, const float* P, const Anisotropy& an, double invH,
+                                      std::size_t i, SurfaceCoefficients* C, float* gx, float* gy)
+{
+    const TapGroup g(b, i);
+    const __m256d p0 = _mm256_cvtps_pd(_mm_loadu_ps(P + i));
+    __m256d su = _mm256_setzero_pd(), sv = su;
+    for (int q = 0; q < g.most; ++q) {
+        const SurfaceTap *t0 = g.tap(0, q), *t1 = g.tap(1, q), *t2 = g.tap(2, q), *t3 = g.tap(3, q);
+        const __m256d dp =
+            sub(_mm256_cvtps_pd(_mm_set_ps(P[t3->node], P[t2->node], P[t1->node], P[t0->node])), p0);
+        su = add(su, mul(_mm256_set_pd(t3->du, t2->du, t1->du, t0->du), dp));
+        sv = add(sv, mul(_mm256_set_pd(t3->dv, t2->dv, t1->dv, t0->dv), dp));
+    }
+    const __m256d h = _mm256_set1_pd(invH), gu = mul(su, h), gv = mul(sv, h);
+    // Anisotropy, integer mode (the plane's vector rows, EulerRows.cpp): w = (g / |g|)^j where
+    // |g|^2 > 1e-30, else w = 1 (a select whose discarded lane multiplies by 1 and adds +0)
+    const __m256d zero = _mm256_setzero_pd(), one = _mm256_set1_pd(1.0);
+    const __m256d r2 = add(mul(gu, gu), mul(gv, gv));
+    const __m256d big = _mm256_cmp_pd(r2, _mm256_set1_pd(1e-30), _CMP_GT_OQ);
+    const __m256d inv = _mm256_div_pd(one, _mm256_sqrt_pd(r2));
+    const __m256d zr = _mm256_blendv_pd(one, mul(gu, inv), big), zi = _mm256_blendv_pd(zero, mul(gv, inv), big);
+    __m256d wr = one, wi = zero;
+    for (int q = 0; q < an.integerMode; ++q) {
+        const __m256d t = sub(mul(wr, zr), mul(wi, zi));
+        wi = add(mul(wr, zi), mul(wi, zr));
+        wr = t;
+    }
+    const __m256d cj0 = _mm256_set1_pd(an.cj0), sj0 = _mm256_set1_pd(an.sj0);
+    const __m256d c = add(mul(cj0, wr), mul(sj0, wi)), s = sub(mul(sj0, wr), mul(cj0, wi));
+    const __m256d eps = mul(_mm256_set1_pd(an.epsBar), add(one, mul(_mm256_set1_pd(an.delta), c)));
+    const __m256d epsPrime = mul(_mm256_set1_pd(an.epsBar * an.delta * an.j), s); // ((eps_bar delta) j) s
+    const __m256d ee = mul(eps, epsPrime);
+    const VoxelFrame* f[4] = {&b.frame(i), &b.frame(i + 1), &b.frame(i + 2), &b.frame(i + 3)};
+    __m128 out[4] = {_mm256_cvtpd_ps(mul(eps, eps)), {}, {}, {}};
+    for (int axis = 0; axis < 3; ++axis) // (b gu - t gv) (eps eps'), per component
+        out[1 + axis] = _mm256_cvtpd_ps(mul(sub(mul(lanes(f, &VoxelFrame::bitangent, axis), gu),
+                                                mul(lanes(f, &VoxelFrame::tangent, axis), gv)),
+                                            ee));
+    _MM_TRANSPOSE4_PS(out[0], out[1], out[2], out[3]); // a, cx, cy, cz per node
+    for (int k = 0; k < 4; ++k) _mm_storeu_ps(&C[i + std::size_t(k)].a, out[k]);
+    _mm_storeu_ps(gx + i, _mm256_cvtpd_ps(gu));
+    _mm_storeu_ps(gy + i, _mm256_cvtpd_ps(gv));
+}
+
 bool cpuHasAvx2()
 {
     static const bool has = __builtin_cpu_supports("avx2");
@@ -128,6 +203,33 @@ bool cpuHasAvx2()
 #endif
 
 } // namespace
+
+void surfaceCoefficients4Plain(const ShellBand& b, const float* P, const Anisotropy& an, double invH, std::size_t i,
+                               SurfaceCoefficients* C, float* gx, float* gy)
+{
+    for (std::size_t k = 0; k < 4; ++k) surfaceCoefficients(b, P, an, invH, i + k, C, gx, gy);
+}
+
+namespace {
+bool vectorsAllowed()
+{
+#ifdef FROSTVDB_HAVE_AVX2_TAPS
+    const char* v = std::getenv("FROSTVDB_NO_VECTOR_ROWS");
+    return cpuHasAvx2() && !(v && *v && std::strcmp(v, "0") != 0);
+#else
+    return false;
+#endif
+}
+} // namespace
+
+SurfaceCoefficients4 fastestSurfaceCoefficients4(const Anisotropy& an)
+{
+#ifdef FROSTVDB_HAVE_AVX2_TAPS
+    if (vectorsAllowed() && an.integerMode >= 0) return &surfaceCoefficients4Avx2;
+#endif
+    (void)an;
+    return &surfaceCoefficients4Plain;
+}
 
 void tapSums4Plain(const ShellBand& b, const float* P, const float* T, const SurfaceCoefficients* C, std::size_t i,
                    TapSums out[4])
@@ -138,8 +240,7 @@ void tapSums4Plain(const ShellBand& b, const float* P, const float* T, const Sur
 TapSums4 fastestTapSums4()
 {
 #ifdef FROSTVDB_HAVE_AVX2_TAPS
-    const char* v = std::getenv("FROSTVDB_NO_VECTOR_ROWS");
-    if (cpuHasAvx2() && !(v && *v && std::strcmp(v, "0") != 0)) return &tapSums4Avx2;
+    if (vectorsAllowed()) return &tapSums4Avx2;
 #endif
     return &tapSums4Plain;
 }

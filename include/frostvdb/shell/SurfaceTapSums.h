@@ -1,13 +1,14 @@
 #pragma once
 /// @file SurfaceTapSums.h
-/// @brief The surface-node Euler step's second pass over a node's stencil taps
-/// (ShellPhaseField::stepSurface): the seven sums of differences to the neighbours that the
-/// node's update reads (about two thirds of the step's arithmetic: 40 double operations per tap).
-/// One node at a time, or four consecutive nodes at once on AVX2, which
+/// @brief The surface-node Euler step's two passes over a node's stencil taps
+/// (ShellPhaseField::stepSurface): pass 1's tangential gradient and anisotropic coefficients,
+/// pass 2's seven sums of differences to the neighbours that the node's update reads (40 double
+/// operations per tap). One node at a time, or four consecutive nodes at once on AVX2, which
 /// gives the same bits: each lane does the scalar code's IEEE operations on the same operands in
 /// the same order (no FMA in the target); a node with fewer taps than its group's largest reads
 /// extra taps of weight 0 on itself, whose products are zeros added to sums that started at +0
 /// and never become -0, so they change nothing.
+#include <frostvdb/icephysics/Kobayashi.h>
 #include <frostvdb/shell/ShellBand.h>
 
 #include <cstddef>
@@ -20,6 +21,19 @@ struct SurfaceCoefficients {
     float a;          ///< eps^2
     float cx, cy, cz; ///< C = eps eps' (n x grad p), a world vector
 };
+
+/// Pass 1 at node @a i: g = (dp/dt, dp/db) from the taps (each sum in the taps' order), eps and
+/// eps' of its angle, C = eps eps' (n x g) = eps eps' (g_u b - g_v t) as a world vector; writes
+/// c[i] and g[i] = (gu, gv).
+void surfaceCoefficients(const ShellBand& band, const float* p, const Anisotropy& an, double invH, std::size_t i,
+                         SurfaceCoefficients* c, float* gu, float* gv);
+/// Nodes i .. i + 3, bit for bit surfaceCoefficients of each.
+using SurfaceCoefficients4 = void (*)(const ShellBand& band, const float* p, const Anisotropy& an, double invH,
+                                      std::size_t i, SurfaceCoefficients* c, float* gu, float* gv);
+void surfaceCoefficients4Plain(const ShellBand& band, const float* p, const Anisotropy& an, double invH,
+                               std::size_t i, SurfaceCoefficients* c, float* gu, float* gv);
+/// The AVX2 version for an integer anisotropy mode (as fastestTapSums4), else the plain one.
+SurfaceCoefficients4 fastestSurfaceCoefficients4(const Anisotropy& an);
 
 /// Sums over node i's taps j of w (u_j - u_i): the Laplace-Beltrami weight on p and T, the
 /// tangent and bitangent derivative weights on eps^2 and T, and div C = sum du (C_j . t_i - C_i .
