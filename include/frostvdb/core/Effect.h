@@ -134,6 +134,8 @@ struct Frame {
         addCopy(key, placeholder, std::move(make));
         deferred.resize(grids.size(), false);
         deferred.back() = true;
+        held.resize(grids.size());
+        held.back() = placeholder; // alive while the frame is: its address is never reused
     }
     /// Drops the grids addCopy made that can be made again (still the grids it made).
     void dropCopies()
@@ -144,9 +146,12 @@ struct Frame {
     /// Grid @a i, made again if dropCopies dropped it, or made for the first time if deferred.
     openvdb::GridBase::Ptr grid(size_t i)
     {
-        if (i < deferred.size() && deferred[i] && grids[i] && grids[i].get() == made[i]) grids[i].reset();
+        if (i < deferred.size() && deferred[i]) {
+            if (grids[i].get() == held[i].get()) grids[i].reset(); // else replaced by another effect, or dropped
+            deferred[i] = false;
+            made[i] = nullptr; // made once: kept through dropCopies
+        }
         if (!grids[i] && i < remake.size() && remake[i]) grids[i] = remake[i]();
-        if (i < deferred.size()) deferred[i] = false;
         return grids[i];
     }
     /// Makes the deferred grids named @a name (for a PNG that reads it).
@@ -165,6 +170,7 @@ private:
     std::vector<std::function<openvdb::GridBase::Ptr()>> remake; ///< per grid; empty: not remakeable
     std::vector<const openvdb::GridBase*> made;                  ///< the grid addCopy made
     std::vector<bool> deferred;                                  ///< per grid: a placeholder until made
+    std::vector<openvdb::GridBase::Ptr> held;                    ///< per deferred grid: its placeholder
 };
 
 /// Where an effect runs in a step: the ice paper's order (section 4), after the sources whose
