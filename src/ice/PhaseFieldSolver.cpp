@@ -5,6 +5,7 @@
 #include <frostvdb/core/Random.h>
 #include <frostvdb/icephysics/EulerRows.h>
 #include <frostvdb/icephysics/ImplicitSystem.h>
+#include <frostvdb/icephysics/SecondOrderRows.h>
 
 #include <openvdb/tools/Prune.h>
 #include <openvdb/tree/LeafManager.h>
@@ -1012,6 +1013,96 @@ struct SecondOrderInputs {
     uint64_t seed;
 };
 
+/// The vector rows' outputs over @a store: 10 arrays of @a cells doubles.
+SecondOrderRowsOut rowViews(double* store, size_t cells)
+{
+    SecondOrderRowsOut out{};
+    out.diag = store;
+    out.rhs = store + cells;
+    out.predictor = store + 2 * cells;
+    out.lapT = store + 3 * cells;
+    for (int t = 0; t < 6; ++t) out.coef[t] = store + size_t(4 + t) * cells;
+    return out;
+}
+
+/// eps^2 of the extrapolated phase over the runs of needed cells of each block row (a union of
+/// leaf spans and their ring), by the vector rows.
+void epsSquaredRuns(Block& b, const SecondOrderRows& soRows, const FlatStencil& st, const Anisotropy& an)
+{
+    for (int y = 1; y < b.by - 1; ++y) {
+        uint64_t bits = b.need[size_t(y)];
+        const size_t row = b.index(0, y, 0);
+        while (bits) {
+            const int x0 = __builtin_ctzll(bits);
+            const uint64_t rest = ~(bits >> x0);
+            const int len = rest ? __builtin_ctzll(rest) : 64 - x0;
+            soRows.epsSquared(b.pe.data(), row + size_t(x0), row + size_t(x0 + len), st, an, b.a.data());
+            bits &= len + x0 >= 64 ? 0 : ~((uint64_t(1) << (x0 + len)) - 1);
+        }
+    }
+}
+
+/// The second-order rows of one plane group by the vector rows (SecondOrderRows.h): each present
+/// leaf's block rows that hold an active voxel, over the span of x its active voxels cover, into
+/// the per-thread row arrays @a rowOut; then the voxels' rows are copied into the systems as the
+/// plain path does.
+void vectorRowsOfGroup(const SecondOrderInputs& in, Block& b, const SecondOrderRows& soRows, const FlatStencil& st,
+                       const SecondOrderRowsOut& rowOut, const openvdb::Coord& origin, const FloatLeaf* const* present,
+                       const size_t* leafIndex, size_t count, ImplicitSystem& ps, ImplicitSystem& ts,
+                       std::vector<double>& p0, std::vector<double>& T0)
+{
+    const KobayashiParams& k = in.k;
+    const SlotLayout& layout = in.layout;
+    const int z0 = in.z0, taps = ps.taps();
+    const double theta = in.theta;
+    const int64_t stepIndex = in.stepIndex;
+    const uint64_t seed = in.seed;
+    const bool melt = in.melt != nullptr;
+    // Vector rows: each present leaf's block rows that hold an active voxel, over the
+    // span of x its active voxels cover, into the block's row arrays; then the
+    // voxels' rows are copied out as the plain path does.
+    const openvdb::Coord bo = b.origin(origin);
+    for (size_t q = 0; q < count; ++q) {
+        const FloatLeaf& leaf = *present[q];
+        const openvdb::Coord lo = leaf.origin() - bo;
+        const auto& mask = leaf.getValueMask();
+        uint8_t rowBits[kDim] = {};
+        const int zb = z0 & (kDim - 1);
+        for (int x = 0; x < kDim; ++x) {
+            const uint64_t word = mask.template getWord<uint64_t>(openvdb::Index(x));
+            for (int y = 0; y < kDim; ++y)
+                if ((word >> (y * kDim + zb)) & 1) rowBits[y] |= uint8_t(1u << x);
+        }
+        for (int y = 0; y < kDim; ++y) {
+            if (!rowBits[y]) continue;
+            const int xa = __builtin_ctz(rowBits[y]), xb = 32 - __builtin_clz(uint32_t(rowBits[y]));
+            const size_t row = b.index(lo.x(), lo.y() + y, 0);
+            const size_t i0 = row + size_t(xa), i1 = row + size_t(xb);
+            const double* chi = nullptr;
+            if (k.noise != 0) {
+                for (int x = xa; x < xb; ++x)
+                    b.chi[row + size_t(x)] =
+                        noiseDraw(k, seed, stepIndex, openvdb::Coord(bo.x() + lo.x() + x, bo.y() + lo.y() + y, z0));
+                chi = b.chi.data();
+            }
+            soRows.rows(b.p.data(), b.T.data(), b.pe.data(), b.te.data(), b.gz.data(), b.a.data(),
+                        melt ? b.melt.data() : nullptr, chi, i0, i1, st, k, theta, rowOut);
+        }
+        const size_t li = leafIndex[q];
+        forActiveVoxels(b, origin, z0, leaf, [&](openvdb::Index n, size_t i, const openvdb::Coord&) {
+            const size_t s = size_t(layout.rowAt(li, n));
+            ps.diag[s] = rowOut.diag[i];
+            double* coefOut = &ps.coef[s * size_t(taps)];
+            for (int t = 0; t < 6; ++t) coefOut[t] = rowOut.coef[t][i];
+            ps.rhs[s] = rowOut.rhs[i];
+            ps.x[s] = rowOut.predictor[i];
+            p0[s] = b.p[i];
+            T0[s] = b.T[i];
+            ts.rhs[s] = b.T[i] + (1.0 - theta) * k.dt * rowOut.lapT[i];
+        });
+    }
+}
+
 /// Second-order stage 1, the explicit parts: per leaf group on the padded block, p and T with
 /// their extrapolation to theta of the step, then each active voxel's row of the p system, the
 /// explicit half of the T rows and the start values p0, T0.
@@ -1036,8 +1127,18 @@ void assembleSecondOrderRows(const SecondOrderInputs& in, openvdb::tree::LeafMan
     const Anisotropy an(k);
     tbb::enumerable_thread_specific<Block> blocks([plane] { return Block(plane); });
     const LeafGroups& groups = in.groups;
+    // The hexagonal plane's vector rows (SecondOrderRows.h) where they apply; their outputs go to
+    // per-thread row arrays over the block's cells.
+    FlatStencil stD6 = st;
+    useD6Forms(stD6, an);
+    const SecondOrderRows soRows =
+        plane && taps == 6 && stD6.d6 ? fastestSecondOrderRows(st, an) : plainSecondOrderRows();
+    const size_t blockCells = size_t(proto.bx) * size_t(proto.by) * size_t(proto.bz);
+    tbb::enumerable_thread_specific<std::vector<double>> rowStore(
+        [&] { return std::vector<double>(soRows.vector ? blockCells * 10 : 0); });
     tbb::parallel_for(tbb::blocked_range<size_t>(0, groups.count(), 1), [&](const tbb::blocked_range<size_t>& r) {
         Block& b = blocks.local();
+        const SecondOrderRowsOut rowOut = soRows.vector ? rowViews(rowStore.local().data(), blockCells) : SecondOrderRowsOut{};
         std::vector<float>& incP = b.cx;
         std::vector<float>& incT = b.cy;
         const ConstAcc pAcc(p.tree()), tAcc(T.tree());
@@ -1086,8 +1187,14 @@ void assembleSecondOrderRows(const SecondOrderInputs& in, openvdb::tree::LeafMan
             });
             // eps^2 of the extrapolated phase on the cells the rows read (the voxels and their
             // ring, for its gradient).
-            {
+            if (soRows.vector) {
+                epsSquaredRuns(b, soRows, st, an);
+            } else {
                 forNeeded(b, [&](size_t i) { b.a[i] = float(kobayashiEpsSquared(b.pe.data(), i, st, an)); });
+            }
+            if (soRows.vector) {
+                vectorRowsOfGroup(in, b, soRows, st, rowOut, origin, present, &groups.leaves[first], count, ps, ts, p0, T0);
+                continue;
             }
             for (size_t q = 0; q < count; ++q) {
               const size_t li = groups.leaves[first + q];
