@@ -469,8 +469,7 @@ std::string Simulation::writeFrame(Frame&& frame, const std::string& dir)
         if (g) voxels += double(g->activeVoxelCount());
     std::unique_ptr<Progress> progress;
     if (mWorld.progress && voxels >= kProgressFrameVoxels)
-        progress = std::make_unique<Progress>("frame " + std::to_string(frame.frame) + " write (" +
-                                                  std::to_string(int64_t(voxels)) + " voxels)",
+        progress = std::make_unique<Progress>("frame " + std::to_string(frame.frame) + " write",
                                               int64_t(frame.grids.size()), "grids");
     writeVdbStreamed(path, frame.grids.size(), [&](size_t i) {
         if (progress) progress->update(int64_t(i)); // the grids before this one are written
