@@ -266,7 +266,8 @@ void Dla3dEffect::step(World& world, const StepInfo& info)
     std::unique_ptr<Progress> progress;
     std::function<void(size_t)> report;
     const size_t before = mAggregate->size();
-    if (mOptions.progress && target > before && target - before >= kProgressParticles) {
+    // (world.progress, read now: the driver sets it after the effects are initialised)
+    if (world.progress && target > before && target - before >= kProgressParticles) {
         progress = std::make_unique<Progress>("dla3d step " + std::to_string(info.step + 1), int64_t(target - before),
                                               "particles", true);
         report = [&](size_t size) { progress->update(int64_t(size - before)); };
@@ -311,7 +312,7 @@ void Dla3dEffect::addToFrame(World& world, Frame& frame)
         }
         std::unique_ptr<Progress> progress;
         std::function<void(size_t, size_t)> report;
-        if (mOptions.progress && visits > kProgressVisits) {
+        if ((mOptions.progress || world.progress) && visits > kProgressVisits) {
             progress = std::make_unique<Progress>("dla3d frame " + std::to_string(frame.frame) + " ice_sdf",
                                                   int64_t(agg.size()), "particles", true);
             report = [&](size_t done, size_t) { progress->update(int64_t(done)); };
