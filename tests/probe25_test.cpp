@@ -6,6 +6,7 @@
 #include <frostvdb/BuildPaths.h>
 
 #include <frostvdb/core/Error.h>
+#include <frostvdb/dla3d/Aggregate.h>
 #include <frostvdb/dla3d/Branches.h>
 #include <frostvdb/io/AtomicFile.h>
 #include <frostvdb/io/InputFiles.h>
@@ -278,6 +279,42 @@ TEST_CASE("Probe 25.5: branch voxel visits bound the level set, and progress doe
     for (auto it = plain->cbeginValueAll(); it; ++it)
         differ += std::memcmp(&*it, &static_cast<const float&>(acc.getValue(it.getCoord())), sizeof(float)) != 0;
     CHECK(differ == 0);
+}
+
+TEST_CASE("Probe 25.5: a long [dla3d] step reports its particles batch by batch, and the report changes nothing",
+          "[fast][probe][dla3d]")
+{
+    dla3d::DlaSettings st;
+    st.dimension = 3;
+    st.radius = 0.5;
+    st.stickDistance = 0.1;
+    st.seed = 7;
+    dla3d::Aggregate plain(st), reported(st);
+    REQUIRE(plain.growTo(3000));
+    std::vector<size_t> sizes;
+    REQUIRE(reported.growTo(3000, [&](size_t n) { sizes.push_back(n); }));
+    CHECK(sizes.size() > 10);
+    CHECK(std::is_sorted(sizes.begin(), sizes.end()));
+    CHECK(sizes.back() == 3000);
+    REQUIRE(plain.size() == reported.size());
+    CHECK(plain.positions() == reported.positions());
+    CHECK(plain.parents() == reported.parents());
+}
+
+TEST_CASE("Probe 25 re-run: a dense fog frame of 2e7 voxels reports its build and its write", "[slow][probe][gas]")
+{
+    // the probe's silent case: a [fog] of threshold 0 over a 32 mm box at 0.1 mm voxels
+    const std::string dir = tempDir("p25_fog_write");
+    const std::string scene = dir + "/fog.toml";
+    std::ofstream(scene) << "[scene]\nname = \"fog\"\nframes = 1\nsteps_per_frame = 1\n[output]\npreview = \"none\"\n"
+                            "[fog]\nbox_min = [-0.016, -0.016, 0.0]\nbox_max = [0.016, 0.016, 0.016]\nthreshold = 0.0\n";
+    const std::string log = dir + "/log";
+    REQUIRE(waitFor(spawnBinary({"run", scene, "--out", dir + "/out", "--progress", "human"}, log)) == 0);
+    const std::string text = readFile(log);
+    INFO(text);
+    CHECK(text.find("fog frame 1: ") != std::string::npos);
+    CHECK(text.find("frame 1 write: ") != std::string::npos);
+    CHECK(text.find("grids (100%") != std::string::npos);
 }
 
 // ---- finding 6 --------------------------------------------------------------------------------
@@ -585,14 +622,24 @@ TEST_CASE("Probe 25.1: a seed stamp on a large shell is estimated and refused be
     const std::string mesh = plateObj(tempDir("p25_seed_plate"), 1000.0);
     const std::string disc = refusalOf(shellSeedScene(mesh, "shape = \"disc\"\nradius_fraction = 1\n"));
     INFO(disc);
-    CHECK(disc.find("crystal.seed.radius_fraction") != std::string::npos);
+    CHECK(disc.find("crystal.seed#1.radius_fraction") != std::string::npos);
     CHECK(disc.find("memory_limit") != std::string::npos);
     CHECK(lines(disc) == 0);
     const std::string border = refusalOf(shellSeedScene(mesh, "shape = \"edge\"\nedges = \"border\"\n"));
     INFO(border);
-    CHECK(border.find("edges = \"border\"") != std::string::npos);
-    CHECK(border.find("memory_limit") != std::string::npos);
+    // one line at the entry's key and line (not at [crystal]), with what it needs and what to change
+    CHECK(border.find("test.toml:") == 0);
+    CHECK(border.find("crystal.seed#1.edges: ") != std::string::npos);
+    CHECK(border.find("[crystal]") == std::string::npos);
+    CHECK(border.find("needs about") != std::string::npos);
+    CHECK(border.find("more than run.memory_limit allows (") != std::string::npos);
+    CHECK(border.find("initialisation failed") == std::string::npos);
     CHECK(lines(border) == 0);
+    // the second of two entries is named as the second
+    const std::string second = refusalOf(shellSeedScene(
+        mesh, "shape = \"point\"\n[[crystal.seed]]\nshape = \"edge\"\nedges = \"border\"\n"));
+    INFO(second);
+    CHECK(second.find("crystal.seed#2.edges: ") != std::string::npos);
     // the same seeds on a small plate run
     const std::string small = plateObj(tempDir("p25_seed_small"), 0.03);
     CHECK(refusalOf(shellSeedScene(small, "shape = \"disc\"\nradius_fraction = 0.2\n")) == "");
@@ -643,59 +690,141 @@ TEST_CASE("Probe 25.12: a dense-region run checkpoints after its last frame, and
 // ---- finding 2: the estimates against the measured peak --------------------------------------
 
 namespace {
-/// The run's memory estimate (`--estimate=0 --progress json`: the effects' estimates summed)
-/// and its peak resident memory (run.json's peak_memory_bytes) for one frame of @a scene.
+/// The run's memory estimate (the effects' estimates summed, an allocation two effects report
+/// alike counted once: what `--estimate` prints as memory_bytes and run.memory_limit holds; the
+/// scenes write no displacement PNG) and the peak resident memory of one real run of the first
+/// frame (run.json's peak_memory_bytes).
 std::pair<double, double> estimateAndPeak(const std::string& dir, const std::string& name, const std::string& scene)
 {
     const std::string path = dir + "/" + name + ".toml";
     std::ofstream(path) << scene;
-    const std::string estLog = dir + "/" + name + ".estimate";
-    REQUIRE(waitFor(spawnBinary({"run", path, "--estimate=0", "--progress", "json", "--frames", "1-1"}, estLog)) == 0);
-    const std::string est = readFile(estLog);
-    const size_t at = est.find("\"memory_bytes\":");
-    REQUIRE(at != std::string::npos);
-    const double estimate = std::stod(est.substr(at + 15));
+    double estimate = 0;
+    {
+        Simulation sim(Scene::load(path));
+        std::vector<MemoryEstimate> counted;
+        for (const auto& e : sim.effects()) {
+            const MemoryEstimate m = e->memoryEstimate(sim.world());
+            bool shared = false;
+            for (const auto& c : counted) shared = shared || (c.key == m.key && c.detail == m.detail && c.bytes == m.bytes);
+            if (shared) continue;
+            counted.push_back(m);
+            estimate += m.bytes;
+        }
+    }
     const std::string out = dir + "/" + name + "_out";
-    REQUIRE(waitFor(spawnBinary({"run", path, "--out", out, "-q", "--frames", "1-1"}, dir + "/" + name + ".log")) == 0);
-    const std::string json = readFile(out + "/run.json");
+    const std::string log = dir + "/" + name + ".log";
+    const int rc = waitFor(spawnBinary({"run", path, "--out", out, "-q", "--frames", "1-1"}, log));
+    INFO(readFile(log));
+    REQUIRE(rc == 0);
+    std::string json;
+    for (const auto& f : std::filesystem::directory_iterator(out))
+        if (f.path().filename().string().rfind("run", 0) == 0 && f.path().extension() == ".json")
+            json = readFile(f.path().string());
     const size_t p = json.find("\"peak_memory_bytes\":");
     REQUIRE(p != std::string::npos);
     return {estimate, std::stod(json.substr(p + 20))};
+}
+
+/// Runs each scene and checks estimate / (peak - the program's own) within 1.5x either way. The
+/// program's own resident memory (libraries, OpenVDB, TBB: about 50 MiB) is measured with a
+/// 16 x 16 plane that allocates next to nothing; the estimates count the scene's allocations,
+/// which is what run.memory_limit holds.
+void checkRatios(const std::string& dir, const std::vector<std::pair<std::string, std::string>>& scenes, int steps = 1,
+                 bool withOwn = false)
+{
+    const std::string head = "[scene]\nname = \"m\"\nframes = 1\nsteps_per_frame = " + std::to_string(steps) +
+                             "\n[run]\nmemory_limit = 4\n";
+    const auto [zero, own] = estimateAndPeak(dir, "own", head + "[domain]\nsize = [16, 16]\nvoxel_size = 0.001\n"
+                                                               "[output]\npreview = \"none\"\n[phase_field]\n");
+    CHECK(zero < 1e6);
+    for (const auto& [name, text] : scenes) {
+        const auto [estimate, peak] = estimateAndPeak(dir, name, head + text);
+        const double ratio = estimate / std::max(1.0, withOwn ? peak : peak - own);
+        std::ostringstream line;
+        line << name << ": estimate " << estimate / 1048576.0 << " MiB, peak " << peak / 1048576.0 << " MiB (the "
+             << "program's own " << own / 1048576.0 << "), ratio " << ratio;
+        INFO(line.str());
+        WARN(line.str());
+        CHECK(ratio <= 1.5);
+        CHECK(ratio >= 1.0 / 1.5);
+    }
+}
+
+const char* kTiltedPlate = "v -0.15 -0.15 -0.05\nv 0.15 -0.15 -0.05\nv 0.15 0.15 0.07\nv -0.15 0.15 0.07\n"
+                           "f 1 2 3\nf 1 3 4\n";
+const std::string kShell = "[output]\npreview = \"none\"\n[domain]\nkind = \"shell\"\nvoxel_size = 0.001\n";
+const std::string kPlane = "[output]\npreview = \"none\"\ndisplacement_png = false\n";
+
+/// The gas section of a shipped scene (its last section), e.g. "[fire]\n...".
+std::string shippedGas(const std::string& scene)
+{
+    const std::string text = readFile(std::string(FROSTVDB_SOURCE_DIR) + "/scenes/" + scene + ".toml");
+    const size_t at = text.find("\n[", text.find("[output]"));
+    REQUIRE(at != std::string::npos);
+    return text.substr(at + 1);
 }
 } // namespace
 
 TEST_CASE("Probe 25.2: the memory estimate of each effect and domain is within 1.5x of the measured peak",
           "[fast][probe][memory]")
 {
-    // One frame of one step per scene, sized so that what the estimate counts dominates the
-    // program's own ~50 MiB (libraries, OpenVDB and TBB): ratio = estimate / peak resident memory.
+    // One frame of one step per effect and domain, each a few seconds, sized so that what the
+    // estimate counts is not small beside the program's own memory.
     const std::string dir = tempDir("p25_ratio");
-    {
-        std::ofstream(dir + "/tilted.obj") << "v -0.15 -0.15 -0.05\nv 0.15 -0.15 -0.05\nv 0.15 0.15 0.07\n"
-                                              "v -0.15 0.15 0.07\nf 1 2 3\nf 1 3 4\n";
-        std::ofstream(dir + "/flat.obj") << "v -0.4 -0.4 0\nv 0.4 -0.4 0\nv 0.4 0.4 0\nv -0.4 0.4 0\nf 1 2 3\nf 1 3 4\n";
-    }
-    const std::string head = "[scene]\nname = \"m\"\nframes = 1\nsteps_per_frame = 1\n[run]\nmemory_limit = 2\n";
-    const std::string shell = "[output]\npreview = \"none\"\n[domain]\nkind = \"shell\"\nvoxel_size = 0.001\n";
-    const std::string plane = "[output]\npreview = \"none\"\ndisplacement_png = false\n";
-    const std::vector<std::pair<std::string, std::string>> scenes = {
-        {"shell_dense", head + shell + "mesh = \"tilted.obj\"\n[region]\ndense = true\n[phase_field]\n"},
-        {"shell_dla", head + shell + "mesh = \"tilted.obj\"\n[dla]\n[[crystal.seed]]\nshape = \"point\"\n"},
-        {"shell_dense_dla", head + shell + "mesh = \"tilted.obj\"\n[region]\ndense = true\n[phase_field]\n[dla]\n"},
-        {"shell_flat_dense", head + shell + "mesh = \"flat.obj\"\n[region]\ndense = true\n[phase_field]\n"},
-        {"plane_dense", head + "[domain]\nsize = [1024, 1024]\nvoxel_size = 0.001\n[region]\ndense = true\n" + plane +
-                            "[phase_field]\n[[crystal.seed]]\nshape = \"disc\"\nradius_fraction = 0.3\n"},
+    std::ofstream(dir + "/tilted.obj") << kTiltedPlate;
+    std::ofstream(dir + "/flat.obj") << "v -0.4 -0.4 0\nv 0.4 -0.4 0\nv 0.4 0.4 0\nv -0.4 0.4 0\nf 1 2 3\nf 1 3 4\n";
+    const std::string plane = kPlane + "[domain]\nvoxel_size = 0.0001\n";
+    std::vector<std::pair<std::string, std::string>> scenes = {
+        // phase field: a dense plane, and on shells ([dla] and a dense region share one band). (A
+        // dense box is charged 8x its peak: the plane's 112 bytes per voxel, src/ice/
+        // PhaseFieldLattice.cpp, not counted per 8^3 leaf; see docs/guide.md.)
+        {"plane_dense", kPlane + "[domain]\nsize = [1024, 1024]\nvoxel_size = 0.001\n[region]\ndense = true\n"
+                                 "[phase_field]\n[[crystal.seed]]\nshape = \"disc\"\nradius_fraction = 0.3\n"},
+        // the dense 2D fluid over a plane, and the band fluid with its band the whole box
+        {"plane_fluid", plane + "size = [512, 512]\n[phase_field]\n[fluid]\n"},
+        {"box_fluid", kPlane + "[domain]\nkind = \"box\"\nsize = [64, 64, 64]\nvoxel_size = 0.0002\n"
+                               "[phase_field]\ndt = 0.0001\n[fluid]\nband_width = 0\n"},
+        // each automaton family on a 600-cell hexagon (its arrays; one step writes a small flake)
+        {"packard", plane + "size = [1201, 1201]\n[packard]\n"},
+        {"coxe_reiter", plane + "size = [1201, 1201]\n[coxe_reiter]\n"},
+        {"probabilistic_ca", plane + "size = [1201, 1201]\n[probabilistic_ca]\n"},
+        {"reiter", plane + "size = [1201, 1201]\n[reiter]\n"},
+        {"gravner_griffeath", plane + "size = [1201, 1201]\n[gravner_griffeath]\n"},
+        // plane walkers: 200,000 in one step freeze about 64,000 cells of a 512^2 plane
+        {"plane_dla", plane + "size = [512, 512]\n[dla]\nhumidity = 200000\n"},
     };
-    for (const auto& [name, text] : scenes) {
-        const auto [estimate, peak] = estimateAndPeak(dir, name, text);
-        const double ratio = estimate / peak;
-        INFO(name << ": estimate " << estimate / 1048576.0 << " MiB, peak " << peak / 1048576.0 << " MiB, ratio "
-                  << ratio);
-        WARN(name << ": estimate " << estimate / 1048576.0 << " MiB, peak " << peak / 1048576.0 << " MiB, ratio "
-                  << ratio);
-        CHECK(ratio <= 1.5);
-        CHECK(ratio >= 1.0 / 1.5);
-    }
+    checkRatios(dir, scenes);
+    // The shells' whole-band estimates (src/shell/, another owner this round) are 1.5-1.6x the
+    // band's own allocations (measured here 2026-11-28): held, as session 11 held them, against
+    // the whole peak, the program's own memory included. To tighten when src/shell/ is open.
+    checkRatios(dir,
+                {{"shell_dense", kShell + "mesh = \"tilted.obj\"\n[region]\ndense = true\n[phase_field]\n"},
+                 {"shell_dla", kShell + "mesh = \"tilted.obj\"\n[dla]\n[[crystal.seed]]\nshape = \"point\"\n"},
+                 {"shell_dense_dla", kShell + "mesh = \"tilted.obj\"\n[region]\ndense = true\n[phase_field]\n[dla]\n"},
+                 {"shell_flat_dense", kShell + "mesh = \"flat.obj\"\n[region]\ndense = true\n[phase_field]\n"}},
+                1, true);
+}
+
+TEST_CASE("Probe 25.2: the estimates of the larger scenes (gases, GG 3D, a 1024^2 fluid) hold too",
+          "[slow][probe][memory]")
+{
+    // Each takes tens of seconds: the gases evaluate millions of voxels, GG 3D grows its box to
+    // the domain. ([dla3d] is not here: its 190 bytes per particle were not measured against a
+    // run in this round, and its output grids are not in its estimate.)
+    const std::string dir = tempDir("p25_ratio_slow");
+    const std::vector<std::pair<std::string, std::string>> scenes = {
+        {"plane_fluid_1024", kPlane + "[domain]\nsize = [1024, 1024]\nvoxel_size = 0.0001\n[phase_field]\n[fluid]\n"},
+        // (not [steam]: its estimate counts the leaves its cone may fill; the teacup's plume fills
+        // 41 % of them, 2.1x; see docs/guide.md)
+        {"fog", kPlane + "[domain]\nkind = \"box\"\nsize = [8, 8, 8]\nvoxel_size = 0.012\n" + shippedGas("gas_fog")},
+        {"fire", kPlane + "[domain]\nkind = \"box\"\nsize = [8, 8, 8]\nvoxel_size = 0.0025\n" + shippedGas("gas_fire")},
+        {"gas", kPlane + "[domain]\nkind = \"box\"\nsize = [8, 8, 8]\nvoxel_size = 0.0025\n" +
+                    shippedGas("gas_molten_marble")},
+    };
+    checkRatios(dir, scenes);
+    // GG 3D's box grows with the disturbance: 60 steps take it to a 40-cell domain
+    checkRatios(dir, {{"gg3d", kPlane + "[domain]\nsize = [161, 161]\nvoxel_size = 0.0001\n[gravner_griffeath_3d]\n"
+                                        "domain_radius = 40\nlayers = 120\nwedge = false\n"}}, 60);
 }
 
 TEST_CASE("Probe 25.2: a shell's whole band is held to run.memory_limit, once, at domain.voxel_size",

@@ -146,18 +146,35 @@ MemoryEstimate AutomatonEffect::memoryEstimate(const World& world) const
     const bool is3D = mCfg.rule == Rule::GravnerGriffeath3D;
     const double layers = is3D ? (mCfg.layers > 0 ? mCfg.layers : (world.domain.flat() ? 31 : dim.z())) : 1.0;
     const double cells = (3.0 * R * R + 3.0 * R + 1.0) * layers;
-    const double X = (R + 1.0) * mOut.voxelsPerCell + 1.0; // `automaton_ice` half-width in voxels (writeFlake)
+    // The output grids hold the cells that differ from the background: within the ice and the
+    // ring its rules have disturbed, which grows by at most the neighbourhood's reach (2 cells,
+    // the two-level neighbourhood; 1 for the others) per step from the seeds. A run of few steps
+    // on a large lattice writes a small flake, so its grids are bounded by the run's steps, not
+    // only by the hexagon (issue 25: a one-step run on a 600-cell hexagon was charged 3.7x its peak).
+    const double steps = double(world.frames) * double(world.stepsPerFrame);
+    const double seedReach = 2.0 + (mOut.batch > 1 ? double(mOut.seedRadius) : 0.0);
+    const double grown = std::min(R, seedReach + 2.0 * steps);
+    const double X = (grown + 1.0) * mOut.voxelsPerCell + 1.0; // `automaton_ice` half-width in voxels (writeFlake)
     const double Z = is3D ? (layers * 0.5 + 1.0) * mOut.prismHeight * mOut.voxelsPerCell
                           : 0.5 * mOut.plateThickness * mOut.voxelsPerCell + 1.0;
     const double iceVoxels = (2 * X + 1) * (2 * X + 1) * (2 * Z + 1);
     const double slabs = std::ceil((2 * X + 1) / 32.0);
     // A non-empty OpenVDB float tree holds at least its top internal node (~300 KB); the 600 KB
     // per grid is calibrated on [packard] batch = 512 at 64x64 (measured peak 3.3 GB).
-    const double perFlake = cells * 48.0 + 2.0 * iceVoxels * 4.5 + (4.0 + slabs) * 600e3;
+    // The automaton's arrays (automata/Automata.cpp, initialise()) cover the hexagon's square
+    // layout with a 2-cell border, (2 (R + 2) + 1)^2 slots per layer (+ a wall layer above and
+    // below in 3D): two values (8 + 8), the wall flag, freeze step and thickness (1 + 4 + 4),
+    // two attached flags (1 + 1); Gravner-Griffeath adds boundary and crystal mass (8 + 8); per
+    // slot of the first layer the D6 images (8) and canonical index (4).
+    const bool gg = mCfg.rule == Rule::GravnerGriffeath || is3D;
+    const double square = (2.0 * (R + 2.0) + 1.0) * (2.0 * (R + 2.0) + 1.0);
+    const double slots = square * (is3D ? layers + 2.0 : 1.0);
+    const double arrays = slots * (27.0 + (gg ? 16.0 : 0.0)) + square * 12.0;
+    const double perFlake = arrays + 2.0 * iceVoxels * 4.5 + (4.0 + slabs) * 600e3;
     char what[160];
-    std::snprintf(what, sizeof what, "%d flakes x %.3g bytes (%.3g cells, %.3g ice voxels each)", mOut.batch,
-                  perFlake, cells, iceVoxels);
-    const bool vpcDrives = iceVoxels * 9.0 > cells * 48.0;
+    std::snprintf(what, sizeof what, "%d flakes x %.3g bytes (%.3g cells, %.3g ice voxels each within %.0f cells of "
+                  "the centre)", mOut.batch, perFlake, cells, iceVoxels, grown);
+    const bool vpcDrives = iceVoxels * 9.0 > arrays;
     return {perFlake * mOut.batch,
             mSection + (mOut.batch > 1 ? ".batch" : vpcDrives ? ".voxels_per_cell" : ".radius"), what};
 }

@@ -59,6 +59,21 @@ uint64_t gg3dMemoryEstimate(const GG3DConfig& cfg)
     return plane * layers * perCell * 2;
 }
 
+uint64_t gg3dMemoryEstimate(const GG3DConfig& cfg, int64_t steps)
+{
+    GG3DConfig c = cfg;
+    const double n = double(std::max<int64_t>(0, steps));
+    auto grown = [&](double start) { // the disturbance's reach, then the box's last growth beyond it
+        const double reach = start + n + 2.0;
+        return reach + std::max(4.0, reach / 4.0);
+    };
+    const double seedR = std::max(cfg.seedRadius, cfg.seedRadius2) + 3.0;
+    const double seedH = std::max(cfg.seedHeight, cfg.seedRadius2 >= 0 ? cfg.seedHeight2 : 1) + 6.0;
+    if (grown(seedR) < double(c.domainRadius)) c.domainRadius = int(std::ceil(grown(seedR)));
+    if (2.0 * grown(seedH / 2.0) < double(c.layers)) c.layers = int(std::ceil(2.0 * grown(seedH / 2.0)));
+    return gg3dMemoryEstimate(c);
+}
+
 GG3D::GG3D(const GG3DConfig& cfg) : mCfg(cfg), mP(cfg.p)
 {
     if (mCfg.domainRadius < 4) throw std::invalid_argument("gg3d: domain radius must be at least 4");

@@ -370,9 +370,11 @@ void GG3DEffect::loadState(World&, const StateReader& in)
     }
 }
 
-MemoryEstimate GG3DEffect::memoryEstimate(const World&) const
+MemoryEstimate GG3DEffect::memoryEstimate(const World& world) const
 {
-    const double perFlake = double(gg3dMemoryEstimate(mCfg));
+    // the box a run of this many steps can reach (issue 25: a one-step run was charged the
+    // whole domain, 5x its peak)
+    const double perFlake = double(gg3dMemoryEstimate(mCfg, world.frames * world.stepsPerFrame));
     char what[200];
     std::snprintf(what, sizeof what, "%d flakes x %.3g bytes of solver arrays at domain_radius %d, layers %d",
                   mOut.batch, perFlake, mCfg.domainRadius, mCfg.layers);

@@ -35,6 +35,9 @@ namespace frostvdb {
 namespace {
 
 const std::set<std::string> kCoreSections = {"scene", "domain", "region", "output", "run"};
+/// Frames of at least this many active voxels report progress while they are written (about a
+/// second of compression and writing on one core).
+constexpr double kProgressFrameVoxels = 1e7;
 
 using Clock = std::chrono::steady_clock;
 double seconds(Clock::time_point a, Clock::time_point b) { return std::chrono::duration<double>(b - a).count(); }
@@ -476,7 +479,18 @@ std::string Simulation::writeFrame(Frame&& frame, const std::string& dir)
     // One grid at a time: each is exported (resampled from a hexagonal lattice), written and
     // dropped, and its source with it, so a large frame never holds all its output grids.
     const std::string path = framePath(dir, mWorld.sceneName, frame.frame);
+    // A frame of tens of millions of voxels takes seconds to compress and write (a dense fog box:
+    // issue 25's probe re-run found one silent for over 20 s after the steps): say how far it is.
+    // (Copies of fields dropped until their turn count as the fields they copy.)
+    double voxels = double(mWorld.fields.activeVoxels());
+    for (const auto& g : frame.grids)
+        if (g) voxels += double(g->activeVoxelCount());
+    std::unique_ptr<Progress> progress;
+    if (mWorld.progress && voxels >= kProgressFrameVoxels)
+        progress = std::make_unique<Progress>("frame " + std::to_string(frame.frame) + " write",
+                                              int64_t(frame.grids.size()), "grids");
     writeVdbStreamed(path, frame.grids.size(), [&](size_t i) {
+        if (progress) progress->update(int64_t(i)); // the grids before this one are written
         openvdb::GridBase::Ptr g = exportGrid(frame.grid(i), mWorld.domain, mOutput.keepLattice);
         frame.grids[i].reset();
         if (worldScale != 1.0) { // a shallow copy: the frame's own grid keeps its transform
@@ -489,6 +503,7 @@ std::string Simulation::writeFrame(Frame&& frame, const std::string& dir)
         g->insertMeta("frostvdb_time", openvdb::DoubleMetadata(frame.time));
         return g;
     }, meta, mOutput.halfFloat, mOutput.compression);
+    if (progress) progress->finish();
     return path;
 }
 

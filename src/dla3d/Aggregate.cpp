@@ -202,7 +202,7 @@ Aggregate::Candidate Aggregate::walk(uint64_t walkerId, const Environment& env) 
     return c;
 }
 
-bool Aggregate::growTo(size_t total)
+bool Aggregate::growTo(size_t total, const std::function<void(size_t)>& onBatch)
 {
     const auto& st = mSettings;
     while (mPos.size() < total) {
@@ -267,6 +267,7 @@ bool Aggregate::growTo(size_t total)
         mStats.walkSeconds += std::chrono::duration<double>(t1 - t0).count();
         mStats.commitSeconds += std::chrono::duration<double>(Clock::now() - t1).count();
         if (!any) return false;
+        if (onBatch) onBatch(mPos.size());
     }
     return true;
 }

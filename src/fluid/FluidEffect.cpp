@@ -167,6 +167,42 @@ void FluidEffect::initialize(World& world)
     writeVelocityField(world);
 }
 
+MemoryEstimate FluidEffect::memoryEstimate(const World& world) const
+{
+    const Domain& dom = world.domain;
+    const double cells = double(dom.bbox().volume());
+    if (mSparseMode)
+        return perVoxelEstimate(cells, 190.0, "domain.size", "band fluid: face arrays and the multigrid, worst case");
+    // The solver's MAC grid: the domain, or on a hexagonal lattice the axis-aligned rectangle
+    // around the sheared domain (initialize()).
+    const int nx = dom.bbox().dim().x(), ny = dom.bbox().dim().y();
+    double aux = double(nx) * double(ny);
+    if (dom.lattice().kind() == LatticeKind::Hexagonal)
+        aux = (std::ceil(nx - 1 + 0.5 * (ny - 1) - 1e-9) + 1.0) * (std::ceil((ny - 1) * hex::kRowHeight - 1e-9) + 1.0);
+    // Held from step to step, per MAC cell: u, v and the pressure (3 doubles), the obstacles and
+    // the obstacles the multigrid was built for (2 bytes); with multigrid, its finest level (cell
+    // index, row position and colour lists 3 x 4 bytes, diagonal 1, x, b, r 3 x 8) and the
+    // coarser levels (1/3 more in 2D), and the conjugate-gradient vectors r, z, p, q (4 x 8).
+    const double held = 24.0 + 2.0 + (mParams.multigrid ? 37.0 * 4.0 / 3.0 + 32.0 : 0.0);
+    // A projection's scratch: link bits, inverse diagonal, divergence, the unknowns' b and x
+    // (jacobi_cg: its four CG vectors instead of the multigrid's).
+    const double scratch = 1.0 + 8.0 + 8.0 + 1.0 + 16.0 + (mParams.multigrid ? 0.0 : 32.0);
+    // `vel` (Vec3s) is filled over the whole domain: whole leaves of 8^3 voxels, of which a plane
+    // uses one layer of 8 x 8; the frame holds a deep copy of it (addToFrame) while the
+    // projection's scratch is gone.
+    using VelLeaf = openvdb::Vec3STree::LeafNodeType;
+    const double leafBytes = double(sizeof(VelLeaf)) + double(VelLeaf::SIZE) * sizeof(openvdb::Vec3s);
+    const double perLeaf = 64.0 * std::clamp(double(dom.bbox().dim().z()), 1.0, 8.0);
+    const double velBytes = cells * leafBytes / perLeaf;
+    const double bytes = aux * held + velBytes + std::max(aux * scratch, velBytes);
+    char what[240];
+    std::snprintf(what, sizeof what,
+                  "%.4g MAC cells x %.0f bytes of solver arrays (+ %.0f of projection scratch), `vel` and its "
+                  "frame copy %.0f bytes per domain cell",
+                  aux, held, scratch, 2.0 * velBytes / std::max(1.0, cells));
+    return {bytes, "domain.size", what};
+}
+
 void FluidEffect::notePressureSolve(bool converged, int iterations, double residual, int64_t step)
 {
     mMostIterations = std::max(mMostIterations, iterations);

@@ -213,6 +213,9 @@ std::string resolveScenePath(const std::string& path, const std::string& sceneLa
 CrystalShape readCrystalShape(ParamDict& d, const Domain& dom, bool withValue)
 {
     CrystalShape s;
+    s.key = d.section();
+    for (const char* k : {"shape", "edges"})
+        if (const ParamOrigin* o = d.origin(k)) s.origin = *o;
     const std::string kind = d.getString("shape", "point", {"point", "disc", "line", "edge", "scatter"},
         "point: disc of `radius` cells; disc: radius as a fraction of the domain; line: segment of `width` cells; "
         "edge: band of `width` cells along domain edges (a box: balls, capsules and slabs); scatter: `count` "
@@ -598,6 +601,31 @@ double gridBytesPerCell(const openvdb::CoordBBox& box)
 }
 } // namespace
 
+namespace {
+/// stampShape, with what the domain refuses while it lays out the entry's cells (a shell builds
+/// its band along the border for an edge band, held to run.memory_limit: ShellDomain) named at
+/// the entry's key in one line, not at [crystal] (issue 25, finding 1).
+void stampEntry(const Domain& dom, openvdb::FloatGrid& grid, const CrystalShape& s, float value)
+{
+    try {
+        stampShape(dom, grid, s, value);
+    } catch (const SceneError&) {
+        throw;
+    } catch (const std::runtime_error& e) {
+        if (s.kind != CrystalShape::Kind::Edge || s.key.empty()) throw;
+        std::string what = e.what();
+        // the domain's message starts with the value it refuses (edges = "border": ...)
+        if (what.rfind("edges = ", 0) == 0 && what.find(": ") != std::string::npos)
+            what = what.substr(what.find(": ") + 2);
+        std::string edges;
+        for (const auto& n : s.edges) edges += (edges.empty() ? "" : ", ") + n;
+        throw SceneError(s.origin.file, s.origin.line, s.key + ".edges",
+                         "an edge band along \"" + edges + "\" " + std::to_string(int(std::ceil(s.width - 1e-9))) +
+                             " cells wide: " + what + "; raise run.memory_limit or seed a smaller part");
+    }
+}
+} // namespace
+
 MemoryEstimate CrystalEffect::memoryEstimate(const World& world) const
 {
     // Each shape is stamped cell by cell into a sparse grid (p or melt) before any effect runs.
@@ -648,8 +676,8 @@ MemoryEstimate CrystalEffect::memoryEstimate(const World& world) const
         bytes += n * perCell;
         if (n > biggest) biggest = n, key = k;
     };
-    for (const auto& s : mSeeds) add(s, "crystal.seed");
-    for (const auto& s : mMelt) add(s, "crystal.melt");
+    for (const auto& s : mSeeds) add(s, s.key.empty() ? "crystal.seed" : s.key);
+    for (const auto& s : mMelt) add(s, s.key.empty() ? "crystal.melt" : s.key);
     char detail[200];
     std::snprintf(detail, sizeof detail, "%.4g cells stamped by the seed and melt shapes x %.1f bytes in their sparse grids",
                   cells, perCell);
@@ -666,7 +694,7 @@ void CrystalEffect::initialize(World& world)
             sampleMap(dom, mSeedMap.src, true, [&](const Coord& c, float v) {
                 if (v >= float(mSeedThreshold)) acc.setValue(c, 1.f);
             });
-        for (const auto& s : mSeeds) stampShape(dom, *p, s, 1.f);
+        for (const auto& s : mSeeds) stampEntry(dom, *p, s, 1.f);
     }
     if (hasMelt()) {
         auto m = world.fields.require<openvdb::FloatGrid>(kMelt, 1.f);
@@ -681,7 +709,7 @@ void CrystalEffect::initialize(World& world)
                 if (v != 1.f || acc.getValue(c) != 1.f) acc.setValue(c, v);
             });
         }
-        for (const auto& s : mMelt) stampShape(dom, *m, s, s.value);
+        for (const auto& s : mMelt) stampEntry(dom, *m, s, s.value);
         // Store only what differs from the background 1.
         // (serially: switching voxels off in parallel races on the leaves' mask words)
         openvdb::tools::foreach(m->beginValueOn(), [](const openvdb::FloatGrid::ValueOnIter& it) {

@@ -526,6 +526,41 @@ void DlaEffect::step(World& world, const StepInfo& info)
     mTime = sh.timeAtStep(info.step + 1);
 }
 
+MemoryEstimate DlaEffect::memoryEstimate(const World& world) const
+{
+    // Walkers released over the run (the humidity schedule's segments), each freezing at most
+    // 1/hits of a cell.
+    const int64_t steps = world.frames * world.stepsPerFrame;
+    double walkers = 0;
+    int64_t from = 0;
+    for (size_t i = 0; i <= mParams.schedule.size() && from < steps; ++i) {
+        const int64_t to = i < mParams.schedule.size() ? std::min(steps, std::max(from, mParams.schedule[i].first)) : steps;
+        walkers += double(mParams.humidityAt(from)) * double(to - from);
+        from = to;
+    }
+    const double frozen = walkers / double(mParams.hits);
+    // Per frozen cell, measured on a 512^2 plane where 200,000 walkers froze 64,000 cells in one
+    // step: 22 MiB above the program's own, about 350 bytes (the four fields' leaves around the
+    // ice, the walkers' distance bricks and block pyramid, the frame's copies).
+    constexpr double kPerFrozenCell = 350.0;
+    // However many walkers, the ice fills at most the domain: then the fields are the dense
+    // phase field's (112 bytes per plane cell, measured on a dense 1024^2 plane: p and T in 8^3
+    // leaves holding one 8 x 8 layer, the folded accumulators, the frame's copies; a box's
+    // leaves hold 8 layers, 1/8 of that per cell).
+    const Domain& dom = world.domain;
+    const double cells = double(dom.bbox().volume());
+    const double perCell = 112.0 / std::clamp(double(dom.bbox().dim().z()), 1.0, 8.0);
+    const bool filled = cells * perCell < frozen * kPerFrozenCell;
+    char what[240];
+    if (filled)
+        std::snprintf(what, sizeof what, "the ice filling the domain: %.4g cells x %.0f bytes of fields (%.3g walkers)",
+                      cells, perCell, walkers);
+    else
+        std::snprintf(what, sizeof what, "%.3g walkers freezing at most %.4g cells x %.0f bytes of fields and distances",
+                      walkers, frozen, kPerFrozenCell);
+    return {filled ? cells * perCell : frozen * kPerFrozenCell, filled ? "domain.size" : "dla.humidity", what};
+}
+
 void DlaEffect::addToFrame(World& world, Frame& frame) { addIceOutputs(world, frame); }
 
 // Walkers live within one step and draw from streams keyed by (seed, step, walker), so the step

@@ -79,6 +79,10 @@ struct GG3DConfig {
 
 /// Bytes the solver may need at most for @a cfg (its whole domain allocated), for budget checks.
 uint64_t gg3dMemoryEstimate(const GG3DConfig& cfg);
+/// The same for a run of @a steps steps: the solver's box starts at the seed (+3 cells) and grows
+/// (by a quarter, at least 4 cells) only when the disturbance, which spreads one cell per step,
+/// reaches its edge; so a short run's box is bounded by its steps, not only by the domain.
+uint64_t gg3dMemoryEstimate(const GG3DConfig& cfg, int64_t steps);
 
 class GG3D {
 public:

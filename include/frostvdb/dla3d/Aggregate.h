@@ -24,6 +24,7 @@
 #include <openvdb/openvdb.h>
 
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <vector>
 
@@ -73,7 +74,9 @@ public:
 
     /// Grows until the aggregate holds @a total particles (seeds included). Returns false when
     /// no walker could attach within the step budget for a whole batch (a blocked constraint).
-    bool growTo(size_t total);
+    /// @a onBatch, when given, is called after each batch with the aggregate's size (progress of
+    /// a long step; it never changes the growth).
+    bool growTo(size_t total, const std::function<void(size_t)>& onBatch = {});
 
     size_t size() const { return mPos.size(); }
     const std::vector<openvdb::Vec3d>& positions() const { return mPos; }

@@ -137,16 +137,14 @@ public:
     /// capped_solves: pressure solves that stopped at max_iterations before the tolerance (the
     /// first one is also reported on stderr); max_pressure_iterations: the most any solve took.
     std::vector<std::pair<std::string, double>> counters() const override;
-    /// The stable-fluid arrays (u, v, pressure, solid, temperature) over the plane; the band solver
-    /// stores faces and the multigrid only where the band is, but the band may grow to fill the
-    /// box, so its worst case is charged (measured: 3027 MiB at 256^3, about 190 B per cell,
-    /// `bench fluid noref 256^3`; a 4 % band takes 214 MiB, `bench fluid plate 256^3`).
-    MemoryEstimate memoryEstimate(const World& world) const override
-    {
-        return mSparseMode ? perVoxelEstimate(double(world.domain.bbox().volume()), 190.0, "domain.size",
-                                              "band fluid: face arrays and the multigrid, worst case")
-                           : perVoxelEstimate(double(world.domain.bbox().volume()), 64.0, "domain.size", "fluid arrays");
-    }
+    /// dense2d: the solver's arrays over its MAC grid (the hexagonal lattice's axis-aligned
+    /// rectangle), its multigrid and conjugate-gradient vectors, the projection's scratch, and
+    /// the `vel` grid over the whole domain with the frame's copy of it (src/fluid/FluidEffect.cpp
+    /// counts each). The band solver stores faces and the multigrid only where the band is, but
+    /// the band may grow to fill the box, so its worst case is charged (measured: 3027 MiB at
+    /// 256^3, about 190 B per cell, `bench fluid noref 256^3`; a 4 % band takes 214 MiB,
+    /// `bench fluid plate 256^3`).
+    MemoryEstimate memoryEstimate(const World& world) const override;
     bool supportsCheckpoint() const override { return true; }
     void saveState(const World& world, StateWriter& out) const override;
     void loadState(World& world, const StateReader& in) override;

@@ -62,6 +62,8 @@ struct CrystalShape {
     enum class Weight { None, VertexColours, Texture } weight = Weight::None;
     std::string weightPath; ///< Texture: a greyscale PNG (a plane: stretched over it; a mesh: through its UVs)
     uint64_t seed = 1;      ///< the sites' random stream
+    std::string key;        ///< the entry as messages name it, e.g. "crystal.seed#2" (its keys follow a dot)
+    ParamOrigin origin;     ///< where the entry's `edges` (else its `shape`) was given
 };
 
 /// The scatter shape's site centres (index space): candidates drawn uniformly by area

@@ -284,6 +284,10 @@ public:
     bool supportsCheckpoint() const override { return true; }
     void saveState(const World& world, StateWriter& out) const override;
     void loadState(World& world, const StateReader& in) override;
+    /// The ice the walkers can freeze in the run, in the fields they write (p, T, growth_acc,
+    /// freeze_time, dla_hits) and the frame's copies: at most one cell per `hits` walkers
+    /// released, at most the whole domain (src/ice/DlaEffect.cpp).
+    MemoryEstimate memoryEstimate(const World& world) const override;
 
     const DlaParams& params() const { return mParams; }
     const DlaStats& stats() const { return mStats; }
