@@ -775,11 +775,12 @@ TEST_CASE("Probe 25.2: the memory estimate of each effect and domain is within 1
     std::ofstream(dir + "/flat.obj") << "v -0.4 -0.4 0\nv 0.4 -0.4 0\nv 0.4 0.4 0\nv -0.4 0.4 0\nf 1 2 3\nf 1 3 4\n";
     const std::string plane = kPlane + "[domain]\nvoxel_size = 0.0001\n";
     std::vector<std::pair<std::string, std::string>> scenes = {
-        // phase field: a dense plane, and on shells ([dla] and a dense region share one band). (A
-        // dense box is charged 8x its peak: the plane's 112 bytes per voxel, src/ice/
-        // PhaseFieldLattice.cpp, not counted per 8^3 leaf; see docs/guide.md.)
+        // phase field: a dense plane and a dense box, and on shells ([dla] and a dense region share
+        // one band)
         {"plane_dense", kPlane + "[domain]\nsize = [1024, 1024]\nvoxel_size = 0.001\n[region]\ndense = true\n"
                                  "[phase_field]\n[[crystal.seed]]\nshape = \"disc\"\nradius_fraction = 0.3\n"},
+        {"box_dense", kPlane + "[domain]\nkind = \"box\"\nsize = [160, 160, 160]\nvoxel_size = 0.001\n"
+                               "[region]\ndense = true\n[phase_field]\n"},
         // the dense 2D fluid over a plane, and the band fluid with its band the whole box
         {"plane_fluid", plane + "size = [512, 512]\n[phase_field]\n[fluid]\n"},
         {"box_fluid", kPlane + "[domain]\nkind = \"box\"\nsize = [64, 64, 64]\nvoxel_size = 0.0002\n"
