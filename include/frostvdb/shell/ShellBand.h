@@ -223,8 +223,10 @@ public:
     const std::array<float, 12>& stencilWeights(size_t i) const { return mWeights[i]; }
 
     /// Surface nodes: the bytes a run holds per surface cell (band, stencils, the phase field's
-    /// arrays), for memory estimates; measured in docs/shells.md.
-    static double surfaceBytesPerCell() { return 900.0; }
+    /// arrays, a frame's grids), for memory estimates; measured in docs/shells.md. Session 12
+    /// (frames no longer publish World's grids): 600 on the pane's 0.29 M cells, 540-580 on the
+    /// heroes, 770 on a 0.3 m test plate at 1 mm (peak above the program's own 54 MiB).
+    static double surfaceBytesPerCell() { return 700.0; }
     /// The same for this band's discretisation (closest point: 11.5 band voxels of about 660 bytes).
     double bytesPerSurfaceCell() const { return mSurface ? surfaceBytesPerCell() : 11.5 * 660.0; }
     /// Bytes held by the band (the per-voxel arrays, the index grid, the mesh and its hierarchy).
