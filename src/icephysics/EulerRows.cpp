@@ -5,7 +5,7 @@
 #include <cstring>
 
 #if defined(__x86_64__) || defined(__i386__)
-#include <immintrin.h>
+#include <frostvdb/base/VectorLanes.h>
 #define FROSTVDB_HAVE_AVX2_ROWS 1
 #endif
 
@@ -46,16 +46,8 @@ __attribute__((noinline)) void eulerRowPlain(const float* p, const float* T, con
 // +0 is exact, so w stays (1, +0)); atan is libm's, per lane; float <-> double conversions
 // are exact one way and round to nearest the other, as the scalar casts. The target has no FMA,
 // so nothing is contracted.
-#define FV_AVX2 __attribute__((target("avx2")))
+using namespace lanes; // FV_AVX2 and the lane operations (base/VectorLanes.h)
 
-FV_AVX2 inline __m256d load4(const float* p) { return _mm256_cvtps_pd(_mm_loadu_ps(p)); }
-FV_AVX2 inline void store4(float* p, __m256d v) { _mm_storeu_ps(p, _mm256_cvtpd_ps(v)); }
-FV_AVX2 inline __m256d vmin(__m256d a, __m256d b) { return _mm256_min_pd(b, a); } // std::min(a, b)
-FV_AVX2 inline __m256d vmax(__m256d a, __m256d b) { return _mm256_max_pd(b, a); } // std::max(a, b)
-FV_AVX2 inline __m256d add(__m256d a, __m256d b) { return _mm256_add_pd(a, b); }
-FV_AVX2 inline __m256d sub(__m256d a, __m256d b) { return _mm256_sub_pd(a, b); }
-FV_AVX2 inline __m256d mul(__m256d a, __m256d b) { return _mm256_mul_pd(a, b); }
-FV_AVX2 inline __m256d splat(double v) { return _mm256_set1_pd(v); }
 
 constexpr int kTaps = 4;
 
@@ -308,11 +300,6 @@ __attribute__((noinline)) FV_AVX2 void eulerRowHexAvx2(const float* p, const flo
     if (i < i1) eulerRowPlain(p, T, a, cx, cy, gx, gy, gz, i, i1, st, k, melt, chi, pOut, tOut, dpOut);
 }
 
-bool cpuHasAvx2()
-{
-    static const bool has = __builtin_cpu_supports("avx2");
-    return has;
-}
 #endif
 
 } // namespace

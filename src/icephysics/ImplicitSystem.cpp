@@ -13,7 +13,7 @@
 #include <limits>
 
 #if defined(__x86_64__) || defined(__i386__)
-#include <immintrin.h>
+#include <frostvdb/base/VectorLanes.h>
 #define FROSTVDB_HAVE_AVX2_RELAX 1
 #endif
 
@@ -27,10 +27,8 @@ namespace {
 // diagonal, the residual's |v - x| d and std::max), so the bits are the scalar code's. The
 // target has no FMA, nothing is contracted. std::min(a, b) is min_pd(b, a), std::max(a, b)
 // max_pd(b, a) (ties and NaN: first argument, as the scalar code).
-#define FV_AVX2 __attribute__((target("avx2")))
+using namespace lanes; // FV_AVX2 and the lane operations (base/VectorLanes.h)
 
-FV_AVX2 inline __m256d vmin(__m256d a, __m256d b) { return _mm256_min_pd(b, a); }
-FV_AVX2 inline __m256d vmax(__m256d a, __m256d b) { return _mm256_max_pd(b, a); }
 
 /// canonicalSum of NP (2 or 3) pair sums per lane.
 template <int NP>
@@ -114,11 +112,6 @@ FV_AVX2 __attribute__((noinline)) double relaxRowsAvx2(size_t begin, size_t end,
     return mx;
 }
 
-bool cpuHasAvx2Relax()
-{
-    static const bool has = __builtin_cpu_supports("avx2");
-    return has;
-}
 #endif
 
 /// The vector relaxation applies: AVX2, not switched off by FROSTVDB_NO_VECTOR_ROWS (read at
@@ -128,7 +121,7 @@ bool vectorRelax()
 #ifdef FROSTVDB_HAVE_AVX2_RELAX
     const char* v = std::getenv("FROSTVDB_NO_VECTOR_ROWS");
     const bool disabled = v && std::strcmp(v, "0") != 0 && *v;
-    return !disabled && cpuHasAvx2Relax();
+    return !disabled && cpuHasAvx2();
 #else
     return false;
 #endif

@@ -5,7 +5,7 @@
 #include <cstring>
 
 #if defined(__x86_64__) || defined(__i386__)
-#include <immintrin.h>
+#include <frostvdb/base/VectorLanes.h>
 #define FROSTVDB_HAVE_AVX2_SO_ROWS 1
 #endif
 
@@ -46,19 +46,11 @@ __attribute__((noinline)) void secondOrderRowPlain(const float* p, const float* 
 // argument); libmMax/libmMin are selects on their own conditions; branches are selects whose
 // discarded lanes are never used; atan is libm's, per lane (computed once: both reaction parts
 // take the same x). The target has no FMA, so nothing is contracted.
-#define FV_AVX2 __attribute__((target("avx2")))
+using namespace lanes; // FV_AVX2 and the lane operations (base/VectorLanes.h)
 
-FV_AVX2 inline __m256d load4(const float* p) { return _mm256_cvtps_pd(_mm_loadu_ps(p)); }
-FV_AVX2 inline void store4(float* p, __m256d v) { _mm_storeu_ps(p, _mm256_cvtpd_ps(v)); }
-FV_AVX2 inline __m256d vmin(__m256d a, __m256d b) { return _mm256_min_pd(b, a); } // std::min(a, b)
-FV_AVX2 inline __m256d vmax(__m256d a, __m256d b) { return _mm256_max_pd(b, a); } // std::max(a, b)
-FV_AVX2 inline __m256d add(__m256d a, __m256d b) { return _mm256_add_pd(a, b); }
-FV_AVX2 inline __m256d sub(__m256d a, __m256d b) { return _mm256_sub_pd(a, b); }
-FV_AVX2 inline __m256d mul(__m256d a, __m256d b) { return _mm256_mul_pd(a, b); }
 FV_AVX2 inline __m256d dvd(__m256d a, __m256d b) { return _mm256_div_pd(a, b); }
 FV_AVX2 inline __m256d neg(__m256d a) { return _mm256_xor_pd(a, _mm256_set1_pd(-0.0)); }
 FV_AVX2 inline __m256d vabs(__m256d a) { return _mm256_andnot_pd(_mm256_set1_pd(-0.0), a); }
-FV_AVX2 inline __m256d splat(double v) { return _mm256_set1_pd(v); }
 FV_AVX2 inline __m256d sel(__m256d mask, __m256d ifTrue, __m256d ifFalse) { return _mm256_blendv_pd(ifFalse, ifTrue, mask); }
 FV_AVX2 inline __m256d lt(__m256d a, __m256d b) { return _mm256_cmp_pd(a, b, _CMP_LT_OQ); }
 FV_AVX2 inline __m256d gt(__m256d a, __m256d b) { return _mm256_cmp_pd(a, b, _CMP_GT_OQ); }
@@ -231,11 +223,6 @@ __attribute__((noinline)) FV_AVX2 void secondOrderRowHexAvx2(const float* p, con
     if (i < i1) secondOrderRowPlain(p, T, pe, te, pf, a, melt, chi, i, i1, st, k, theta, out);
 }
 
-bool cpuHasAvx2()
-{
-    static const bool has = __builtin_cpu_supports("avx2");
-    return has;
-}
 #endif
 
 } // namespace

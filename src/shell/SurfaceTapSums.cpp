@@ -5,7 +5,7 @@
 #include <cstring>
 
 #if defined(__x86_64__) || defined(__i386__)
-#include <immintrin.h>
+#include <frostvdb/base/VectorLanes.h>
 #define FROSTVDB_HAVE_AVX2_TAPS 1
 #endif
 
@@ -58,11 +58,8 @@ TapSums tapSums(const ShellBand& b, const float* P, const float* T, const Surfac
 namespace {
 
 #ifdef FROSTVDB_HAVE_AVX2_TAPS
-#define FV_AVX2 __attribute__((target("avx2")))
+using namespace lanes; // FV_AVX2 and the lane operations (base/VectorLanes.h)
 
-FV_AVX2 inline __m256d add(__m256d a, __m256d b) { return _mm256_add_pd(a, b); }
-FV_AVX2 inline __m256d sub(__m256d a, __m256d b) { return _mm256_sub_pd(a, b); }
-FV_AVX2 inline __m256d mul(__m256d a, __m256d b) { return _mm256_mul_pd(a, b); }
 /// x . v per lane in Vec3d::dot's order: (x0 v0 + x1 v1) + x2 v2.
 FV_AVX2 inline __m256d dot(__m256d x0, __m256d x1, __m256d x2, const __m256d v[3])
 {
@@ -195,11 +192,6 @@ FV_AVX2 void surfaceCoefficients4Avx2(const ShellBand& b, const float* P, const 
     _mm_storeu_ps(gy + i, _mm256_cvtpd_ps(gv));
 }
 
-bool cpuHasAvx2()
-{
-    static const bool has = __builtin_cpu_supports("avx2");
-    return has;
-}
 #endif
 
 } // namespace
