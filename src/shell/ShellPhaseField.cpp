@@ -7,6 +7,7 @@
 #include <frostvdb/core/Random.h>
 
 #include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
 
 #include <chrono>
 #include <algorithm>
@@ -478,21 +479,19 @@ void ShellPhaseField::stepSurface(double time, int64_t stepIndex, uint64_t seed,
     const auto t0 = Clock::now();
     const float* P = mP.data();
     const float* T = mT.data();
-    // pass 1: the gradient and coefficients (shell/SurfaceTapSums.h: four nodes at a time)
+    const auto& leaves = b.leaves();
+    // stage 1, pass 1: the gradient and coefficients (shell/SurfaceTapSums.h: four nodes at a time)
     const SurfaceCoefficients4 coefficients4 = fastestSurfaceCoefficients4(mAniso);
-    const auto& slots = b.leaves();
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, mStepped.size(), 2), [&](const tbb::blocked_range<size_t>& r) {
-        for (size_t q = r.begin(); q < r.end(); ++q) {
-            const ShellBand::Leaf& l = slots[mStepped[q]];
-            size_t i = l.begin;
-            for (; i + 4 <= l.end; i += 4) coefficients4(b, P, mAniso, invH, i, mCoef.data(), mGx.data(), mGy.data());
-            for (; i < l.end; ++i) surfaceCoefficients(b, P, mAniso, invH, i, mCoef.data(), mGx.data(), mGy.data());
-        }
-    });
+    auto coefficientsOf = [&](uint32_t slot) {
+        const ShellBand::Leaf& l = leaves[slot];
+        size_t i = l.begin;
+        for (; i + 4 <= l.end; i += 4) coefficients4(b, P, mAniso, invH, i, mCoef.data(), mGx.data(), mGy.data());
+        for (; i < l.end; ++i) surfaceCoefficients(b, P, mAniso, invH, i, mCoef.data(), mGx.data(), mGy.data());
+    };
     const SurfaceCoefficients* C = mCoef.data();
     const float tNext = float(time);
     const float tInf = float(k.farTemperature);
-    // pass 2: node i's update from its tap sums (shell/SurfaceTapSums.h: four nodes at a time)
+    // stage 2, pass 2: node i's update from its tap sums (shell/SurfaceTapSums.h: four nodes at a time)
     auto update = [&](size_t i, const TapSums& s) {
         if (b.ghost(i)) { // beyond an open border: the background, as outside a plane
             mPn[i] = 0.f;
@@ -514,39 +513,52 @@ void ShellPhaseField::stepSurface(double time, int64_t stepIndex, uint64_t seed,
         mTn[i] = float(t0v + k.dt * heat + k.latentHeat * dp);
     };
     const TapSums4 sums4 = fastestTapSums4();
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, mStepped.size(), 2), [&](const tbb::blocked_range<size_t>& r) {
+    auto updateOf = [&](uint32_t slot) {
+        const ShellBand::Leaf& l = leaves[slot];
         TapSums s[4];
-        for (size_t q = r.begin(); q < r.end(); ++q) {
-            const ShellBand::Leaf& l = slots[mStepped[q]];
-            size_t i = l.begin;
-            for (; i + 4 <= l.end; i += 4) {
-                sums4(b, P, T, C, i, s);
-                for (size_t n = 0; n < 4; ++n) update(i + n, s[n]);
-            }
-            for (; i < l.end; ++i) update(i, tapSums(b, P, T, C, i));
+        size_t i = l.begin;
+        for (; i + 4 <= l.end; i += 4) {
+            sums4(b, P, T, C, i, s);
+            for (size_t n = 0; n < 4; ++n) update(i + n, s[n]);
         }
-    });
-    const auto t1 = Clock::now();
-    // the new values become the fields, growth and freeze time recorded: a pass of its own (fused
-    // into the kernel's second pass, with a swap when every leaf steps, it ran 4 % slower on the
-    // pane: that pass then streams four arrays out instead of two)
-    // (per leaf, whether p crossed 1/2 anywhere in it: [dla] then rescans only those leaves)
-    const auto& leaves = b.leaves();
+        for (; i < l.end; ++i) update(i, tapSums(b, P, T, C, i));
+    };
+    // stage 3: the new values become the fields, growth and freeze time recorded, and per leaf
+    // whether p crossed 1/2 anywhere in it ([dla] then rescans only those leaves)
     mCrossed.resize(leaves.size(), 0);
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, mStepped.size(), 2), [&](const tbb::blocked_range<size_t>& r) {
-        for (size_t k = r.begin(); k < r.end(); ++k) {
-            const ShellBand::Leaf& l = leaves[mStepped[k]];
-            bool crossed = false;
-            for (size_t i = l.begin; i < l.end; ++i) {
-                const float d = mPn[i] - mP[i];
-                crossed = crossed || ((mPn[i] > 0.5f) != (mP[i] > 0.5f));
-                mP[i] = mPn[i];
-                mT[i] = mTn[i];
-                if (!b.ghost(i)) recordGrowth(mGrowth[i], mFreeze[i], d, mP[i], tNext);
-            }
-            if (crossed) mCrossed[mStepped[k]] = 1;
+    auto commitOf = [&](uint32_t slot) {
+        const ShellBand::Leaf& l = leaves[slot];
+        bool crossed = false;
+        for (size_t i = l.begin; i < l.end; ++i) {
+            const float d = mPn[i] - mP[i];
+            crossed = crossed || ((mPn[i] > 0.5f) != (mP[i] > 0.5f));
+            mP[i] = mPn[i];
+            mT[i] = mTn[i];
+            if (!b.ghost(i)) recordGrowth(mGrowth[i], mFreeze[i], d, mP[i], tNext);
         }
-    });
+        if (crossed) mCrossed[slot] = 1;
+    };
+    if (mSlabSweep) {
+        // one sweep, the stages a few slabs apart: the taps and frames read by pass 1 are still
+        // in cache for pass 2 (shell/SlabSweep.h; the same bits as the three passes below)
+        if (mSweepSlots != mStepped) {
+            // a few ranges per thread: a thread slowed by the machine takes fewer of them
+            mSweep.build(leaves, mStepped, 4 * size_t(tbb::this_task_arena::max_concurrency()));
+            mSweepSlots = mStepped;
+        }
+        mSweep.run(coefficientsOf, updateOf, commitOf);
+    } else {
+        // the reference: three passes over every stepped leaf
+        auto eachStepped = [&](const auto& stage) {
+            tbb::parallel_for(tbb::blocked_range<size_t>(0, mStepped.size(), 2), [&](const tbb::blocked_range<size_t>& r) {
+                for (size_t q = r.begin(); q < r.end(); ++q) stage(mStepped[q]);
+            });
+        };
+        eachStepped(coefficientsOf);
+        eachStepped(updateOf);
+        eachStepped(commitOf);
+    }
+    const auto t1 = Clock::now();
     addExplicitStats(stats, t0, t1, mUpdateCount);
 }
 

@@ -39,6 +39,7 @@
 /// depend on the thread count.
 #include <frostvdb/icephysics/Kobayashi.h>
 #include <frostvdb/shell/ShellBand.h>
+#include <frostvdb/shell/SlabSweep.h>
 #include <frostvdb/shell/SurfaceTapSums.h>
 #include <frostvdb/shell/ShellImplicit.h>
 
@@ -127,6 +128,10 @@ public:
     /// The tangential wind per band voxel built so far (empty: none).
     const std::vector<openvdb::Vec3f>& windField() const { return mWind; }
 
+    /// Surface nodes' Euler step as one sweep of slabs (default, shell/SlabSweep.h) or, with
+    /// @a on false, as three passes over the whole band: the reference the sweep is tested against.
+    void setSlabSweep(bool on) { mSlabSweep = on; }
+
     /// Re-extends p and T off the surface (after seeds were written anywhere in the band).
     void extendAll();
     /// One step of dt at time @a time (the time after the step goes to freeze_time): forward
@@ -205,6 +210,9 @@ private:
     std::vector<uint8_t> mCrossed;                ///< per leaf slot: p crossed 1/2 since takeCrossedLeaves
     bool mCrossedAll = true;                      ///< unknown which: every leaf may have
     std::vector<float> mPhi;                      ///< extendPhase's atanh(2p - 1)
+    bool mSlabSweep = true;                       ///< stepSurface: one sweep (else three passes)
+    SlabSweep mSweep;                             ///< its schedule, built for mSweepSlots
+    std::vector<uint32_t> mSweepSlots;
     size_t mSlotsSeen = 0;                        ///< leaf slots scanned for heat so far
     // lw_cn
     std::vector<float> mStartP, mStartT, mPe, mPf; ///< last step's start values; p at the step's theta-point and end
