@@ -113,6 +113,32 @@ openvdb::FloatGrid::Ptr frostFogOnNodes(const ShellBand& band, const std::vector
 }
 } // namespace
 
+namespace {
+/// Calls @a f on every voxel of @a box within @a radius of the line through @a x along the unit
+/// vector @a n, and on some more (the caller tests the distance): slice by slice across n's
+/// dominant axis, the box of the line's disc of that radius in the slice (half-width
+/// radius / |n_a|). A tilted prism's box is mostly empty: this visits about a sixth of it.
+template <class F>
+void forEachNearLine(const openvdb::CoordBBox& box, const openvdb::Vec3d& x, const openvdb::Vec3d& n, double radius,
+                     const F& f)
+{
+    const int a = std::fabs(n.x()) >= std::fabs(n.y()) && std::fabs(n.x()) >= std::fabs(n.z())
+                      ? 0 : (std::fabs(n.y()) >= std::fabs(n.z()) ? 1 : 2);
+    const int b = (a + 1) % 3, c = (a + 2) % 3;
+    const double reach = radius / std::fabs(n[a]) + 1e-9;
+    for (int ca = box.min()[a]; ca <= box.max()[a]; ++ca) {
+        const double t = (double(ca) - x[a]) / n[a]; // the line's point in this slice
+        const double lb = x[b] + n[b] * t, lc = x[c] + n[c] * t;
+        const int b0 = std::max(box.min()[b], int(std::floor(lb - reach))), b1 = std::min(box.max()[b], int(std::ceil(lb + reach)));
+        const int c0 = std::max(box.min()[c], int(std::floor(lc - reach))), c1 = std::min(box.max()[c], int(std::ceil(lc + reach)));
+        openvdb::Coord v;
+        v[a] = ca;
+        for (v[b] = b0; v[b] <= b1; ++v[b])
+            for (v[c] = c0; v[c] <= c1; ++v[c]) f(v);
+    }
+}
+} // namespace
+
 openvdb::FloatGrid::Ptr frostLevelSetOnNodes(const ShellBand& band, const std::vector<float>& p,
                                              const std::vector<float>& growth)
 {
@@ -143,16 +169,17 @@ openvdb::FloatGrid::Ptr frostLevelSetOnNodes(const ShellBand& band, const std::v
                 seg.expand(cp + n * (th + hw));
                 const openvdb::CoordBBox box(openvdb::Coord::floor(seg.min() - openvdb::Vec3d(side)),
                                              openvdb::Coord::ceil(seg.max() + openvdb::Vec3d(side)));
-                for (auto it = box.begin(); it; ++it) {
-                    const openvdb::Vec3d off = openvdb::Vec3d((*it).x(), (*it).y(), (*it).z()) - cp;
+                auto stamp = [&](const openvdb::Coord& c) {
+                    const openvdb::Vec3d off = openvdb::Vec3d(c.x(), c.y(), c.z()) - cp;
                     const double sn = off.dot(n), lat = (off - n * sn).length();
-                    if (lat > side) continue;
+                    if (lat > side) return;
                     const double axial = sn < 0 ? -sn : (sn > th ? sn - th : -std::min(sn, th - sn));
                     const double d = std::max(axial, lat - 0.5);
-                    if (d >= hw) continue;
+                    if (d >= hw) return;
                     const float v = float(d * h);
-                    if (!acc.isValueOn(*it) || v < acc.getValue(*it)) acc.setValueOn(*it, v);
-                }
+                    if (!acc.isValueOn(c) || v < acc.getValue(c)) acc.setValueOn(c, v);
+                };
+                forEachNearLine(box, cp, n, side, stamp);
             }
     });
     auto grid = openvdb::FloatGrid::create(float(hw * h));

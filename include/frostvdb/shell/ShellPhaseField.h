@@ -214,6 +214,7 @@ private:
     SlabSweep mSweep;                             ///< its schedule, built for mSweepSlots
     std::vector<uint32_t> mSweepSlots;
     size_t mSlotsSeen = 0;                        ///< leaf slots scanned for heat so far
+    size_t mNonEmptyLeaves = size_t(-1);          ///< built leaves holding voxels, at the last full scan
     // lw_cn
     std::vector<float> mStartP, mStartT, mPe, mPf; ///< last step's start values; p at the step's theta-point and end
     bool mHistory = false;
