@@ -17,11 +17,11 @@ using openvdb::Vec3d;
 
 namespace {
 
-uint64_t packKey(const Vec3d& q, double size)
+/// A bucket's sort key: z, then y, then x (the order pointList() and assign() follow).
+uint64_t packBucket(const Coord& b)
 {
     constexpr int64_t kOff = int64_t(1) << 20, kMask = (int64_t(1) << 21) - 1;
-    const int64_t i = int64_t(std::floor(q.x() / size)) + kOff, j = int64_t(std::floor(q.y() / size)) + kOff,
-                  k = int64_t(std::floor(q.z() / size)) + kOff;
+    const int64_t i = int64_t(b.x()) + kOff, j = int64_t(b.y()) + kOff, k = int64_t(b.z()) + kOff;
     return uint64_t(i & kMask) | (uint64_t(j & kMask) << 21) | (uint64_t(k & kMask) << 42);
 }
 
@@ -174,7 +174,9 @@ bool shootWith(const ShellBand& b, IndexAccessor& acc, Vec3d& x, Vec3d dir, doub
 
 void SurfacePointIndex::clear()
 {
-    mFine.clear();
+    mBuckets.clear();
+    mFreeSlots.clear();
+    mSlots = std::make_shared<CountTree>(0);
     for (auto& c : mCounts) c = std::make_shared<CountTree>(0);
     for (auto& c : mNear) c = std::make_shared<NearTree>(uint8_t(0));
     mCount = 0;
@@ -209,9 +211,25 @@ SurfacePointIndex::NearAccessors SurfacePointIndex::nearAccessors() const
     return out;
 }
 
+std::vector<Vec3d>& SurfacePointIndex::bucketAt(const Coord& b)
+{
+    int32_t slot = mSlots->getValue(b) - 1;
+    if (slot < 0) {
+        if (mFreeSlots.empty()) {
+            slot = int32_t(mBuckets.size());
+            mBuckets.emplace_back();
+        } else {
+            slot = mFreeSlots.back();
+            mFreeSlots.pop_back();
+        }
+        mSlots->setValue(b, slot + 1);
+    }
+    return mBuckets[size_t(slot)];
+}
+
 void SurfacePointIndex::insert(const Vec3d& q)
 {
-    mFine[packKey(q, kBucket)].push_back(q);
+    bucketAt(bucketOf(q, 0)).push_back(q);
     for (int k = 0; k < kLevels; ++k) {
         const Coord b = bucketOf(q, k);
         const int32_t n = mCounts[size_t(k)]->getValue(b) + 1;
@@ -227,7 +245,7 @@ void SurfacePointIndex::assign(const std::vector<Vec3d>& points)
     // (fine key, position in the list): each bucket's points keep the order insert() gives them
     std::vector<std::pair<uint64_t, uint32_t>> keyed(points.size());
     tbb::parallel_for(tbb::blocked_range<size_t>(0, points.size(), 4096), [&](const tbb::blocked_range<size_t>& r) {
-        for (size_t i = r.begin(); i < r.end(); ++i) keyed[i] = {packKey(points[i], kBucket), uint32_t(i)};
+        for (size_t i = r.begin(); i < r.end(); ++i) keyed[i] = {packBucket(bucketOf(points[i], 0)), uint32_t(i)};
     });
     tbb::parallel_sort(keyed.begin(), keyed.end());
     using Accessor = openvdb::tree::ValueAccessor<CountTree, false>;
@@ -237,7 +255,7 @@ void SurfacePointIndex::assign(const std::vector<Vec3d>& points)
     for (size_t a = 0; a < keyed.size();) {
         size_t e = a;
         while (e < keyed.size() && keyed[e].first == keyed[a].first) ++e;
-        auto& v = mFine[keyed[a].first];
+        auto& v = bucketAt(bucketOf(points[keyed[a].second], 0));
         v.reserve(e - a);
         for (size_t k = a; k < e; ++k) v.push_back(points[keyed[k].second]);
         // a level's bucket is the fine bucket's coordinates halved k times (floor: exact, as
@@ -266,13 +284,17 @@ void SurfacePointIndex::assign(const std::vector<Vec3d>& points)
 
 bool SurfacePointIndex::erase(const Vec3d& q)
 {
-    const auto it = mFine.find(packKey(q, kBucket));
-    if (it == mFine.end()) return false;
-    auto& v = it->second;
+    const Coord fine = bucketOf(q, 0);
+    const int32_t slot = mSlots->getValue(fine) - 1;
+    if (slot < 0) return false;
+    auto& v = mBuckets[size_t(slot)];
     const auto at = std::find(v.begin(), v.end(), q);
     if (at == v.end()) return false;
     v.erase(at); // keeps the others' order: distances are minima anyway
-    if (v.empty()) mFine.erase(it);
+    if (v.empty()) {
+        mSlots->setValueOff(fine, 0);
+        mFreeSlots.push_back(slot);
+    }
     for (int k = 0; k < kLevels; ++k) {
         const Coord b = bucketOf(q, k);
         const int32_t n = mCounts[size_t(k)]->getValue(b) - 1;
@@ -288,14 +310,13 @@ bool SurfacePointIndex::erase(const Vec3d& q)
 
 std::vector<double> SurfacePointIndex::pointList() const
 {
-    std::vector<uint64_t> keys;
-    keys.reserve(mFine.size());
-    for (const auto& [k, v] : mFine) keys.push_back(k);
+    std::vector<std::pair<uint64_t, int32_t>> keys; // (bucket key, slot)
+    for (auto it = mSlots->cbeginValueOn(); it; ++it) keys.emplace_back(packBucket(it.getCoord()), *it - 1);
     std::sort(keys.begin(), keys.end());
     std::vector<double> out;
     out.reserve(3 * mCount);
-    for (uint64_t k : keys)
-        for (const Vec3d& q : mFine.at(k)) out.insert(out.end(), {q.x(), q.y(), q.z()});
+    for (const auto& [key, slot] : keys)
+        for (const Vec3d& q : mBuckets[size_t(slot)]) out.insert(out.end(), {q.x(), q.y(), q.z()});
     return out;
 }
 
@@ -324,22 +345,22 @@ double SurfacePointIndex::coarseBound(const Vec3d& x, NearAccessors& near) const
 double SurfacePointIndex::Cursor::distance(const Vec3d& x)
 {
     if (mIndex.mCount == 0) return kFar;
-    const uint64_t key = packKey(x, kBucket);
+    const Coord b = bucketOf(x, 0);
+    const uint64_t key = packBucket(b);
     if (key != mKey) {
         mKey = key;
-        mPoints.clear();
-        const Coord b = bucketOf(x, 0);
+        mNearCount = 0;
         for (int dz = -1; dz <= 1; ++dz)
             for (int dy = -1; dy <= 1; ++dy)
                 for (int dx = -1; dx <= 1; ++dx) {
-                    if (mFineAcc.getValue(b + Coord(dx, dy, dz)) <= 0) continue; // empty: no look-up
-                    auto it = mIndex.mFine.find(packKey(x + Vec3d(dx, dy, dz) * kBucket, kBucket));
-                    if (it != mIndex.mFine.end()) mPoints.insert(mPoints.end(), it->second.begin(), it->second.end());
+                    const int32_t slot = mSlotAcc.getValue(b + Coord(dx, dy, dz)) - 1;
+                    if (slot >= 0) mNear[size_t(mNearCount++)] = &mIndex.mBuckets[size_t(slot)];
                 }
         mCoarse = -1; // computed when first needed
     }
     double best2 = kFar * kFar;
-    for (const Vec3d& q : mPoints) best2 = std::min(best2, (q - x).lengthSqr());
+    for (int k = 0; k < mNearCount; ++k)
+        for (const Vec3d& q : *mNear[size_t(k)]) best2 = std::min(best2, (q - x).lengthSqr());
     const double best = std::sqrt(best2);
     if (best <= kBucket) return best;
     if (mCoarse < 0) mCoarse = mIndex.coarseBound(x, mNearAcc);

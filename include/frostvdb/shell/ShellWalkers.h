@@ -81,17 +81,19 @@ public:
     class Cursor {
     public:
         explicit Cursor(const SurfacePointIndex& index)
-            : mIndex(index), mFineAcc(*index.mCounts[0]), mNearAcc(index.nearAccessors())
+            : mIndex(index), mSlotAcc(*index.mSlots), mNearAcc(index.nearAccessors())
         {
         }
         double distance(const openvdb::Vec3d& x);
 
     private:
         const SurfacePointIndex& mIndex;
-        CountAccessor mFineAcc; ///< level 0's counts
+        CountAccessor mSlotAcc; ///< the fine buckets' slots
         NearAccessors mNearAcc;
         uint64_t mKey = ~uint64_t(0);
-        std::vector<openvdb::Vec3d> mPoints;
+        /// the occupied fine buckets of the 3x3x3 around the last query's (read in place)
+        std::array<const std::vector<openvdb::Vec3d>*, 27> mNear{};
+        int mNearCount = 0;
         double mCoarse = -1; ///< bound from the coarse levels (-1: not computed yet)
     };
 
@@ -99,9 +101,16 @@ private:
     /// The coarse levels' lower bound for any point of the fine bucket holding @a x.
     double coarseBound(const openvdb::Vec3d& x, NearAccessors& near) const;
 
-    std::unordered_map<uint64_t, std::vector<openvdb::Vec3d>> mFine;
+    /// The fine buckets' points: slot s holds a bucket's points in the order they came (the
+    /// slot of fine bucket b is mSlots(b) - 1; 0: empty). A tree read through a cached accessor:
+    /// a hash map's look-ups were a third of a walker's distance queries.
+    std::vector<std::vector<openvdb::Vec3d>> mBuckets;
+    std::vector<int32_t> mFreeSlots; ///< slots of buckets that emptied
+    CountTree::Ptr mSlots;
+    /// The points of bucket @a b (made when absent).
+    std::vector<openvdb::Vec3d>& bucketAt(const openvdb::Coord& b);
     /// level k: points per bucket of 4 * 2^k, as a sparse grid of bucket coordinates (counts,
-    /// so points can be removed; level 0 tells which fine buckets to look up in mFine)
+    /// so points can be removed)
     std::array<CountTree::Ptr, kLevels> mCounts;
     /// level k: occupied buckets among the 3x3x3 around each bucket (kept as buckets fill and
     /// empty), so the coarse bound reads one value per level instead of 27
