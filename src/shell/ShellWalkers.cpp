@@ -549,7 +549,9 @@ void ShellWalkers::walkBatch(int64_t step, uint64_t first, uint64_t count, const
                              std::vector<ShellWalkEnd>& out) const
 {
     out.assign(size_t(count), ShellWalkEnd{});
-    tbb::parallel_for(tbb::blocked_range<uint64_t>(0, count, 16), [&](const tbb::blocked_range<uint64_t>& r) {
+    // one walker per task at most: a walk takes tens of microseconds, and a few long ones in a
+    // chunk of 16 left the other thread idle at the batch's end
+    tbb::parallel_for(tbb::blocked_range<uint64_t>(0, count, 1), [&](const tbb::blocked_range<uint64_t>& r) {
         for (uint64_t w = r.begin(); w < r.end(); ++w) out[size_t(w)] = walk(step, first + w, 0, nullptr, in);
     });
 }
