@@ -870,8 +870,7 @@ TEST_CASE("Probe 25.2: the estimates of the larger scenes (gases, GG 3D, a 1024^
           "[slow][probe][memory]")
 {
     // Each takes tens of seconds: the gases evaluate millions of voxels, GG 3D grows its box to
-    // the domain. ([dla3d] is not here: its 190 bytes per particle were not measured against a
-    // run in this round, and its output grids are not in its estimate.)
+    // the domain, [dla3d] grows 40,000 particles and rasterises their branches.
     const std::string dir = tempDir("p25_ratio_slow");
     const std::vector<std::pair<std::string, std::string>> scenes = {
         {"plane_fluid_1024", kPlane + "[domain]\nsize = [1024, 1024]\nvoxel_size = 0.0001\n[phase_field]\n[fluid]\n"},
@@ -884,6 +883,9 @@ TEST_CASE("Probe 25.2: the estimates of the larger scenes (gases, GG 3D, a 1024^
                     shippedGas("gas_molten_marble")},
     };
     checkRatios(dir, scenes);
+    // [dla3d] at its defaults (5 mm particles and voxels), and a flat aggregate (dimension = 2)
+    checkRatios(dir, {{"dla3d_defaults", kPlane + "[dla3d]\nparticles = 40000\n"},
+                      {"dla3d_flat", kPlane + kDla3dRatio + "dimension = 2\n"}});
     // GG 3D's box grows with the disturbance: 60 steps take it to a 40-cell domain
     checkRatios(dir, {{"gg3d", kPlane + "[domain]\nsize = [161, 161]\nvoxel_size = 0.0001\n[gravner_griffeath_3d]\n"
                                         "domain_radius = 40\nlayers = 120\nwedge = false\n"}}, 60);
