@@ -397,6 +397,36 @@ layers = 9
     CHECK(errorOf("[domain]\nsize = [32, 32]\n[phase_field]\n[dla]\n") == "");
 }
 
+TEST_CASE("Probe 25.2: a GG 3D frame whose grids would not fit run.memory_limit is refused before they are built",
+          "[fast][probe][memory]")
+{
+    // The scene's estimate counts a seed's grids (about 14 MB); a 25,000-cell seed's take about
+    // 34 MB more, found from the crystal's cells before the frame is built.
+    const std::string text = "[scene]\nname = \"gg\"\nframes = 1\nsteps_per_frame = 1\n[run]\nmemory_limit = 0.02\n"
+                             "[output]\npreview = \"none\"\n[domain]\nsize = [81, 81]\nvoxel_size = 0.0001\n"
+                             "[gravner_griffeath_3d]\ndomain_radius = 40\nlayers = 20\n";
+    CHECK(errorOf(text) == "");
+    auto sim = makeSim(text, {"gravner_griffeath_3d.seed_radius=30", "gravner_griffeath_3d.seed_height=9"});
+    RunOptions ro;
+    ro.progress = false;
+    ro.outDir = tempDir("p25_gg3d_budget");
+    std::string message;
+    try {
+        sim.run(ro);
+    } catch (const SceneError& e) {
+        message = e.what();
+    }
+    INFO(message);
+    CHECK(message.find("gravner_griffeath_3d.voxels_per_cell: needs about") != std::string::npos);
+    CHECK(message.find("frame 1: the grids of") != std::string::npos);
+    CHECK(message.find("run.memory_limit") != std::string::npos);
+    // the seed alone fits
+    auto small = makeSim(text);
+    RunOptions ro2 = ro;
+    ro2.outDir = tempDir("p25_gg3d_budget_small");
+    CHECK(small.run(ro2).status == "complete");
+}
+
 // ---- finding 7 --------------------------------------------------------------------------------
 
 TEST_CASE("Probe 25.7: collapsed meshes are refused in one line", "[fast][probe][mesh]")
