@@ -8,6 +8,7 @@
 #include <frostvdb/core/Error.h>
 #include <frostvdb/dla3d/Aggregate.h>
 #include <frostvdb/dla3d/Branches.h>
+#include <frostvdb/gas/GasGrid.h>
 #include <frostvdb/io/AtomicFile.h>
 #include <frostvdb/io/InputFiles.h>
 #include <frostvdb/io/Mesh.h>
@@ -242,6 +243,59 @@ TEST_CASE("Probe 25.5: [dla3d] output larger than max_voxels is refused before r
     CHECK(std::chrono::steady_clock::now() - t0 < std::chrono::seconds(10));
 }
 
+TEST_CASE("Probe 25.5: a [dla3d] frame whose level set would not fit run.memory_limit is refused before rasterising",
+          "[fast][probe][dla3d][memory]")
+{
+    // The keys' model sees typical branches (about 1 MiB here); grown, the trunk of 100 particles
+    // is 100 tips thick (taper 1): about 27,000 leaves, 110 MiB, found once the aggregate exists.
+    const std::vector<std::string> thick = {"dla3d.max_thickness=100", "dla3d.half_width=20", "dla3d.taper=1",
+                                            "dla3d.particles=100", "dla3d.max_voxels=1e12", "run.memory_limit=0.02"};
+    auto sim = makeSim(kDla3dSmall, thick);
+    RunOptions ro;
+    ro.progress = false;
+    ro.outDir = tempDir("p25_dla3d_budget");
+    const auto t0 = std::chrono::steady_clock::now();
+    std::string message;
+    try {
+        sim.run(ro);
+    } catch (const SceneError& e) {
+        message = e.what();
+    }
+    INFO(message);
+    CHECK(message.find("dla3d.voxel_size: needs about") != std::string::npos);
+    CHECK(message.find("frame 1: the level set") != std::string::npos);
+    CHECK(message.find("run.memory_limit") != std::string::npos);
+    CHECK(message.find('\n') == std::string::npos);
+    // refused from the counted leaves, before the billion voxel visits of the rasterisation
+    CHECK(std::chrono::steady_clock::now() - t0 < std::chrono::seconds(10));
+    // the thin default branches of the same scene fit
+    CHECK(errorOf(kDla3dSmall, {"run.memory_limit=0.02"}) == "");
+}
+
+TEST_CASE("Probe 25.5: branch leaf counts bound the level set's leaves", "[fast][probe][dla3d]")
+{
+    // a spiral chain of tapering capsules, thick and thin, against the leaves rasterised
+    std::vector<openvdb::Vec3d> pos;
+    std::vector<int32_t> parents;
+    for (int i = 0; i < 400; ++i) {
+        pos.emplace_back(0.004 * std::cos(0.3 * i) * (1 + i / 50.0), 0.004 * std::sin(0.3 * i) * (1 + i / 50.0),
+                         0.001 * i);
+        parents.push_back(i - 1);
+    }
+    for (double tip : {0.0002, 0.002}) {
+        const auto radii = dla3d::branchRadii(parents, dla3d::BranchStyle{tip, 0.4, 4.0});
+        const double counted = double(dla3d::branchLeafCount(pos, parents, radii, 0.001, 3.0));
+        auto grid = dla3d::rasterizeBranches(pos, parents, radii, 0.001, 3.0);
+        // the rasterised tree's leaves before pruning: every leaf holding a voxel inside the band
+        openvdb::FloatTree unpruned(grid->tree());
+        unpruned.voxelizeActiveTiles();
+        const double leaves = double(unpruned.leafCount());
+        INFO("tip " << tip << ": counted " << counted << ", rasterised " << leaves);
+        CHECK(counted >= leaves);
+        CHECK(counted <= 1.5 * leaves);
+    }
+}
+
 TEST_CASE("Probe 25.5: a [dla3d] voxel below OpenVDB's smallest is refused at its key", "[fast][probe][dla3d]")
 {
     const std::string e = errorOf(kDla3dSmall, {"dla3d.voxel_size=0.00001"});
@@ -341,6 +395,36 @@ layers = 9
     CHECK(e.find("test.toml:") == 0);
     // the ice effects share their grids: the phase field with DLA still loads
     CHECK(errorOf("[domain]\nsize = [32, 32]\n[phase_field]\n[dla]\n") == "");
+}
+
+TEST_CASE("Probe 25.2: a GG 3D frame whose grids would not fit run.memory_limit is refused before they are built",
+          "[fast][probe][memory]")
+{
+    // The scene's estimate counts a seed's grids (about 14 MB); a 25,000-cell seed's take about
+    // 34 MB more, found from the crystal's cells before the frame is built.
+    const std::string text = "[scene]\nname = \"gg\"\nframes = 1\nsteps_per_frame = 1\n[run]\nmemory_limit = 0.02\n"
+                             "[output]\npreview = \"none\"\n[domain]\nsize = [81, 81]\nvoxel_size = 0.0001\n"
+                             "[gravner_griffeath_3d]\ndomain_radius = 40\nlayers = 20\n";
+    CHECK(errorOf(text) == "");
+    auto sim = makeSim(text, {"gravner_griffeath_3d.seed_radius=30", "gravner_griffeath_3d.seed_height=9"});
+    RunOptions ro;
+    ro.progress = false;
+    ro.outDir = tempDir("p25_gg3d_budget");
+    std::string message;
+    try {
+        sim.run(ro);
+    } catch (const SceneError& e) {
+        message = e.what();
+    }
+    INFO(message);
+    CHECK(message.find("gravner_griffeath_3d.voxels_per_cell: needs about") != std::string::npos);
+    CHECK(message.find("frame 1: the grids of") != std::string::npos);
+    CHECK(message.find("run.memory_limit") != std::string::npos);
+    // the seed alone fits
+    auto small = makeSim(text);
+    RunOptions ro2 = ro;
+    ro2.outDir = tempDir("p25_gg3d_budget_small");
+    CHECK(small.run(ro2).status == "complete");
 }
 
 // ---- finding 7 --------------------------------------------------------------------------------
@@ -754,6 +838,9 @@ const char* kTiltedPlate = "v -0.15 -0.15 -0.05\nv 0.15 -0.15 -0.05\nv 0.15 0.15
                            "f 1 2 3\nf 1 3 4\n";
 const std::string kShell = "[output]\npreview = \"none\"\n[domain]\nkind = \"shell\"\nvoxel_size = 0.001\n";
 const std::string kPlane = "[output]\npreview = \"none\"\ndisplacement_png = false\n";
+/// A free aggregate as scenes/dla3d_free.toml grows it, in one step.
+const std::string kDla3dRatio = "[dla3d]\nparticles = 40000\nradius = 0.002\nstick_distance = 0.001\n"
+                                "voxel_size = 0.0015\nbranch_radius = 0.0015\ntaper = 0.3\nmax_thickness = 3\n";
 
 /// The gas section of a shipped scene (its last section), e.g. "[fire]\n...".
 std::string shippedGas(const std::string& scene)
@@ -793,8 +880,14 @@ TEST_CASE("Probe 25.2: the memory estimate of each effect and domain is within 1
         {"gravner_griffeath", plane + "size = [1201, 1201]\n[gravner_griffeath]\n"},
         // plane walkers: 200,000 in one step freeze about 64,000 cells of a 512^2 plane
         {"plane_dla", plane + "size = [512, 512]\n[dla]\nhumidity = 200000\n"},
+        // [dla3d]: its particles, their points and the branches' level set and fog
+        {"dla3d", kPlane + kDla3dRatio},
     };
     checkRatios(dir, scenes);
+    // GG 3D in one step: the seed's output grids beside a box that has barely grown
+    checkRatios(dir, {{"gg3d_one_step", kPlane + "[domain]\nsize = [161, 161]\nvoxel_size = 0.0001\n"
+                                                 "[gravner_griffeath_3d]\ndomain_radius = 40\nlayers = 120\n"
+                                                 "wedge = false\n"}});
     // the shells' whole band ([region] dense, [dla], both: counted once)
     checkRatios(dir,
                 {{"shell_dense", kShell + "mesh = \"tilted.obj\"\n[region]\ndense = true\n[phase_field]\n"},
@@ -807,22 +900,57 @@ TEST_CASE("Probe 25.2: the estimates of the larger scenes (gases, GG 3D, a 1024^
           "[slow][probe][memory]")
 {
     // Each takes tens of seconds: the gases evaluate millions of voxels, GG 3D grows its box to
-    // the domain. ([dla3d] is not here: its 190 bytes per particle were not measured against a
-    // run in this round, and its output grids are not in its estimate.)
+    // the domain, [dla3d] grows 40,000 particles and rasterises their branches.
     const std::string dir = tempDir("p25_ratio_slow");
     const std::vector<std::pair<std::string, std::string>> scenes = {
         {"plane_fluid_1024", kPlane + "[domain]\nsize = [1024, 1024]\nvoxel_size = 0.0001\n[phase_field]\n[fluid]\n"},
-        // (not [steam]: its estimate counts the leaves its cone may fill; the teacup's plume fills
-        // 41 % of them, 2.1x; see docs/guide.md)
+        // the teacup's plume fills 41 % of the leaves its cone may fill: the estimate samples them
+        {"steam", kPlane + "[domain]\nkind = \"box\"\nsize = [8, 8, 8]\nvoxel_size = 0.0006\n" +
+                      shippedGas("gas_teacup")},
         {"fog", kPlane + "[domain]\nkind = \"box\"\nsize = [8, 8, 8]\nvoxel_size = 0.012\n" + shippedGas("gas_fog")},
         {"fire", kPlane + "[domain]\nkind = \"box\"\nsize = [8, 8, 8]\nvoxel_size = 0.0025\n" + shippedGas("gas_fire")},
         {"gas", kPlane + "[domain]\nkind = \"box\"\nsize = [8, 8, 8]\nvoxel_size = 0.0025\n" +
                     shippedGas("gas_molten_marble")},
     };
     checkRatios(dir, scenes);
+    // [dla3d] at its defaults (5 mm particles and voxels), and a flat aggregate (dimension = 2)
+    checkRatios(dir, {{"dla3d_defaults", kPlane + "[dla3d]\nparticles = 40000\n"},
+                      {"dla3d_flat", kPlane + kDla3dRatio + "dimension = 2\n"}});
     // GG 3D's box grows with the disturbance: 60 steps take it to a 40-cell domain
     checkRatios(dir, {{"gg3d", kPlane + "[domain]\nsize = [161, 161]\nvoxel_size = 0.0001\n[gravner_griffeath_3d]\n"
                                         "domain_radius = 40\nlayers = 120\nwedge = false\n"}}, 60);
+}
+
+TEST_CASE("Probe 25.2: the share of a gas's candidate leaves that hold gas is sampled without aliasing",
+          "[fast][probe][memory][gas]")
+{
+    // A molten-marble box at 2.5 mm: 16 x 16 x 17 candidate leaves, the lowest layer below the
+    // box. A sample every 34th leaf (two rows) saw only that layer: 1 % instead of 83 %.
+    gas::GasCommon c;
+    c.densityScale = 0.3;
+    c.maxDensity = 0.6;
+    c.exponent = 2;
+    c.noiseScale = 0.1;
+    c.threshold = 0.01;
+    gas::BasicGasModel marble(c);
+    marble.shape = gas::BasicGasModel::Shape::MoltenMarble;
+    marble.box.lo = gas::V3(-0.15, -0.15, 0);
+    marble.box.hi = gas::V3(0.15, 0.15, 0.3);
+    marble.box.edge = 0.03;
+    marble.sharpness = 4;
+    marble.bandFrequency = 2;
+    const auto xf = openvdb::math::Transform::createLinearTransform(0.0025);
+    const auto ctx = gas::GasContext::at(1.0, 24.0, nullptr);
+    const uint64_t candidates = gas::countCandidateLeaves(marble, ctx, *xf);
+    REQUIRE(candidates == 16 * 16 * 17);
+    // every leaf: the build's own count, without the margin's part of one sample in 4352
+    const double all = gas::sampledGasLeafShare(marble, ctx, *xf, candidates);
+    const double sampled = gas::sampledGasLeafShare(marble, ctx, *xf, 128);
+    INFO("all " << all << ", sampled " << sampled);
+    CHECK(all > 0.75);
+    CHECK(all < 0.9);
+    CHECK(sampled >= all - 0.01);
+    CHECK(sampled <= all + 0.2);
 }
 
 TEST_CASE("Probe 25.2: a shell's whole band is held to run.memory_limit, once, at domain.voxel_size",

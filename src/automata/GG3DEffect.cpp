@@ -370,15 +370,36 @@ void GG3DEffect::loadState(World&, const StateReader& in)
     }
 }
 
+namespace {
+/// The nodes above the leaves of a float grid around the lattice's origin: the crystal is centred
+/// there, so each grid's voxels straddle it on every axis and take 8 top-level nodes (32^3 and
+/// 16^3 child tables, about 2.4 MB) however few they are.
+double originTreeBytes()
+{
+    using Upper = openvdb::FloatTree::RootNodeType::ChildNodeType;
+    using Lower = Upper::ChildNodeType;
+    return 8.0 * double(sizeof(Upper) + sizeof(Lower));
+}
+/// Such trees alive at the output's peak: cells, freeze_step, automaton_ice and ice_sdf, and
+/// the slab and mask trees they are made from (measured: a one-step run's output took 13.0 MiB,
+/// 5.6 of them, with a 19-cell seed).
+constexpr double kOutputTrees = 5.5;
+} // namespace
+
 MemoryEstimate GG3DEffect::memoryEstimate(const World& world) const
 {
     // the box a run of this many steps can reach (issue 25: a one-step run was charged the
-    // whole domain, 5x its peak)
-    const double perFlake = double(gg3dMemoryEstimate(mCfg, world.frames * world.stepsPerFrame));
-    char what[200];
-    std::snprintf(what, sizeof what, "%d flakes x %.3g bytes of solver arrays at domain_radius %d, layers %d",
-                  mOut.batch, perFlake, mCfg.domainRadius, mCfg.layers);
-    return {perFlake * mOut.batch, std::string(name()) + (mOut.batch > 1 ? ".batch" : ".domain_radius"), what};
+    // whole domain, 5x its peak); the box doubles while it grows (old and new arrays), the
+    // frame's grids come on top of the grown box (a one-step run's 13 MiB of grids were missed)
+    const double solver = double(gg3dMemoryEstimate(mCfg, world.frames * world.stepsPerFrame));
+    const double grids = kOutputTrees * originTreeBytes();
+    const double flakes = double(mOut.batch) + (mOut.batch > 1 ? 1.0 : 0.0); // and the combined grids
+    char what[240];
+    std::snprintf(what, sizeof what,
+                  "%d flakes x %.3g bytes of solver arrays at domain_radius %d, layers %d, and their frame grids",
+                  mOut.batch, solver, mCfg.domainRadius, mCfg.layers);
+    return {std::max(solver * mOut.batch, 0.5 * solver * mOut.batch + grids * flakes),
+            std::string(name()) + (mOut.batch > 1 ? ".batch" : ".domain_radius"), what};
 }
 
 std::vector<std::pair<std::string, double>> GG3DEffect::counters() const

@@ -195,9 +195,48 @@ void writeGG3DMesh(const openvdb::FloatGrid& sdf, const std::string& path, doubl
     std::rename(tmp.c_str(), path.c_str());
 }
 
+namespace {
+/// Attached cells of a flake (what its frame grids are made of).
+double attachedCells(const GG3D& a)
+{
+    double n = 0;
+    const int R = a.crystalRadius();
+    for (int z = a.crystalZMin(); R >= 0 && z <= a.crystalZMax(); ++z)
+        for (int r = -R; r <= R; ++r)
+            for (int q = -R; q <= R; ++q) n += hexDistance(q, r) <= R && a.attached(q, r, z) ? 1.0 : 0.0;
+    return n;
+}
+
+/// Refuses a frame whose grids would not fit run.memory_limit, from the crystal's attached cells
+/// counted before a grid is built: the keys cannot bound how far a crystal grows (the scene's
+/// estimate counts its seed's grids). At the output's peak, measured with voxels_per_cell 3:
+/// 1,000-1,300 bytes per attached cell (automaton_ice, ice_sdf and the mask and filter trees
+/// topologyToLevelSet makes), 13 MiB of top nodes per flake, and the solver's arrays.
+void checkFrameBudget(const std::vector<std::unique_ptr<GG3D>>& flakes, const GG3DOutput& out, const World& world,
+                      int64_t frame)
+{
+    constexpr double kBytesPerCellVoxel = 50.0, kTopNodesPerFlake = 13.5 * 1048576.0, kSolverBytesPerCell = 38.0;
+    double cells = 0, solver = 0;
+    for (const auto& f : flakes) {
+        cells += attachedCells(*f);
+        solver += double(f->storageSize()) * kSolverBytesPerCell;
+    }
+    const double perCell = kBytesPerCellVoxel * std::pow(double(out.voxelsPerCell), 3.0) * out.prismHeight;
+    const double flakeGrids = double(flakes.size()) + (flakes.size() > 1 ? 1.0 : 0.0);
+    char what[240];
+    std::snprintf(what, sizeof what,
+                  "frame %lld: the grids of %.4g attached cells at voxels_per_cell %d, and the solver's arrays",
+                  static_cast<long long>(frame), cells, out.voxelsPerCell);
+    checkMemoryEstimate({cells * perCell + flakeGrids * kTopNodesPerFlake + solver,
+                         "gravner_griffeath_3d.voxels_per_cell", what},
+                        world.memoryLimitBytes, world.sceneLabel);
+}
+} // namespace
+
 void GG3DEffect::addToFrame(World& world, Frame& frame)
 {
     const auto t0 = std::chrono::steady_clock::now();
+    checkFrameBudget(mFlakes, mOut, world, frame.frame);
     const double h = mCellSize;
     const int K = int(mFlakes.size());
     GG3DGrids all;

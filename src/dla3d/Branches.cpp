@@ -67,17 +67,19 @@ struct CapsuleRaster {
     const std::vector<float>& radii;
     const openvdb::math::Transform& xform;
     float background;
-    openvdb::FloatTree tree;
+    /// held by pointer, so the grid takes the tree itself (a copy doubled the rasterisation's peak)
+    openvdb::FloatTree::Ptr tree;
 
     CapsuleRaster(const std::vector<Vec3d>& p, const std::vector<int32_t>& par, const std::vector<float>& r,
                   const openvdb::math::Transform& x, float bg)
-        : pos(p), parents(par), radii(r), xform(x), background(bg), tree(bg) {}
+        : pos(p), parents(par), radii(r), xform(x), background(bg), tree(std::make_shared<openvdb::FloatTree>(bg)) {}
     CapsuleRaster(CapsuleRaster& o, tbb::split)
-        : pos(o.pos), parents(o.parents), radii(o.radii), xform(o.xform), background(o.background), tree(o.background) {}
+        : pos(o.pos), parents(o.parents), radii(o.radii), xform(o.xform), background(o.background),
+          tree(std::make_shared<openvdb::FloatTree>(o.background)) {}
 
     void operator()(const tbb::blocked_range<size_t>& range)
     {
-        openvdb::tree::ValueAccessor<openvdb::FloatTree> acc(tree);
+        openvdb::tree::ValueAccessor<openvdb::FloatTree> acc(*tree);
         const double dx = xform.voxelSize()[0];
         for (size_t i = range.begin(); i != range.end(); ++i) {
             const Vec3d b = pos[i];
@@ -104,8 +106,8 @@ struct CapsuleRaster {
     }
     void join(CapsuleRaster& o)
     {
-        openvdb::tree::ValueAccessor<openvdb::FloatTree> acc(tree);
-        for (auto it = o.tree.cbeginValueOn(); it; ++it)
+        openvdb::tree::ValueAccessor<openvdb::FloatTree> acc(*tree);
+        for (auto it = o.tree->cbeginValueOn(); it; ++it)
             if (*it < acc.getValue(it.getCoord())) acc.setValueOn(it.getCoord(), *it);
     }
 };
@@ -130,7 +132,7 @@ openvdb::FloatGrid::Ptr rasterizeBranches(const std::vector<Vec3d>& positions, c
     }
     auto grid = openvdb::FloatGrid::create(bg);
     grid->setTransform(xform);
-    grid->setTree(std::make_shared<openvdb::FloatTree>(body.tree));
+    grid->setTree(body.tree);
     grid->setGridClass(openvdb::GRID_LEVEL_SET);
     openvdb::tools::signedFloodFill(grid->tree());
     openvdb::tools::pruneLevelSet(grid->tree());
@@ -157,6 +159,71 @@ double branchVoxelVisits(const std::vector<Vec3d>& pos, const std::vector<int32_
         visits += box;
     }
     return visits;
+}
+
+namespace {
+
+/// Marks the leaves a range of capsules reaches (CapsuleRaster's boxes, at 4^3-block resolution).
+struct LeafReach {
+    const std::vector<Vec3d>& pos;
+    const std::vector<int32_t>& parents;
+    const std::vector<float>& radii;
+    double dx, background;
+    openvdb::MaskTree leaves;
+
+    LeafReach(const std::vector<Vec3d>& p, const std::vector<int32_t>& par, const std::vector<float>& r, double d,
+              double bg)
+        : pos(p), parents(par), radii(r), dx(d), background(bg) {}
+    LeafReach(LeafReach& o, tbb::split)
+        : pos(o.pos), parents(o.parents), radii(o.radii), dx(o.dx), background(o.background) {}
+
+    void operator()(const tbb::blocked_range<size_t>& range)
+    {
+        openvdb::tree::ValueAccessor<openvdb::MaskTree> acc(leaves);
+        // a 4^3 block's voxel centres lie within 1.5 voxels of its centre on each axis
+        const double blockReach = std::sqrt(3.0) * 1.5 * dx;
+        for (size_t i = range.begin(); i != range.end(); ++i) {
+            const Vec3d b = pos[i];
+            const double rb = std::max<double>(radii[i], 0.5 * dx);
+            const Vec3d a = parents[i] >= 0 ? pos[size_t(parents[i])] : b;
+            const double ra = parents[i] >= 0 ? std::max<double>(radii[size_t(parents[i])], 0.5 * dx) : rb;
+            const double reach = std::max(ra, rb) + background;
+            const Vec3d lo = (openvdb::math::minComponent(a, b) - Vec3d(reach)) / dx;
+            const Vec3d hi = (openvdb::math::maxComponent(a, b) + Vec3d(reach)) / dx;
+            const Vec3d ab = b - a;
+            const double len2 = ab.lengthSqr();
+            // the raster's distance changes by at most this much per metre (its radius varies along t)
+            const double lipschitz = 1.0 + (len2 > 0 ? std::fabs(rb - ra) / std::sqrt(len2) : 0.0);
+            openvdb::Coord c;
+            for (c.x() = int(std::floor(lo.x())) & ~3; c.x() <= int(std::ceil(hi.x())); c.x() += 4)
+                for (c.y() = int(std::floor(lo.y())) & ~3; c.y() <= int(std::ceil(hi.y())); c.y() += 4)
+                    for (c.z() = int(std::floor(lo.z())) & ~3; c.z() <= int(std::ceil(hi.z())); c.z() += 4) {
+                        const openvdb::Coord leaf = c & ~7;
+                        if (acc.isValueOn(leaf)) continue;
+                        const Vec3d x = (c.asVec3d() + Vec3d(1.5)) * dx;
+                        const double t = len2 > 0 ? std::clamp((x - a).dot(ab) / len2, 0.0, 1.0) : 0.0;
+                        const double d = (x - (a + ab * t)).length() - (ra + (rb - ra) * t);
+                        if (d < background + lipschitz * blockReach) acc.setValueOn(leaf);
+                    }
+        }
+    }
+    void join(LeafReach& o) { leaves.topologyUnion(o.leaves); }
+};
+
+} // namespace
+
+size_t branchLeafCount(const std::vector<Vec3d>& pos, const std::vector<int32_t>& parents,
+                       const std::vector<float>& radii, double voxelSize, double halfWidth)
+{
+    LeafReach body(pos, parents, radii, voxelSize, double(float(halfWidth * voxelSize)));
+    tbb::parallel_reduce(tbb::blocked_range<size_t>(0, pos.size(), 256), body);
+    return size_t(body.leaves.activeVoxelCount());
+}
+
+double floatLeafBytes()
+{
+    using Leaf = openvdb::FloatTree::LeafNodeType;
+    return double(sizeof(Leaf) + Leaf::SIZE * sizeof(float) + 16);
 }
 
 } // namespace frostvdb::dla3d

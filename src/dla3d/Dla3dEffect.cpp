@@ -26,6 +26,27 @@ constexpr double kProgressVisits = 1e8;
 /// Steps growing at least this many particles report progress (tens of seconds at the default
 /// stick distance; measured: 1e6 particles take about 100 s on one core).
 constexpr size_t kProgressParticles = size_t(1) << 17;
+/// Bytes per particle of its arrays: position 24 + parent and generation 8 + hash chain 4 +
+/// attach time 4 bytes, hash slots (16 bytes at load 0.6, two levels) about 54, doubled by vector
+/// growth.
+constexpr double kParticleBytes = 190.0;
+/// Bytes per 8^3 leaf holding particles of the points grid and its index grid (each leaf a 2 KiB
+/// offset table, plus attribute arrays): measured 62.7 MiB for 40,000 particles at 1.5 mm.
+constexpr double kPointLeafBytes = 4500.0;
+/// Peak bytes of a frame's level set per leaf of it, in leaves of floatLeafBytes(): the tree
+/// with its interior, the threads' partial trees joined into it, then the fog made from it
+/// (measured: 4,350 bytes per leaf at 1.5 mm, 40,000 particles).
+constexpr double kRasterPeakPerLeaf = 2.0;
+/// The keys' model of the leaves (modelledLeaves): a typical branch carries this many particles,
+/// a leaf's voxels reach this many voxels beyond what it holds (a cube of 8 has a mean half
+/// width of 6), and a ball of radius R around a particle of the aggregate holds
+/// (R / spacing)^D / cover particles at these scales (measured on free aggregates of 40,000
+/// particles at 0.75-5 mm voxels and 1.5-5 mm radii: D 2.0, cover 3.9 in 3D; D 1.71, cover 4.3
+/// for a flat one, dimension = 2).
+constexpr double kTypicalCarried = 3.0;
+constexpr double kLeafReachVoxels = 6.0;
+constexpr double kClusterDimension3 = 2.0, kClusterCover3 = 3.9;
+constexpr double kClusterDimension2 = 1.71, kClusterCover2 = 4.3;
 
 namespace {
 
@@ -310,6 +331,7 @@ void Dla3dEffect::addToFrame(World& world, Frame& frame)
                           mOptions.maxVoxels);
             throw SceneError(mOptions.sceneLabel, 0, mOptions.voxelSize > 0 ? "dla3d.voxel_size" : "dla3d.radius", buf);
         }
+        checkFrameBudget(world, frame.frame, radii);
         std::unique_ptr<Progress> progress;
         std::function<void(size_t, size_t)> report;
         if ((mOptions.progress || world.progress) && visits > kProgressVisits) {
@@ -345,15 +367,76 @@ bool Dla3dEffect::writePreview(World& world, const Frame& frame, const std::stri
     return false; // the driver draws `aggregate_ice` (ray-marched)
 }
 
+/// The 8^3 leaves at voxel_size that hold everything within @a reach of the aggregate's
+/// particles at the last frame, modelled from the keys before anything grows: each particle adds
+/// the volume within reach along its 2 radius to its parent, less what its neighbours share. A
+/// cluster of the aggregate within reach holds (reach / spacing)^D / cover particles, so the
+/// union takes cover x spacing^D x reach^(3 - D) per particle; a sparse one (reach below the
+/// spacing) takes its swept tubes.
+double Dla3dEffect::modelledLeaves(double reach) const
+{
+    const double vox = mOptions.voxelSize > 0 ? mOptions.voxelSize : mSettings.radius;
+    const double spacing = 2.0 * mSettings.radius;
+    const double tube = M_PI * reach * reach * spacing;
+    const bool flat = mSettings.dimension == 2;
+    const double dim = flat ? kClusterDimension2 : kClusterDimension3;
+    const double shared = (flat ? kClusterCover2 : kClusterCover3) * std::pow(spacing, dim) * std::pow(reach, 3.0 - dim);
+    return double(mOptions.particles) * std::min(tube, shared) / (512.0 * vox * vox * vox);
+}
+
+/// The level set's leaves: a typical branch (the tip grown by the taper), its half width, and the
+/// reach of a leaf's voxels.
+double Dla3dEffect::modelledSdfLeaves() const
+{
+    const auto& o = mOptions;
+    const double vox = o.voxelSize > 0 ? o.voxelSize : mSettings.radius;
+    const double tip = o.style.tipRadius > 0 ? o.style.tipRadius : mSettings.radius;
+    const double branch = std::max(tip * std::min(o.style.maxScale, std::pow(kTypicalCarried, o.style.taper)), 0.5 * vox);
+    return modelledLeaves(branch + o.halfWidth * vox + kLeafReachVoxels * vox);
+}
+
+/// The frame's points grid and its index grid, by their leaves.
+double Dla3dEffect::pointsBytes() const
+{
+    if (!mOptions.points) return 0.0;
+    const double vox = mOptions.voxelSize > 0 ? mOptions.voxelSize : mSettings.radius;
+    // (a particle sits in one leaf: never more leaves than particles)
+    return std::min(double(mOptions.particles), modelledLeaves(kLeafReachVoxels * vox)) * kPointLeafBytes;
+}
+
 MemoryEstimate Dla3dEffect::memoryEstimate(const World&) const
 {
-    // position 24 + parent and generation 8 + hash chain 4 + attach time 4 bytes, hash slots
-    // (16 bytes at load 0.6, two levels) about 54, all doubled by vector growth: ~190 bytes.
     const double n = double(mOptions.particles);
-    char what[160];
-    std::snprintf(what, sizeof what, "%.4g particles x 190 bytes of arrays and hash (output grids not counted)", n);
-    return {n * 190.0, "dla3d.particles", what};
+    const bool sdf = mOptions.sdf || mOptions.fog || mOptions.mesh != "none";
+    const double leaves = sdf ? modelledSdfLeaves() : 0.0;
+    char what[240];
+    std::snprintf(what, sizeof what,
+                  "%.4g particles x %.0f bytes of arrays and hash, %.3g MiB of points grid, and about %.3g leaves of "
+                  "8^3 voxels of level set at the last frame",
+                  n, kParticleBytes, pointsBytes() / 1048576.0, leaves);
+    const double grids = pointsBytes() + leaves * floatLeafBytes() * kRasterPeakPerLeaf;
+    // the key to change: the voxel size when the grids outweigh the particles' arrays
+    return {n * kParticleBytes + grids, grids > n * kParticleBytes ? "dla3d.voxel_size" : "dla3d.particles", what};
 }
+
+/// Refuses a frame whose level set would not fit run.memory_limit, from its leaves counted before
+/// a voxel is written (memoryEstimate models the branches from the keys; this counts them).
+void Dla3dEffect::checkFrameBudget(const World& world, int64_t frame, const std::vector<float>& radii)
+{
+    const auto& agg = *mAggregate;
+    mSdfLeaves = double(branchLeafCount(agg.positions(), agg.parents(), radii, mOptions.voxelSize, mOptions.halfWidth));
+    const double bytes =
+        mSdfLeaves * floatLeafBytes() * kRasterPeakPerLeaf + double(agg.size()) * kParticleBytes + pointsBytes();
+    char detail[300];
+    std::snprintf(detail, sizeof detail,
+                  "frame %lld: the level set of the branches of %zu particles, %.4g leaves of 8^3 voxels at "
+                  "voxel_size %.3g m, and the particles",
+                  static_cast<long long>(frame), agg.size(), mSdfLeaves, mOptions.voxelSize);
+    checkMemoryEstimate({bytes, mOptions.voxelSize > 0 ? "dla3d.voxel_size" : "dla3d.radius", detail},
+                        world.memoryLimitBytes, mOptions.sceneLabel);
+}
+
+std::vector<std::pair<std::string, double>> Dla3dEffect::counters() const { return {{"sdf_leaves", mSdfLeaves}}; }
 
 std::vector<std::pair<std::string, double>> Dla3dEffect::timings() const
 {

@@ -97,6 +97,41 @@ uint64_t countCandidateLeaves(const GasModel& model, const GasContext& ctx, cons
     return n;
 }
 
+double sampledGasLeafShare(const GasModel& model, const GasContext& ctx, const openvdb::math::Transform& xform,
+                           size_t sampleLeaves)
+{
+    const std::vector<Coord> origins = candidateLeafOrigins(model, ctx, xform);
+    if (origins.empty() || sampleLeaves == 0) return 1.0;
+    // Every leaf when there are few; else a golden-ratio sequence over the build's order: an
+    // even stride would alias with the box's rows (a stride of two rows picked only the bottom
+    // layer of a box, below the gas).
+    std::vector<size_t> picked;
+    if (origins.size() <= sampleLeaves) {
+        for (size_t i = 0; i < origins.size(); ++i) picked.push_back(i);
+    } else {
+        for (size_t k = 0; k < sampleLeaves; ++k) {
+            const double u = std::fmod(0.5 + 0.6180339887498949 * double(k), 1.0);
+            picked.push_back(std::min(origins.size() - 1, size_t(u * double(origins.size()))));
+        }
+    }
+    const float thr = float(model.common().threshold);
+    std::vector<char> holds(picked.size(), 0);
+    tbb::parallel_for(size_t(0), picked.size(), [&](size_t k) {
+        GasSample s;
+        const Coord origin = origins[picked[k]];
+        for (int dx = 0; dx < 8 && !holds[k]; ++dx)
+            for (int dy = 0; dy < 8 && !holds[k]; ++dy)
+                for (int dz = 0; dz < 8 && !holds[k]; ++dz) {
+                    const Vec3d w = xform.indexToWorld(origin + Coord(dx, dy, dz));
+                    model.evaluate(V3(w.x(), w.y(), w.z()), ctx, s);
+                    holds[k] = float(s.density) > thr; // the build's test (a NaN holds nothing)
+                }
+    });
+    const double m = double(picked.size());
+    const double share = double(std::count(holds.begin(), holds.end(), char(1))) / m;
+    return std::min(1.0, share + 2.0 * std::sqrt(share * (1.0 - share) / m) + 1.0 / m);
+}
+
 GasBuildEstimate estimateGasBuild(const GasModel& model, const GasContext& ctx,
                                   const openvdb::math::Transform& xform, const GasBuildOptions& opt,
                                   const std::string& label, const std::string& key)

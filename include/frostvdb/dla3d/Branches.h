@@ -47,4 +47,15 @@ openvdb::FloatGrid::Ptr rasterizeBranches(const std::vector<openvdb::Vec3d>& pos
 double branchVoxelVisits(const std::vector<openvdb::Vec3d>& positions, const std::vector<int32_t>& parents,
                          const std::vector<float>& radii, double voxelSize, double halfWidth = 3.0);
 
+/// The 8^3 leaves rasterizeBranches allocates, counted before a voxel is written: each capsule's
+/// leaves tested by their 4^3 blocks against the capsule's reach (half width included), so a
+/// block's corner voxel counts too (a slight over-count, never an under-count). It is what the
+/// level set holds before its interior is pruned, the rasterisation's peak.
+size_t branchLeafCount(const std::vector<openvdb::Vec3d>& positions, const std::vector<int32_t>& parents,
+                       const std::vector<float>& radii, double voxelSize, double halfWidth = 3.0);
+
+/// Bytes of one allocated leaf of a float tree (its node, its 512 values and the allocator's
+/// bookkeeping): the level set's memory per branchLeafCount.
+double floatLeafBytes();
+
 } // namespace frostvdb::dla3d

@@ -29,8 +29,12 @@ public:
     void addToFrame(World& world, Frame& frame) override;
     bool writePreview(World& world, const Frame& frame, const std::string& pngPath) override;
     std::vector<std::pair<std::string, double>> timings() const override;
-    /// The particle arrays and the hash of `particles` particles (capacity doubling included);
-    /// the output grids follow the branches' thickness and are not counted.
+    /// The level set's leaves at the last frame (before its interior was pruned).
+    std::vector<std::pair<std::string, double>> counters() const override;
+    /// The particle arrays and the hash of `particles` particles (capacity doubling included),
+    /// the points grid, and the last frame's level set and fog from a model of the branches the
+    /// keys grow (Dla3dEffect.cpp); each frame checks its level set's leaves again before
+    /// rasterising.
     MemoryEstimate memoryEstimate(const World& world) const override;
 
     const Aggregate& aggregate() const { return *mAggregate; }
@@ -54,12 +58,17 @@ public:
 
 private:
     void checkOutputKeys(ParamDict& d) const;
+    void checkFrameBudget(const World& world, int64_t frame, const std::vector<float>& radii);
+    double modelledLeaves(double reach) const;
+    double modelledSdfLeaves() const;
+    double pointsBytes() const;
     DlaSettings mSettings;
     Options mOptions;
     std::unique_ptr<Aggregate> mAggregate;
     std::vector<float> mAttach; ///< attach time per particle (0..1 of the run's particles)
     int64_t mTotalSteps = 1;
     double mGrowSeconds = 0, mOutputSeconds = 0;
+    double mSdfLeaves = 0; ///< the last frame's level set, before pruning
     openvdb::FloatGrid::Ptr mSdf; ///< of the last frame (for the mesh)
 };
 
