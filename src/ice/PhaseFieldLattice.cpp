@@ -22,7 +22,9 @@ public:
         // for the frame's output copies: about 112 bytes per voxel (issue 25: 96 was 1.7x low).
         // A box fills its 8^3 leaves where a plane uses one layer of 8: a dense 160^3 box peaked
         // 61 MiB above the program's own memory for 4.1 M voxels, 15.6 bytes per voxel (112 was 7x).
-        // Folded p and T (core/PlaneFold.h, session 13): KFOLDED_NOTE
+        // Folded p and T (core/PlaneFold.h, session 13): the same dense 1024^2 plane peaked 71.5 MiB
+        // above the program's own memory (Probe 25.2's plane_dense), about 60 bytes per voxel
+        // (most of it the frame's plane-layout copies of p and T).
         if (!world.region.dense) return {};
         const double perVoxel = !world.domain.flat() ? 16.0 : foldsByDeclarations(world) ? kFoldedPlaneBytes : 112.0;
         return perVoxelEstimate(double(world.domain.bbox().volume()), perVoxel, "domain.size",
@@ -40,7 +42,7 @@ public:
         const int p = w.of(ice::kPhase.name), T = w.of(ice::kTemperature.name);
         return p == T && p <= 2;
     }
-    static constexpr double kFoldedPlaneBytes = 48.0;
+    static constexpr double kFoldedPlaneBytes = 60.0;
 
     void initialize(World& world) override
     {
