@@ -1,6 +1,7 @@
 // [dla]: lattice symmetry of the arms, multiple hits, humidity, heat release (eq. 6), exact
 // empty-space jumps, determinism, melt map, flow drift, steam humidity.
 #include "test_util.h"
+#include "plane_layout_util.h"
 
 #include <frostvdb/core/Error.h>
 #include <frostvdb/ice/Dla.h>
@@ -133,7 +134,7 @@ TEST_CASE("Hexagonal DLA grows 6 arms and square DLA 4 arms", "[fast][dla]")
     for (const std::string lattice : {"hexagonal", "square"}) {
         const int j = lattice == "hexagonal" ? 6 : 4;
         auto sim = runSteps(dlaScene(lattice, 160, "humidity = 1500\nhits = 24\n"), 150);
-        auto p = sim->world().fields.get<openvdb::FloatGrid>("p");
+        auto p = planeLayout(sim->world(), "p");
         const auto modes = armModes(*p, sim->world().domain);
         INFO(lattice << " modes:" << modesText(modes) << " frozen " << dla(sim).stats().frozen);
         int best = 2;
@@ -162,8 +163,8 @@ TEST_CASE("More hits per cell give more regular arms", "[fast][dla]")
         const std::string o = "scene.seed=" + std::to_string(seed);
         auto plain = runSteps(dlaScene("hexagonal", 160, "humidity = 60\nhits = 1\n"), 100, {o});
         auto noiseReduced = runSteps(dlaScene("hexagonal", 160, "humidity = 1500\nhits = 24\n"), 150, {o});
-        const auto m1 = armModes(*plain->world().fields.get<openvdb::FloatGrid>("p"), plain->world().domain);
-        const auto m8 = armModes(*noiseReduced->world().fields.get<openvdb::FloatGrid>("p"), noiseReduced->world().domain);
+        const auto m1 = armModes(*planeLayout(plain->world(), "p"), plain->world().domain);
+        const auto m8 = armModes(*planeLayout(noiseReduced->world(), "p"), noiseReduced->world().domain);
         INFO("seed " << seed << ": n=1 frozen " << dla(plain).stats().frozen << modesText(m1));
         INFO("seed " << seed << ": n=24 frozen " << dla(noiseReduced).stats().frozen << modesText(m8));
         CHECK(dla(plain).stats().frozen > 500);
@@ -192,7 +193,7 @@ TEST_CASE("Higher humidity makes hybrid ice more branched", "[fast][dla][hybrid]
         int s = 0;
         for (; s < 400; ++s) {
             sim->step();
-            ap = areaPerimeter(*sim->world().fields.get<openvdb::FloatGrid>("p"), sim->world().domain);
+            ap = areaPerimeter(*planeLayout(sim->world(), "p"), sim->world().domain);
             if (ap.first >= 800) break;
         }
         ratio.push_back(ap.second / ap.first);

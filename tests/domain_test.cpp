@@ -1,6 +1,7 @@
 // The domain interface: kinds come from the registry, the support clips the active region, and a
 // domain placed away from index 0 grows the same ice, bit for bit, shifted by its origin.
 #include "test_util.h"
+#include "plane_layout_util.h"
 
 #include <frostvdb/core/ActiveRegion.h>
 #include <frostvdb/core/Error.h>
@@ -112,7 +113,7 @@ TEST_CASE("Adding a domain kind changes no effect: the phase field and the walke
     const auto& dom = sim.world().domain;
     auto count = [&](bool inside) {
         size_t n = 0;
-        auto p = sim.world().fields.get<openvdb::FloatGrid>("p");
+        auto p = planeLayout(sim.world(), "p");
         REQUIRE(p);
         for (auto it = p->cbeginValueOn(); it; ++it)
             if (*it > 0.5f && dom.contains(it.getCoord()) == inside) ++n;

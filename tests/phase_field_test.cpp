@@ -1,6 +1,7 @@
 // The Kobayashi phase field on the sparse engine: dense reference, tolerance convergence,
 // arm count, determinism.
 #include "test_util.h"
+#include "plane_layout_util.h"
 
 #include <frostvdb/core/Error.h>
 #include <frostvdb/ice/PhaseFieldSolver.h>
@@ -133,7 +134,7 @@ TEST_CASE("The default dendrite has 4 arms with j=4 and 6 arms with j=6", "[fast
         ro.progress = false;
         ro.writeFiles = false;
         s.run(ro);
-        auto p = s.world().fields.get<openvdb::FloatGrid>("p");
+        auto p = planeLayout(s.world(), "p");
         const auto modes = angularModes(*p, s.world().domain);
         int best = 2;
         for (int m = 2; m <= 8; ++m)

@@ -8,6 +8,8 @@
 //  - FROSTVDB_NO_FUSED_TRUNCATION=1: truncation as its own pass instead of in forward Euler's commit.
 // Session 10: FROSTVDB_NO_PLANE_FOLD=1 keeps the plane layout Coord(x, y, 0) for the fields
 // core/PlaneFold.h folds (growth_acc, freeze_time, dla_hits); frames must not see the difference.
+// Session 13: p and T are folded too, in both schemes (the kernels gather and write folded rows,
+// the region is built from their plane-layout topology, the walkers read and write folded cells).
 #include <catch2/catch.hpp>
 
 #include "test_util.h"
@@ -41,7 +43,7 @@ const char* const kOldPaths[] = {"FROSTVDB_FULL_DISTANCE_SYNC", "FROSTVDB_NO_VEC
 /// Runs @a text writing every frame; with @a old the replaced paths (all of them, or only
 /// @a only when given).
 std::vector<std::string> runFrames(const std::string& text, bool old, const std::string& tag, int threads,
-                                   const char* only = nullptr)
+                                   const char* only = nullptr, bool* phaseFolded = nullptr)
 {
     for (const char* v : kOldPaths) {
         if (old && (!only || std::string(only) == v)) ::setenv(v, "1", 1);
@@ -57,6 +59,10 @@ std::vector<std::string> runFrames(const std::string& text, bool old, const std:
     // the listed path applies: [phase_field] reports its crossings and is the only other writer of p
     const auto& w = sim.world().state<FieldWriters>();
     CHECK(w.of("p") - 1 == sim.world().state<FieldEdits>().crossingReporters("p"));
+    if (phaseFolded) {
+        *phaseFolded = plane::isFolded(*sim.world().fields.grid("p"));
+        CHECK(plane::isFolded(*sim.world().fields.grid("T")) == *phaseFolded);
+    }
     return {ro.outDir + "/hybrid.0001.vdb", ro.outDir + "/hybrid.0002.vdb"};
 }
 
@@ -86,22 +92,34 @@ TEST_CASE("Hybrid frames on the new paths equal the old paths' bit for bit, squa
 TEST_CASE("Folded plane fields give the plane layout's frames bit for bit, square and hexagonal",
           "[fast][dla][phase_field][fold]")
 {
-    for (const std::string lattice : {"square", "hexagonal"})
-        for (const std::string scheme : {"euler", "lw_cn"}) {
-            const std::string text = hybridScene(lattice, scheme);
-            const std::string tag = "fold_" + lattice + "_" + scheme;
-            const auto unfolded = runFrames(text, true, tag + "_plane", 2, "FROSTVDB_NO_PLANE_FOLD");
-            const auto folded = runFrames(text, false, tag + "_folded", 2);
-            const auto folded1 = runFrames(text, false, tag + "_folded1", 1);
-            for (size_t f = 0; f < folded.size(); ++f) {
-                std::string why;
-                INFO(lattice << " " << scheme << " frame " << f + 1);
-                CHECK(sameVdbContent(unfolded[f], folded[f], &why));
-                INFO(why);
-                CHECK(sameVdbContent(unfolded[f], folded1[f], &why));
-                INFO(why);
-            }
+    // The region variants reach the region's other paths on folded p and T: rebuilt every 16
+    // steps (the voxel dilation: the leaf path covers 3 leaves at most) and dense.
+    const std::vector<std::pair<std::string, std::string>> cases = {
+        {"square", "euler"}, {"square", "lw_cn"}, {"hexagonal", "euler"}, {"hexagonal", "lw_cn"},
+        {"square", "euler rebuild_every"}, {"hexagonal", "euler dense"}};
+    for (const auto& [lattice, variant] : cases) {
+        const std::string scheme = variant.substr(0, variant.find(' '));
+        std::string text = hybridScene(lattice, scheme);
+        if (variant == "euler rebuild_every") text += "[region]\nrebuild_every = 16\n";
+        if (variant == "euler dense") text += "[region]\ndense = true\n";
+        const std::string tag = "fold_" + lattice + "_" + variant.substr(variant.rfind(' ') + 1);
+        bool planeFolded = true, folded2 = false, folded1Phase = false;
+        const auto unfolded = runFrames(text, true, tag + "_plane", 2, "FROSTVDB_NO_PLANE_FOLD", &planeFolded);
+        const auto folded = runFrames(text, false, tag + "_folded", 2, nullptr, &folded2);
+        const auto folded1 = runFrames(text, false, tag + "_folded1", 1, nullptr, &folded1Phase);
+        INFO(lattice << " " << variant);
+        CHECK(!planeFolded);
+        CHECK(folded2); // the fold of p and T did run
+        CHECK(folded1Phase == folded2);
+        for (size_t f = 0; f < folded.size(); ++f) {
+            std::string why;
+            INFO(lattice << " " << scheme << " frame " << f + 1);
+            CHECK(sameVdbContent(unfolded[f], folded[f], &why));
+            INFO(why);
+            CHECK(sameVdbContent(unfolded[f], folded1[f], &why));
+            INFO(why);
         }
+    }
 }
 
 TEST_CASE("The fold is a permutation: fold and unfold give back every value and active state", "[fast][fold]")
@@ -171,6 +189,12 @@ TEST_CASE("A checkpoint of the plane layout resumes on a folding build to the sa
     for (int64_t s = k; s < 30; ++s) resumed.step();
     CHECK(plane::isFolded(*straight.world().fields.grid("growth_acc")));
     CHECK(!plane::isFolded(*resumed.world().fields.grid("growth_acc")));
+    // p and T of the old layout are folded by the phase field's next step (a permutation that
+    // keeps the standing region: the frames below are the same)
+    for (const char* f : {"p", "T"}) {
+        CHECK(plane::isFolded(*straight.world().fields.grid(f)));
+        CHECK(plane::isFolded(*resumed.world().fields.grid(f)));
+    }
     const Frame a = straight.currentFrame(1), b = resumed.currentFrame(1);
     REQUIRE(a.grids.size() == b.grids.size());
     for (size_t i = 0; i < a.grids.size(); ++i) {
@@ -183,4 +207,26 @@ TEST_CASE("A checkpoint of the plane layout resumes on a folding build to the sa
         CHECK(x->tree().hasSameTopology(y->tree()));
         CHECK(maxAbsDiff(*x, *y) == 0.0);
     }
+}
+
+TEST_CASE("A plane region's folded topology and a folded grid's plane topology are the fold's", "[fast][fold]")
+{
+    // a plane region of partly filled leaves, negative coordinates included
+    auto region = openvdb::MaskGrid::create(false);
+    auto g = openvdb::FloatGrid::create(0.f);
+    for (int y = -20; y < 30; ++y)
+        for (int x = -75; x < 90; ++x)
+            if ((x * 7 + y * 3) % 5 != 0) {
+                region->tree().setValueOn(openvdb::Coord(x, y, 0));
+                g->tree().setValue(openvdb::Coord(x, y, 0), float(x - y));
+            }
+    auto folded = plane::foldTopology(*region);
+    CHECK(plane::isFolded(*folded));
+    CHECK(folded->activeVoxelCount() == region->activeVoxelCount());
+    for (auto it = region->tree().cbeginValueOn(); it; ++it) REQUIRE(folded->tree().isValueOn(plane::fold(it.getCoord())));
+    // every plane leaf has its folded leaf, even an empty one
+    region->tree().touchLeaf(openvdb::Coord(400, 400, 0));
+    CHECK(plane::foldTopology(*region)->tree().probeConstLeaf(plane::foldedLeafOrigin(openvdb::Coord(400, 400, 0))));
+    auto back = plane::unfoldTopology(*plane::foldGrid(*g));
+    CHECK(back->tree().hasSameTopology(openvdb::MaskTree(g->tree(), false, openvdb::TopologyCopy())));
 }

@@ -4,6 +4,7 @@
 // shell's walkers step on the node graph and jump off-lattice), so the comparison is statistical:
 // means over seeds.
 #include "test_util.h"
+#include "plane_layout_util.h"
 
 #include <frostvdb/shell/ShellDomain.h>
 
@@ -26,7 +27,7 @@ namespace {
 std::set<std::pair<int, int>> iceCells(Simulation& sim)
 {
     std::set<std::pair<int, int>> out;
-    auto p = sim.world().fields.get<openvdb::FloatGrid>("p");
+    auto p = test::planeLayout(sim.world(), "p"); // the plane's p is folded (core/PlaneFold.h)
     for (auto it = p->cbeginValueOn(); it; ++it)
         if (*it > 0.5f) out.insert({it.getCoord().x(), it.getCoord().y()});
     return out;

@@ -18,6 +18,7 @@
 //    (i, j) -> (-i - j, j) in axial coordinates, compared where both cells lie inside the domain.
 #include <frostvdb/BuildPaths.h>
 #include "test_util.h"
+#include "plane_layout_util.h"
 
 #include <frostvdb/core/Error.h>
 #include <frostvdb/icephysics/IceState.h>
@@ -101,9 +102,10 @@ Outcome runCase(const Case& c)
     double up = 0, down = 0; // summed per-step bounds of T - T_inf
     const double slack = 1e-4;
     for (int s = 0; s < c.steps; ++s) {
-        auto before = sim.world().fields.get<openvdb::FloatGrid>("p")->deepCopy();
+        // by plane cells: p is folded on a plane from the first phase-field step (core/PlaneFold.h)
+        auto before = planeLayout(sim.world(), "p");
         sim.step();
-        auto p = sim.world().fields.get<openvdb::FloatGrid>("p");
+        auto p = planeLayout(sim.world(), "p");
         auto T = sim.world().fields.get<openvdb::FloatGrid>("T");
         // Per-step change of p over the union of both grids' stored voxels.
         double dpUp = 0, dpDown = 0;
@@ -153,7 +155,7 @@ Outcome runCase(const Case& c)
             break;
         }
     }
-    auto p = sim.world().fields.get<openvdb::FloatGrid>("p");
+    auto p = planeLayout(sim.world(), "p");
     for (auto it = p->cbeginValueOn(); it; ++it) o.frozenEnd += *it > 0.5f;
     o.symErr = symmetryError(*p, sim.world().domain.bbox().dim().x(), c.symmetry);
     return o;

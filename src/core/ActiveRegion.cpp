@@ -1,4 +1,5 @@
 #include <frostvdb/core/ActiveRegion.h>
+#include <frostvdb/core/RegionOfTopology.h>
 
 #include <openvdb/tools/Morphology.h>
 #include <openvdb/tools/Prune.h>
@@ -136,11 +137,12 @@ void fillLeaves(openvdb::MaskTree& tree, const Domain& domain)
 
 /// True when some field stores an active tile (a pruned block): the leaf-level plane path
 /// reads leaves only.
-bool anyActiveTile(const std::vector<const openvdb::FloatGrid*>& fields)
+template <typename GridT>
+bool anyActiveTile(const std::vector<const GridT*>& fields)
 {
     for (const auto* f : fields) {
         auto it = f->tree().cbeginValueOn();
-        it.setMaxDepth(openvdb::FloatTree::ValueOnCIter::LEAF_DEPTH - 1);
+        it.setMaxDepth(GridT::TreeType::ValueOnCIter::LEAF_DEPTH - 1);
         if (it) return true;
     }
     return false;
@@ -152,7 +154,8 @@ bool anyActiveTile(const std::vector<const openvdb::FloatGrid*>& fields)
 /// dilating a voxel mask: each source leaf marks the neighbour leaves its voxels reach. Cost
 /// follows the fields' leaves. Returns @a previous itself when the leaf set is unchanged.
 /// Null when the reach spans more than two leaves (the voxel dilation handles that).
-openvdb::MaskGrid::Ptr planeRegionByLeaves(const std::vector<const openvdb::FloatGrid*>& fields, int iterations,
+template <typename GridT>
+openvdb::MaskGrid::Ptr planeRegionByLeaves(const std::vector<const GridT*>& fields, int iterations,
                                            bool chebyshev, const Domain& domain,
                                            const openvdb::MaskGrid::Ptr& previous)
 {
@@ -169,10 +172,10 @@ openvdb::MaskGrid::Ptr planeRegionByLeaves(const std::vector<const openvdb::Floa
     auto gap = [](int v, int d) { return d == 0 ? 0 : d > 0 ? d * kLeafDim - v : v + 1 + (-d - 1) * kLeafDim; };
     std::vector<uint8_t> table(size_t(nx) * size_t(ny), 0);
     for (const auto* f : fields) {
-        openvdb::tree::LeafManager<const openvdb::FloatTree> leaves(f->tree());
+        openvdb::tree::LeafManager<const typename GridT::TreeType> leaves(f->tree());
         // Per source leaf: which of the (2R+1)^2 leaves around it its voxels reach (bit per leaf).
         std::vector<uint64_t> reached(leaves.leafCount(), 0);
-        leaves.foreach([&](const openvdb::FloatTree::LeafNodeType& leaf, size_t i) {
+        leaves.foreach([&](const typename GridT::TreeType::LeafNodeType& leaf, size_t i) {
             const openvdb::Coord o = leaf.origin();
             if (o.z() != zLeaf) return;
             // per x: the plane layer's active y's inside the domain (bit y)
@@ -243,11 +246,10 @@ openvdb::MaskGrid::Ptr planeRegionByLeaves(const std::vector<const openvdb::Floa
     return region;
 }
 
-} // namespace
-
-openvdb::MaskGrid::Ptr buildActiveRegion(const std::vector<const openvdb::FloatGrid*>& fields,
-                                         const RegionSettings& settings, int reach, const Domain& domain, int steps,
-                                         const openvdb::MaskGrid::Ptr& previous)
+/// buildActiveRegion over the fields' topology (float fields, or plane-layout masks of folded ones).
+template <typename GridT>
+openvdb::MaskGrid::Ptr regionOf(const std::vector<const GridT*>& fields, const RegionSettings& settings, int reach,
+                                const Domain& domain, int steps, const openvdb::MaskGrid::Ptr& previous)
 {
     if (!settings.dense && domain.flat() && !anyActiveTile(fields)) {
         const int iterations = std::max(1, steps) * (reach + settings.frontTravel);
@@ -286,6 +288,22 @@ openvdb::MaskGrid::Ptr buildActiveRegion(const std::vector<const openvdb::FloatG
     domain.clipToSupport(region->tree());
     if (previous && region->tree().hasSameTopology(previous->tree())) return previous;
     return region;
+}
+
+} // namespace
+
+openvdb::MaskGrid::Ptr buildActiveRegion(const std::vector<const openvdb::FloatGrid*>& fields,
+                                         const RegionSettings& settings, int reach, const Domain& domain, int steps,
+                                         const openvdb::MaskGrid::Ptr& previous)
+{
+    return regionOf(fields, settings, reach, domain, steps, previous);
+}
+
+openvdb::MaskGrid::Ptr buildActiveRegionOfTopology(const std::vector<const openvdb::MaskGrid*>& topologies,
+                                                   const RegionSettings& settings, int reach, const Domain& domain,
+                                                   int steps, const openvdb::MaskGrid::Ptr& previous)
+{
+    return regionOf(topologies, settings, reach, domain, steps, previous);
 }
 
 bool growActiveRegion(openvdb::MaskGrid& region, const std::vector<openvdb::Coord>& cells, int radius,
@@ -338,7 +356,7 @@ void matchTopology(openvdb::FloatGrid& grid, const openvdb::MaskGrid& region, bo
     }
     // Tiles are not expected (kernels write leaves); a tile would hide voxels, so voxelize
     // (looking first: the voxelize pass visits every internal node).
-    if (anyActiveTile({&grid})) tree.voxelizeActiveTiles();
+    if (anyActiveTile(std::vector<const openvdb::FloatGrid*>{&grid})) tree.voxelizeActiveTiles();
     // Leaves it gains (serial: topology changes), then masks and background values in parallel.
     {
         openvdb::tree::ValueAccessor<openvdb::FloatTree> acc(tree);

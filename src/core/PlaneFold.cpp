@@ -90,6 +90,65 @@ typename GridT::Ptr foldGrid(const GridT& planeGrid)
     return out;
 }
 
+openvdb::MaskGrid::Ptr foldTopology(const openvdb::MaskGrid& planeRegion)
+{
+    using MaskLeaf = openvdb::MaskTree::LeafNodeType;
+    auto out = openvdb::MaskGrid::create(false);
+    out->setTransform(planeRegion.transform().copy());
+    markFolded(*out);
+    openvdb::tree::ValueAccessor<openvdb::MaskTree> acc(out->tree());
+    for (auto it = planeRegion.tree().cbeginLeaf(); it; ++it) {
+        const MaskLeaf& pl = *it;
+        const openvdb::Coord lo = pl.origin();
+        if (lo.z() != 0) throw std::logic_error("foldTopology: a plane region has a leaf off layer 0");
+        // every plane leaf has its folded leaf, even an empty one (the kernel looks it up)
+        auto& fm = acc.touchLeaf(foldedLeafOrigin(lo))->getValueMask();
+        // plane word dx holds bit (dy << 3) of (dx, dy); the folded row dy takes it at bit (lo.x & 63) | dx
+        const int g = lo.x() & 63;
+        for (int dx = 0; dx < 8; ++dx) {
+            const uint64_t w = pl.getValueMask().template getWord<uint64_t>(openvdb::Index(dx));
+            for (int dy = 0; dy < 8; ++dy)
+                if ((w >> (dy << 3)) & 1u) fm.template getWord<uint64_t>(openvdb::Index(dy)) |= uint64_t(1) << (g | dx);
+        }
+    }
+    auto tiles = planeRegion.tree().cbeginValueOn();
+    tiles.setMaxDepth(openvdb::MaskTree::ValueOnCIter::LEAF_DEPTH - 1);
+    if (tiles) throw std::logic_error("foldTopology: a plane region with active tiles");
+    return out;
+}
+
+template <typename GridT>
+openvdb::MaskGrid::Ptr unfoldTopology(const GridT& folded)
+{
+    using TreeT = typename GridT::TreeType;
+    typename TreeT::Ptr hold;
+    const TreeT& src = voxelTree(folded.tree(), hold);
+    auto out = openvdb::MaskGrid::create(false);
+    out->setTransform(folded.transform().copy());
+    openvdb::tree::ValueAccessor<openvdb::MaskTree> acc(out->tree());
+    for (auto it = src.cbeginLeaf(); it; ++it) {
+        const openvdb::Coord fo = it->origin();
+        if (fo.z() != 0) throw std::logic_error("unfoldTopology: a folded plane grid has a leaf off layer 0");
+        const auto& fm = it->getValueMask();
+        for (int g = 0; g < 8; ++g) {
+            uint64_t rows[8];
+            bool any = false;
+            for (int dy = 0; dy < 8; ++dy) {
+                rows[dy] = (fm.template getWord<uint64_t>(openvdb::Index(dy)) >> (g * 8)) & 0xffu;
+                any = any || rows[dy];
+            }
+            if (!any) continue; // a plane leaf only where the chunk has an active voxel (as unfoldGrid)
+            auto& pm = acc.touchLeaf(openvdb::Coord((fo.y() + g) * 8, fo.x(), 0))->getValueMask();
+            for (int dy = 0; dy < 8; ++dy)
+                for (uint64_t b = rows[dy]; b; b &= b - 1)
+                    pm.template getWord<uint64_t>(openvdb::Index(__builtin_ctzll(b))) |= uint64_t(1) << (dy << 3);
+        }
+    }
+    return out;
+}
+
+template openvdb::MaskGrid::Ptr unfoldTopology<openvdb::FloatGrid>(const openvdb::FloatGrid&);
+
 template openvdb::FloatGrid::Ptr unfoldGrid<openvdb::FloatGrid>(const openvdb::FloatGrid&);
 template openvdb::Int32Grid::Ptr unfoldGrid<openvdb::Int32Grid>(const openvdb::Int32Grid&);
 template openvdb::FloatGrid::Ptr foldGrid<openvdb::FloatGrid>(const openvdb::FloatGrid&);

@@ -378,10 +378,11 @@ void DlaEffect::updateHitCounts(const openvdb::FloatGrid& p, openvdb::Int32Grid&
     const bool sweep = (step + 1) % 16 == 0;
     if (sweep) {
         auto pAcc = p.getConstAccessor();
+        const bool foldP = plane::isFolded(p);
         std::vector<openvdb::Coord> underIce;
         for (auto it = hits.cbeginValueOn(); it; ++it) {
             const openvdb::Coord c = fold ? plane::unfold(it.getCoord()) : it.getCoord();
-            if (pAcc.getValue(c) > 0.5f) underIce.push_back(c);
+            if (pAcc.getValue(foldP ? plane::fold(c) : c) > 0.5f) underIce.push_back(c);
         }
         for (const auto& c : underIce) {
             hAcc.setValueOff(stored(c), 0);
@@ -435,9 +436,10 @@ void DlaEffect::step(World& world, const StepInfo& info)
     auto pAcc = p->getAccessor();
     auto gAcc = growth->getAccessor();
     auto fAcc = freeze->getAccessor();
-    // On a plane both accumulators are folded (core/PlaneFold.h): they are written at fold(c).
+    // On a plane the accumulators, and p and T once the phase field folds them, are written at fold(c).
     const bool foldAcc = plane::isFolded(*growth);
     if (foldAcc != plane::isFolded(*freeze)) throw std::logic_error("growth_acc and freeze_time differ in layout");
+    const bool foldP = plane::isFolded(*p), foldT = T && plane::isFolded(*T);
     std::unique_ptr<openvdb::FloatGrid::Accessor> tAcc;
     if (T && sh.temperatureEvolves && mHeat != 0) tAcc = std::make_unique<openvdb::FloatGrid::Accessor>(T->getAccessor());
     const bool counting = hitsGrid && mParams.hits > 1;
@@ -451,12 +453,13 @@ void DlaEffect::step(World& world, const StepInfo& info)
     auto freezeCell = [&](int64_t cell) {
         frozenInBatch.push_back(cell);
         const openvdb::Coord c = mEngine->coord(cell);
-        const float before = pAcc.getValue(c);
-        pAcc.setValue(c, 1.f);
+        const openvdb::Coord cp = foldP ? plane::fold(c) : c, ct = foldT ? plane::fold(c) : c;
+        const float before = pAcc.getValue(cp);
+        pAcc.setValue(cp, 1.f);
         if (editsP) editsP->push_back(c);
         if (editsT) editsT->push_back(c);
         recordPhaseChange(gAcc, fAcc, foldAcc ? plane::fold(c) : c, before, 1.f, time);
-        if (tAcc) tAcc->setValue(c, tAcc->getValue(c) + float(mHeat * (1.0 - double(before))));
+        if (tAcc) tAcc->setValue(ct, tAcc->getValue(ct) + float(mHeat * (1.0 - double(before))));
         mEngine->freezeDeferred(cell); // distances relaxed once per batch (or before a resumed walk)
         ++mStats.frozen;
         mStats.dpDla += 1.0 - double(before);

@@ -9,6 +9,7 @@
 /// the brick it is in; a hash probe happens only when it crosses into another brick.
 #include <frostvdb/ice/Dla.h>
 #include <frostvdb/core/Error.h>
+#include <frostvdb/core/PlaneFold.h>
 #include <frostvdb/geometry/HexLattice.h>
 
 #include <openvdb/tree/LeafManager.h>
@@ -239,6 +240,7 @@ struct DlaEngine::SyncCache {
         size_t operator()(const openvdb::Coord& c) const { return size_t(c.hash<20>()); }
     };
     std::unordered_map<openvdb::Coord, openvdb::util::NodeMask<3>, Hash> above;
+    bool folded = false; ///< keyed by folded leaves (core/PlaneFold.h); a layout change starts afresh
 };
 
 DlaEngine::~DlaEngine() = default;
@@ -525,17 +527,20 @@ void DlaEngine::rebuild(const openvdb::FloatGrid& p)
     mSparse->clear();
     mIceCount = 0;
     mQueue.clear();
+    const bool fold = plane::isFolded(p); // p's cells stored at fold(c) (core/PlaneFold.h)
     for (auto it = p.cbeginValueOn(); it; ++it) {
         if (!(*it > 0.5f)) continue;
         openvdb::CoordBBox bb = it.getBoundingBox();
-        bb.intersect(mDomain.bbox());
-        for (auto c = bb.begin(); c; ++c) {
-            const openvdb::Coord r = *c - mOrigin;
+        bb.intersect(fold ? plane::foldedBBox(mDomain.bbox()) : mDomain.bbox());
+        for (auto s = bb.begin(); s; ++s) {
+            const openvdb::Coord c = fold ? plane::unfold(*s) : *s;
+            if (fold && !mDomain.bbox().isInside(c)) continue;
+            const openvdb::Coord r = c - mOrigin;
             if (mSparse->fine(r.x(), r.y(), r.z()) == 0) continue;
             mSparse->setFine(r.x(), r.y(), r.z(), 0);
             mSparse->addIce(r.x(), r.y(), r.z());
             ++mIceCount;
-            mQueue.push_back(index(*c));
+            mQueue.push_back(index(c));
         }
     }
     relaxQueue(); // multi-source BFS
@@ -549,7 +554,10 @@ void DlaEngine::sync(const openvdb::FloatGrid& p)
     // the last sync) collected (the order of freezing does not matter: the capped distances are
     // the unique BFS minimum).
     using Mask = openvdb::util::NodeMask<3>;
-    if (!mSyncCache) mSyncCache = std::make_unique<SyncCache>();
+    if (!mSyncCache || mSyncCache->folded != plane::isFolded(p)) {
+        mSyncCache = std::make_unique<SyncCache>();
+        mSyncCache->folded = plane::isFolded(p);
+    }
     openvdb::tree::LeafManager<const openvdb::FloatTree> leaves(p.tree());
     const size_t nl = leaves.leafCount();
     std::vector<uint64_t> counts(nl, 0);
@@ -558,17 +566,19 @@ void DlaEngine::sync(const openvdb::FloatGrid& p)
     std::vector<char> changed(nl, 0);
     const openvdb::CoordBBox dom = mDomain.bbox();
     const auto& cache = mSyncCache->above;
+    const bool fold = plane::isFolded(p); // p's cells stored at fold(c) (core/PlaneFold.h)
+    auto cellAt = [fold](const openvdb::Coord& s) { return fold ? plane::unfold(s) : s; };
     tbb::parallel_for(tbb::blocked_range<size_t>(0, nl, 8), [&](const tbb::blocked_range<size_t>& r) {
         BrickCursor cur(*mSparse); // read only here
         for (size_t l = r.begin(); l != r.end(); ++l) {
             const auto& leaf = leaves.leaf(l);
-            const bool inside = dom.isInside(leaf.getNodeBoundingBox());
+            const bool inside = !fold && dom.isInside(leaf.getNodeBoundingBox());
             Mask& m = above[l];
             const float* v = leaf.buffer().data();
             for (openvdb::Index w = 0; w < Mask::WORD_COUNT; ++w)
                 for (uint64_t bits = leaf.getValueMask().template getWord<uint64_t>(w); bits; bits &= bits - 1) {
                     const openvdb::Index n = openvdb::Index(w * 64 + __builtin_ctzll(bits));
-                    if (v[n] > 0.5f && (inside || dom.isInside(leaf.offsetToGlobalCoord(n)))) m.setOn(n);
+                    if (v[n] > 0.5f && (inside || dom.isInside(cellAt(leaf.offsetToGlobalCoord(n))))) m.setOn(n);
                 }
             counts[l] = m.countOn();
             const auto known = cache.find(leaf.origin());
@@ -578,7 +588,7 @@ void DlaEngine::sync(const openvdb::FloatGrid& p)
               uint64_t bits = m.template getWord<uint64_t>(w);
               if (known != cache.end()) bits &= ~known->second.template getWord<uint64_t>(w); // ice at the last sync
               for (; bits; bits &= bits - 1) {
-                const openvdb::Coord c = leaf.offsetToGlobalCoord(openvdb::Index(w * 64 + __builtin_ctzll(bits)));
+                const openvdb::Coord c = cellAt(leaf.offsetToGlobalCoord(openvdb::Index(w * 64 + __builtin_ctzll(bits))));
                 const openvdb::Coord q = c - mOrigin;
                 if (cur.get(q.x(), q.y(), q.z()) != 0) fresh[l].push_back(index(c));
               }
@@ -596,10 +606,12 @@ void DlaEngine::sync(const openvdb::FloatGrid& p)
     for (auto& it = tileIt; it; ++it) {
         if (!(*it > 0.5f)) continue;
         openvdb::CoordBBox bb = it.getBoundingBox();
-        bb.intersect(dom);
-        for (auto c = bb.begin(); c; ++c) {
+        bb.intersect(fold ? plane::foldedBBox(dom) : dom);
+        for (auto s = bb.begin(); s; ++s) {
+            const openvdb::Coord c = cellAt(*s);
+            if (!dom.isInside(c)) continue;
             ++count;
-            const int64_t i = index(*c);
+            const int64_t i = index(c);
             if (!isIce(i)) tiles.push_back(i);
         }
     }
@@ -617,7 +629,7 @@ void DlaEngine::sync(const openvdb::FloatGrid& p)
                 if (!changed[l]) continue; // a melt changes the leaf's set; a missed one forces a rebuild below
                 for (auto it = leaves.leaf(l).cbeginValueOn(); it; ++it) {
                     if (*it > 0.5f) continue;
-                    const openvdb::Coord c = it.getCoord();
+                    const openvdb::Coord c = cellAt(it.getCoord());
                     if (!dom.isInside(c)) continue;
                     const openvdb::Coord q = c - mOrigin;
                     if (cur.get(q.x(), q.y(), q.z()) == 0) lost[l].push_back(index(c));
@@ -659,8 +671,10 @@ void DlaEngine::syncCells(const openvdb::FloatGrid& p, const std::vector<openvdb
     std::vector<int64_t> fresh, melted;
     {
         openvdb::tree::ValueAccessor<const openvdb::FloatTree, false> acc(p.tree());
+        const bool fold = plane::isFolded(p); // p's cells stored at fold(c) (core/PlaneFold.h)
         for (int64_t id : ids) {
-            const bool above = acc.getValue(coord(id)) > 0.5f;
+            const openvdb::Coord c = coord(id);
+            const bool above = acc.getValue(fold ? plane::fold(c) : c) > 0.5f;
             const bool ice = isIce(id);
             if (above && !ice) fresh.push_back(id);
             else if (!above && ice) melted.push_back(id);

@@ -3,6 +3,7 @@
 /// ice/PhaseFieldSolver.h stepping World's grids in place, its region cadence checkpointed.
 #include <frostvdb/core/FieldEdits.h>
 #include <frostvdb/core/FieldWriters.h>
+#include <frostvdb/core/PlaneFold.h>
 #include <frostvdb/icephysics/IceState.h>
 #include <frostvdb/ice/PhaseFieldBackend.h>
 #include <frostvdb/ice/PhaseFieldSolver.h>
@@ -21,11 +22,27 @@ public:
         // for the frame's output copies: about 112 bytes per voxel (issue 25: 96 was 1.7x low).
         // A box fills its 8^3 leaves where a plane uses one layer of 8: a dense 160^3 box peaked
         // 61 MiB above the program's own memory for 4.1 M voxels, 15.6 bytes per voxel (112 was 7x).
+        // Folded p and T (core/PlaneFold.h, session 13): the same dense 1024^2 plane peaked 71.5 MiB
+        // above the program's own memory (Probe 25.2's plane_dense), about 60 bytes per voxel
+        // (most of it the frame's plane-layout copies of p and T).
         if (!world.region.dense) return {};
-        return perVoxelEstimate(double(world.domain.bbox().volume()), world.domain.flat() ? 112.0 : 16.0,
-                                "domain.size",
+        const double perVoxel = !world.domain.flat() ? 16.0 : foldsByDeclarations(world) ? kFoldedPlaneBytes : 112.0;
+        return perVoxelEstimate(double(world.domain.bbox().volume()), perVoxel, "domain.size",
                                 "dense phase-field fields, the solver's region and spare grids, a frame's copies");
     }
+
+    /// What layOut will decide, from the scene's declarations (the walkers' edit lists are
+    /// registered only when they initialise): a folding plane whose other writers of p and T are
+    /// the walkers (they write both; the fluid writes T alone).
+    static bool foldsByDeclarations(const World& world)
+    {
+        if (!plane::foldsPlaneFields(world.domain)) return false;
+        if (!world.hasState<FieldWriters>()) return true;
+        const FieldWriters& w = const_cast<World&>(world).state<FieldWriters>(); // reads only
+        const int p = w.of(ice::kPhase.name), T = w.of(ice::kTemperature.name);
+        return p == T && p <= 2;
+    }
+    static constexpr double kFoldedPlaneBytes = 60.0;
 
     void initialize(World& world) override
     {
@@ -52,6 +69,7 @@ public:
         auto freeze = world.fields.get<openvdb::FloatGrid>(ice::kFreezeTime);
         mSolver->setMeltMap(world.fields.get<openvdb::FloatGrid>(ice::kMelt).get());
         useEditLogs(world);
+        layOut(world, p, T);
         const double subDt = mSetup.params.dt / mSetup.substeps;
         for (int s = 0; s < mSetup.substeps; ++s) {
             // Substeps key the noise by their own index so that each draws fresh values.
@@ -136,13 +154,39 @@ private:
 
     bool secondOrder() const { return mSetup.params.scheme == PhaseFieldScheme::SecondOrder; }
 
-    /// Trusts the walkers' edit lists only when every other writer of p and T fills them.
-    void useEditLogs(World& world)
+    /// True when every other writer of p and T lists the cells it writes (the walkers, or none).
+    static bool othersListTheirCells(World& world)
     {
         FieldEdits& edits = world.state<FieldEdits>();
         const FieldWriters* w = world.hasState<FieldWriters>() ? &world.state<FieldWriters>() : nullptr;
         auto listed = [&](const std::string& f) { return w && w->of(f) - 1 == edits.reporters(f); };
-        const bool all = listed(ice::kPhase.name) && listed(ice::kTemperature.name);
+        return listed(ice::kPhase.name) && listed(ice::kTemperature.name);
+    }
+
+    /// p and T on a plane are folded (core/PlaneFold.h) when the domain folds its plane fields
+    /// and the only other writers are the walkers (fold-aware): the fluid's heat advection, which
+    /// writes T in the plane layout, keeps the plane layout. Fields in the other layout (seeded
+    /// at initialisation, an older checkpoint) are converted here, a permutation of their values;
+    /// so are lw_cn's start values of the last step.
+    void layOut(World& world, openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::Ptr& T)
+    {
+        const bool fold = plane::foldsPlaneFields(world.domain) && othersListTheirCells(world);
+        for (const auto& history : mSolver->historyGrids()) {
+            openvdb::FloatGrid::Ptr& g = *history.second;
+            if (g && plane::isFolded(*g) != fold) g = fold ? plane::foldGrid(*g) : plane::unfoldGrid(*g);
+        }
+        if (plane::isFolded(*p) == fold && plane::isFolded(*T) == fold) return;
+        const auto oldP = p, oldT = T;
+        for (auto* g : {&p, &T})
+            if (plane::isFolded(**g) != fold) *g = fold ? plane::foldGrid(**g) : plane::unfoldGrid(**g);
+        mSolver->adoptRelaidFields(*oldP, *oldT, *p, *T);
+    }
+
+    /// Trusts the walkers' edit lists only when every other writer of p and T fills them.
+    void useEditLogs(World& world)
+    {
+        FieldEdits& edits = world.state<FieldEdits>();
+        const bool all = othersListTheirCells(world);
         mSolver->setEditLogs(all ? &edits.cells(ice::kPhase.name) : nullptr,
                              all ? &edits.cells(ice::kTemperature.name) : nullptr);
         mSolver->setCrossingLog(edits.crossingSink(ice::kPhase.name));

@@ -2,6 +2,7 @@
 #include <frostvdb/core/Fields.h>
 #include <frostvdb/core/Error.h>
 #include <frostvdb/core/PlaneFold.h>
+#include <frostvdb/core/RegionOfTopology.h>
 #include <frostvdb/core/Random.h>
 #include <frostvdb/icephysics/EulerRows.h>
 #include <frostvdb/icephysics/ImplicitSystem.h>
@@ -24,6 +25,8 @@
 #include <string>
 #include <mutex>
 #include <sstream>
+#include <stdexcept>
+#include <type_traits>
 
 namespace frostvdb {
 
@@ -145,9 +148,33 @@ void gather(const ConstAcc& acc, const Block& b, const openvdb::Coord& groupOrig
             }
 }
 
+/// gather() from a folded plane field (core/PlaneFold.h) over block cells [bx0, bx1) x [by0, by1)
+/// (the whole block by default): each block row is read as runs of contiguous x from the folded
+/// leaves' rows (one run per 64-column tile it crosses).
+void gatherFolded(const ConstAcc& acc, const Block& b, const openvdb::Coord& groupOrigin, std::vector<float>& out,
+                  int bx0 = 0, int bx1 = -1, int by0 = 0, int by1 = -1)
+{
+    const openvdb::Coord bo = b.origin(groupOrigin);
+    if (bx1 < 0) bx1 = b.bx;
+    if (by1 < 0) by1 = b.by;
+    for (int y = bo.y() + by0; y < bo.y() + by1; ++y) {
+        float* dst = &out[b.index(bx0, y - bo.y(), 0)];
+        for (int x = bo.x() + bx0; x < bo.x() + bx1;) {
+            const int x1 = std::min((x & ~63) + 64, bo.x() + bx1);
+            const openvdb::Coord f = plane::fold(openvdb::Coord(x, y, 0));
+            if (const FloatLeaf* leaf = acc.probeConstLeaf(f))
+                std::copy_n(leaf->buffer().data() + (((y & 7) << 6) | (x & 63)), x1 - x, dst);
+            else
+                std::fill_n(dst, x1 - x, acc.getValue(f));
+            dst += x1 - x;
+            x = x1;
+        }
+    }
+}
+
 /// Marks, on a plane block, the cells pass 1 must cover: each present leaf and a ring of one.
-void markNeeded(Block& b, const openvdb::Coord& groupOrigin, const openvdb::FloatTree::LeafNodeType* const* leaves,
-                size_t count)
+template <typename LeafT>
+void markNeeded(Block& b, const openvdb::Coord& groupOrigin, const LeafT* const* leaves, size_t count)
 {
     std::fill(b.need.begin(), b.need.end(), 0ull);
     if (!b.plane) return;
@@ -183,7 +210,8 @@ inline void forNeeded(const Block& b, F&& f)
 
 /// True when p is exactly 0 over a plane leaf and the two cells around it: everything the
 /// update of its voxels reads (kobayashiEulerHeatOnly applies).
-bool phaseZeroAround(const Block& b, const openvdb::Coord& groupOrigin, const FloatLeaf& leaf)
+template <typename LeafT>
+bool phaseZeroAround(const Block& b, const openvdb::Coord& groupOrigin, const LeafT& leaf)
 {
     if (!b.plane) return false;
     const openvdb::Coord o = leaf.origin() - b.origin(groupOrigin);
@@ -206,8 +234,8 @@ void auxPass(Block& b, const std::vector<float>& phase, const FlatStencil& st, c
 
 /// Calls f(n, i, c) for every active voxel of @a leaf: n its offset in the leaf, i its block
 /// cell, c its coordinate. Word by word over the value mask (word x, bit (y << 3) | z).
-template <typename F>
-inline void forActiveVoxels(const Block& b, const openvdb::Coord& groupOrigin, int z0, const FloatLeaf& leaf, F&& f)
+template <typename LeafT, typename F>
+inline void forActiveVoxels(const Block& b, const openvdb::Coord& groupOrigin, int z0, const LeafT& leaf, F&& f)
 {
     const openvdb::Coord bo = b.origin(groupOrigin);
     const openvdb::Coord lo = leaf.origin();
@@ -441,18 +469,34 @@ struct LeafKernel {
     /// Where the cells whose p crossed 1/2 go (null: nobody listens), see setCrossingLog.
     std::vector<openvdb::Coord>* crossings = nullptr;
 
+    /// Folded p and T (core/PlaneFold.h): the kernel walks the region's plane leaves, and
+    /// region leaf li's values are staged in its folded leaf, foldedLeaf[li] of p's leaves.
+    const std::vector<uint32_t>* foldedLeaf = nullptr;
+
     /// Where leaf @a li's new values go: the staging slots or the leaf buffer itself, and the
-    /// shift from a leaf offset to its slot (planes keep one z layer: 64 slots, offset >> 3).
+    /// shift from a leaf offset to its slot (planes keep one z layer: 64 slots, offset >> 3);
+    /// folded, the slot of plane offset n in the folded leaf of the plane leaf at lo.
     struct Out {
         float *p, *t;
         int shift;
-        float& atP(openvdb::Index n) const { return p[n >> shift]; }
-        float& atT(openvdb::Index n) const { return t[n >> shift]; }
+        bool fold;
+        openvdb::Coord lo;
+        openvdb::Index slot(openvdb::Index n) const
+        {
+            return fold ? plane::foldedOffset(lo, int(n >> 6), int((n >> 3) & 7)) : n >> shift;
+        }
+        float& atP(openvdb::Index n) const { return p[slot(n)]; }
+        float& atT(openvdb::Index n) const { return t[slot(n)]; }
     };
-    Out out(size_t li, FloatLeaf& pl, FloatLeaf& tl) const
+    Out out(size_t li, const openvdb::Coord& lo, openvdb::tree::LeafManager<openvdb::FloatTree>& pLeaves,
+            openvdb::tree::LeafManager<openvdb::FloatTree>& tLeaves) const
     {
-        if (staged) return {staged->p(li), staged->t(li), staged->shift};
-        return {pl.buffer().data(), tl.buffer().data(), 0};
+        if (foldedLeaf) {
+            const size_t fi = (*foldedLeaf)[li];
+            return {staged->p(fi), staged->t(fi), 0, true, lo};
+        }
+        if (staged) return {staged->p(li), staged->t(li), staged->shift, false, lo};
+        return {pLeaves.leaf(li).buffer().data(), tLeaves.leaf(li).buffer().data(), 0, false, lo};
     }
 
     /// Pass 1 on a plane block, by runs of needed cells along each row.
@@ -475,8 +519,9 @@ struct LeafKernel {
     /// Pass 2 on a plane block's leaves that take the full update: the row code over runs of
     /// horizontally adjacent leaves (up to kPlaneGroup * 8 cells per call) into the block's
     /// scratch (pe, te, dp); planeLeaf then writes each leaf.
+    template <typename LeafT>
     void planeRows(Block& b, const openvdb::Coord& go, int z0, const FlatStencil& st, const EulerRows& rows,
-                   const FloatLeaf* const* full, size_t nFull) const
+                   const LeafT* const* full, size_t nFull) const
     {
         const openvdb::Coord bo = b.origin(go);
         unsigned cols[kPlaneGroup] = {}; // per leaf row of the group: bit lx for each leaf
@@ -509,7 +554,8 @@ struct LeafKernel {
 
     /// Writes one leaf of a plane block from the scratch planeRows filled: its active voxels,
     /// with the bounds check and the accumulators.
-    void planeLeaf(Block& b, const openvdb::Coord& go, int z0, const FloatLeaf& pl, const Out& o,
+    template <typename LeafT>
+    void planeLeaf(Block& b, const openvdb::Coord& go, int z0, const LeafT& pl, const Out& o,
                    float tn1, std::vector<Accumulators::Pending>*& pending, std::vector<openvdb::Coord>* cross) const
     {
         const openvdb::Coord bo = b.origin(go);
@@ -563,9 +609,21 @@ struct LeafKernel {
         }
     }
 
+    /// The kernel over the region's leaves: p's own leaves, or with folded p and T the region
+    /// mask's plane leaves (@a regionLeaves: the same leaves, order and masks p has unfolded).
     void run(openvdb::tree::LeafManager<openvdb::FloatTree>& pLeaves,
-             openvdb::tree::LeafManager<openvdb::FloatTree>& tLeaves, const LeafGroups& groups) const
+             openvdb::tree::LeafManager<openvdb::FloatTree>& tLeaves, const LeafGroups& groups,
+             const openvdb::tree::LeafManager<const openvdb::MaskTree>* regionLeaves = nullptr) const
     {
+        if (regionLeaves) runOn(*regionLeaves, pLeaves, tLeaves, groups);
+        else runOn(pLeaves, pLeaves, tLeaves, groups);
+    }
+
+    template <typename PlaneLeavesT>
+    void runOn(const PlaneLeavesT& planeLeaves, openvdb::tree::LeafManager<openvdb::FloatTree>& pLeaves,
+               openvdb::tree::LeafManager<openvdb::FloatTree>& tLeaves, const LeafGroups& groups) const
+    {
+        using LeafT = std::decay_t<decltype(planeLeaves.leaf(0))>;
         const bool plane = domain.flat();
         const int z0 = domain.bbox().min().z();
         const Block proto(plane);
@@ -584,18 +642,23 @@ struct LeafKernel {
             std::unique_ptr<ConstAcc> mAcc;
             if (melt) mAcc = std::make_unique<ConstAcc>(melt->tree());
             std::vector<Accumulators::Pending>* pending = nullptr;
-            const FloatLeaf* present[kPlaneGroup * kPlaneGroup];
+            const LeafT* present[kPlaneGroup * kPlaneGroup];
             for (size_t g = r.begin(); g != r.end(); ++g) {
                 const openvdb::Coord go = groups.origin[g];
                 const size_t first = groups.start[g], count = groups.start[g + 1] - first;
-                for (size_t q = 0; q < count; ++q) present[q] = &pLeaves.leaf(groups.leaves[first + q]);
-                gather(pAcc, b, go, z0, b.p);
-                gather(tAcc, b, go, z0, b.T);
+                for (size_t q = 0; q < count; ++q) present[q] = &planeLeaves.leaf(groups.leaves[first + q]);
+                if (foldedLeaf) {
+                    gatherFolded(pAcc, b, go, b.p);
+                    gatherFolded(tAcc, b, go, b.T);
+                } else {
+                    gather(pAcc, b, go, z0, b.p);
+                    gather(tAcc, b, go, z0, b.T);
+                }
                 if (mAcc) gather(*mAcc, b, go, z0, b.melt);
                 // Leaves in the heat halo, where p is 0 all around, take the heat step alone;
                 // pass 1 covers only the others.
                 bool heatOnly[kPlaneGroup * kPlaneGroup];
-                const FloatLeaf* full[kPlaneGroup * kPlaneGroup];
+                const LeafT* full[kPlaneGroup * kPlaneGroup];
                 size_t nFull = 0;
                 for (size_t q = 0; q < count; ++q) {
                     heatOnly[q] = phaseZeroAround(b, go, *present[q]);
@@ -610,8 +673,8 @@ struct LeafKernel {
                 }
                 for (size_t q = 0; q < count; ++q) {
                     const size_t li = groups.leaves[first + q];
-                    FloatLeaf& pl = pLeaves.leaf(li);
-                    const Out o = out(li, pl, tLeaves.leaf(li));
+                    const LeafT& pl = planeLeaves.leaf(li);
+                    const Out o = out(li, pl.origin(), pLeaves, tLeaves);
                     if (!heatOnly[q] && plane) {
                         planeLeaf(b, go, z0, pl, o, tn1, pending, cross);
                         continue;
@@ -655,6 +718,69 @@ struct LeafKernel {
 
 } // namespace
 
+/// Folded p and T (core/PlaneFold.h) on the current region: the region's folded topology (what
+/// p and T are matched to) and, per region leaf in LeafManager order, the index of its folded
+/// leaf among p's leaves (the folded region's leaf order, once p is matched to it).
+struct PhaseFieldSolver::FoldedLayout {
+    openvdb::MaskGrid::Ptr region;
+    std::vector<uint32_t> leafOf;
+    uint64_t generation = 0;
+    size_t foldedLeaves = 0;
+
+    FoldedLayout(const openvdb::MaskGrid& planeRegion, uint64_t gen)
+        : region(plane::foldTopology(planeRegion)), generation(gen)
+    {
+        openvdb::tree::LeafManager<const openvdb::MaskTree> folded(region->tree()), planeLeaves(planeRegion.tree());
+        foldedLeaves = folded.leafCount();
+        std::vector<std::pair<openvdb::Coord, uint32_t>> byOrigin(foldedLeaves);
+        for (size_t i = 0; i < foldedLeaves; ++i) byOrigin[i] = {folded.leaf(i).origin(), uint32_t(i)};
+        std::sort(byOrigin.begin(), byOrigin.end());
+        leafOf.resize(planeLeaves.leafCount());
+        for (size_t i = 0; i < leafOf.size(); ++i) {
+            const openvdb::Coord o = plane::foldedLeafOrigin(planeLeaves.leaf(i).origin());
+            const auto it = std::lower_bound(byOrigin.begin(), byOrigin.end(), std::make_pair(o, uint32_t(0)));
+            if (it == byOrigin.end() || it->first != o) throw std::logic_error("FoldedLayout: a region leaf has no folded leaf");
+            leafOf[i] = it->second;
+        }
+    }
+};
+
+const PhaseFieldSolver::FoldedLayout& PhaseFieldSolver::foldedLayout()
+{
+    if (!mFolded || mFolded->generation != mGeneration) mFolded = std::make_unique<FoldedLayout>(*mRegionMask, mGeneration);
+    return *mFolded;
+}
+
+void PhaseFieldSolver::rebuildRegionOf(openvdb::FloatGrid& p, openvdb::FloatGrid& T, bool ours,
+                                       uint64_t& inputGeneration, PhaseFieldStepStats* stats)
+{
+    if (!mRegion.dense && !mInputsTruncated) {
+        // Values within the tolerance since the last truncation (an out-of-turn rebuild).
+        truncateToTolerance(p, mRegion.tolerance);
+        truncateToTolerance(T, mRegion.tolerance);
+        inputGeneration = 0;
+    }
+    const int k = mCadence.begin(mRegionMask && !ours);
+    auto region = rebuildRegion(p, T, k);
+    const bool full = regionFillsDomain(*region, mDomain);
+    if (full) mCadence.filledDomain();
+    if (!mRegionMask || (region != mRegionMask && !region->tree().hasSameTopology(mRegionMask->tree()))) {
+        ++mGeneration; // a new topology: cached groups and layouts are stale
+        mRegionMask = region;
+        mRegionVoxels = mRegionMask->tree().activeVoxelCount();
+    }
+    if (stats) stats->rebuilds += 1;
+}
+
+openvdb::MaskGrid::Ptr PhaseFieldSolver::rebuildRegion(const openvdb::FloatGrid& p, const openvdb::FloatGrid& T, int steps) const
+{
+    if (!plane::isFolded(p))
+        return buildActiveRegion({&p, &T}, mRegion, kHalo, mDomain, steps, mRegionMask);
+    // folded p and T: the region is built from their plane-layout topology
+    const auto tp = plane::unfoldTopology(p), tt = plane::unfoldTopology(T);
+    return buildActiveRegionOfTopology({tp.get(), tt.get()}, mRegion, kHalo, mDomain, steps, mRegionMask);
+}
+
 PhaseFieldSolver::PhaseFieldSolver(const KobayashiParams& params, const Domain& domain, const RegionSettings& region)
     : mParams(params), mDomain(domain), mRegion(region), mCadence(region, kHalo)
 {
@@ -690,6 +816,17 @@ void PhaseFieldSolver::restoreCadence(const CadenceState& state, const openvdb::
     mSpareOurs = false;
 }
 
+void PhaseFieldSolver::adoptRelaidFields(const openvdb::FloatGrid& oldP, const openvdb::FloatGrid& oldT,
+                                         const openvdb::FloatGrid& p, const openvdb::FloatGrid& T)
+{
+    if (!mRegionMask || !inputsAreOurs(oldP, oldT)) return;
+    mOutP = &p;
+    mOutT = &T;
+    mPrintP = gridFingerprint(p);
+    mPrintT = gridFingerprint(T);
+    mOutGeneration = 0; // matched to the region again in the new layout
+}
+
 bool PhaseFieldSolver::growRegionAroundEdits()
 {
     if (mEditsP->empty() && mEditsT->empty()) return false;
@@ -710,16 +847,19 @@ openvdb::FloatGrid::Ptr PhaseFieldSolver::outputGrid(openvdb::FloatGrid::Ptr& sp
                                                      openvdb::FloatGrid& like)
 {
     openvdb::FloatGrid::Ptr g;
+    const bool folded = plane::isFolded(like); // the output takes the input's layout (core/PlaneFold.h)
     // Reused only when nobody else holds the grid or its tree (a frame, a shallow copy).
     if (spare && spare.use_count() == 1 && spare->treePtr().use_count() == 2 &&
-        spare->background() == like.background())
+        spare->background() == like.background() && plane::isFolded(*spare) == folded)
         g = spare;
     spare.reset();
+    const openvdb::MaskGrid& topology = folded ? *foldedLayout().region : *mRegionMask;
     if (!g) {
         g = openvdb::FloatGrid::create(like.background());
-        g->tree().topologyUnion(mRegionMask->tree());
+        g->tree().topologyUnion(topology.tree());
+        if (folded) plane::markFolded(*g);
     } else if (spareGeneration != mGeneration) {
-        matchTopology(*g, *mRegionMask, mSpareOurs);
+        matchTopology(*g, topology, mSpareOurs);
     }
     g->setTransform(like.transformPtr());
     g->setGridClass(like.getGridClass());
@@ -834,31 +974,16 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
         mEditsP->clear();
         mEditsT->clear();
     }
-    if (rebuild) {
-        if (!mRegion.dense && !mInputsTruncated) {
-            // Values within the tolerance since the last truncation (an out-of-turn rebuild).
-            truncateToTolerance(*p, mRegion.tolerance);
-            truncateToTolerance(*T, mRegion.tolerance);
-            inputGeneration = 0;
-        }
-        const int k = mCadence.begin(mRegionMask && !ours);
-        auto region = buildActiveRegion({p.get(), T.get()}, mRegion, kHalo, mDomain, k, mRegionMask);
-        const bool full = regionFillsDomain(*region, mDomain);
-        if (full) mCadence.filledDomain();
-        if (!mRegionMask || (region != mRegionMask && !region->tree().hasSameTopology(mRegionMask->tree()))) {
-            ++mGeneration; // a new topology: cached groups and layouts are stale
-            mRegionMask = region;
-            mRegionVoxels = mRegionMask->tree().activeVoxelCount();
-        }
-        if (stats) stats->rebuilds += 1;
-    }
+    if (rebuild) rebuildRegionOf(*p, *T, ours, inputGeneration, stats);
     // Forward Euler updates p and T in place (its new values staged until the kernel is done),
     // so the fields exist once; the second-order scheme writes new grids (it keeps the start
     // values as history anyway).
     const bool inPlace = mParams.scheme == PhaseFieldScheme::Euler;
+    const bool folded = plane::isFolded(*p); // then the region's plane leaves drive the kernel
+    if (folded != plane::isFolded(*T)) throw std::logic_error("PhaseFieldSolver: p and T differ in layout");
     openvdb::FloatGrid::Ptr pNew, tNew;
     if (inPlace) {
-        prepareInPlace(*p, *T, *mRegionMask, inputGeneration != mGeneration, ours);
+        prepareInPlace(*p, *T, folded ? *foldedLayout().region : *mRegionMask, inputGeneration != mGeneration, ours);
         pNew = p;
         tNew = T;
         mSpareP.reset();
@@ -870,8 +995,11 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
 
     openvdb::tree::LeafManager<openvdb::FloatTree> pLeaves(pNew->tree());
     openvdb::tree::LeafManager<openvdb::FloatTree> tLeaves(tNew->tree());
+    std::optional<openvdb::tree::LeafManager<const openvdb::MaskTree>> regionLeaves;
+    if (folded) regionLeaves.emplace(mRegionMask->tree());
     if (!mGroups || mGroupsGeneration != mGeneration) {
-        mGroups = std::make_unique<LeafGroups>(pLeaves, mDomain.flat());
+        mGroups = folded ? std::make_unique<LeafGroups>(*regionLeaves, true)
+                         : std::make_unique<LeafGroups>(pLeaves, mDomain.flat());
         mGroupsGeneration = mGeneration;
     }
     Accumulators acc;
@@ -887,12 +1015,19 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
     Failure failure;
     std::optional<StagedValues> staged;
     if (k.scheme == PhaseFieldScheme::Euler) {
-        staged.emplace(mStageP, mStageT, pLeaves.leafCount(), mDomain.flat());
+        // folded: one slot per voxel of a folded leaf (512, all of them plane voxels)
+        staged.emplace(mStageP, mStageT, pLeaves.leafCount(), mDomain.flat() && !folded);
         LeafKernel kernel{k, mDomain, *p, *T, mMelt, stepIndex, tNext, seed, &acc, &failure, &*staged};
         kernel.crossings = mCrossings;
-        kernel.run(pLeaves, tLeaves, *mGroups);
+        if (folded) {
+            if (pLeaves.leafCount() != mFolded->foldedLeaves || tLeaves.leafCount() != mFolded->foldedLeaves)
+                throw std::logic_error("PhaseFieldSolver: folded p or T does not have the region's topology");
+            kernel.foldedLeaf = &mFolded->leafOf;
+        }
+        kernel.run(pLeaves, tLeaves, *mGroups, folded ? &*regionLeaves : nullptr);
     } else {
-        stepSecondOrder(*p, *T, pLeaves, tLeaves, acc, stepIndex, tNext, seed, failure, stats);
+        stepSecondOrder(*p, *T, pLeaves, tLeaves, acc, stepIndex, tNext, seed, failure, stats,
+                        folded ? &*regionLeaves : nullptr);
     }
     if (stats) stats->kernelSeconds += since(t0);
     if (failure.any) {
@@ -945,7 +1080,8 @@ struct BlockRect {
     int x0 = 0, x1 = 0, y0 = 0, y1 = 0;
 };
 
-BlockRect presentRect(const Block& b, const openvdb::Coord& groupOrigin, const FloatLeaf* const* leaves, size_t count)
+template <typename LeafT>
+BlockRect presentRect(const Block& b, const openvdb::Coord& groupOrigin, const LeafT* const* leaves, size_t count)
 {
     BlockRect r{0, b.bx, 0, b.by};
     if (!b.plane || count == 0) return r;
@@ -1007,6 +1143,7 @@ struct SecondOrderInputs {
     float extrapolate;
     const openvdb::FloatGrid &p, &T;
     const openvdb::FloatGrid *melt, *dP, *dT; ///< null: no melt map, no last step
+    bool folded; ///< p, T and the last step's start values are folded (core/PlaneFold.h)
     const LeafGroups& groups;
     const SlotLayout& layout;
     int64_t stepIndex;
@@ -1046,8 +1183,9 @@ void epsSquaredRuns(Block& b, const SecondOrderRows& soRows, const FlatStencil& 
 /// leaf's block rows that hold an active voxel, over the span of x its active voxels cover, into
 /// the per-thread row arrays @a rowOut; then the voxels' rows are copied into the systems as the
 /// plain path does.
+template <typename LeafT>
 void vectorRowsOfGroup(const SecondOrderInputs& in, Block& b, const SecondOrderRows& soRows, const FlatStencil& st,
-                       const SecondOrderRowsOut& rowOut, const openvdb::Coord& origin, const FloatLeaf* const* present,
+                       const SecondOrderRowsOut& rowOut, const openvdb::Coord& origin, const LeafT* const* present,
                        const size_t* leafIndex, size_t count, ImplicitSystem& ps, ImplicitSystem& ts,
                        std::vector<double>& p0, std::vector<double>& T0)
 {
@@ -1063,7 +1201,7 @@ void vectorRowsOfGroup(const SecondOrderInputs& in, Block& b, const SecondOrderR
     // voxels' rows are copied out as the plain path does.
     const openvdb::Coord bo = b.origin(origin);
     for (size_t q = 0; q < count; ++q) {
-        const FloatLeaf& leaf = *present[q];
+        const LeafT& leaf = *present[q];
         const openvdb::Coord lo = leaf.origin() - bo;
         const auto& mask = leaf.getValueMask();
         uint8_t rowBits[kDim] = {};
@@ -1106,7 +1244,9 @@ void vectorRowsOfGroup(const SecondOrderInputs& in, Block& b, const SecondOrderR
 /// Second-order stage 1, the explicit parts: per leaf group on the padded block, p and T with
 /// their extrapolation to theta of the step, then each active voxel's row of the p system, the
 /// explicit half of the T rows and the start values p0, T0.
-void assembleSecondOrderRows(const SecondOrderInputs& in, openvdb::tree::LeafManager<openvdb::FloatTree>& pLeaves,
+/// @a planeLeaves: p's leaves, or with folded fields the region's plane leaves (same order and masks).
+template <typename PlaneLeavesT>
+void assembleSecondOrderRows(const SecondOrderInputs& in, const PlaneLeavesT& planeLeaves,
                              ImplicitSystem& ps, ImplicitSystem& ts, std::vector<double>& p0, std::vector<double>& T0)
 {
     const KobayashiParams& k = in.k;
@@ -1146,15 +1286,19 @@ void assembleSecondOrderRows(const SecondOrderInputs& in, openvdb::tree::LeafMan
         if (melt) mAcc = std::make_unique<ConstAcc>(melt->tree());
         if (dP) dpAcc = std::make_unique<ConstAcc>(dP->tree());
         if (dT) dtAcc = std::make_unique<ConstAcc>(dT->tree());
-        const FloatLeaf* present[kPlaneGroup * kPlaneGroup];
+        const std::decay_t<decltype(planeLeaves.leaf(0))>* present[kPlaneGroup * kPlaneGroup];
         for (size_t g = r.begin(); g != r.end(); ++g) {
             const openvdb::Coord origin = groups.origin[g];
             const size_t first = groups.start[g], count = groups.start[g + 1] - first;
-            for (size_t q = 0; q < count; ++q) present[q] = &pLeaves.leaf(groups.leaves[first + q]);
+            for (size_t q = 0; q < count; ++q) present[q] = &planeLeaves.leaf(groups.leaves[first + q]);
             markNeeded(b, origin, present, count);
             const BlockRect rect = presentRect(b, origin, present, count);
-            gatherRect(pAcc, b, origin, z0, rect, b.p);
-            gatherRect(tAcc, b, origin, z0, rect, b.T);
+            auto gatherField = [&](const ConstAcc& acc, std::vector<float>& out) { // p, T and their history
+                if (in.folded) gatherFolded(acc, b, origin, out, rect.x0, rect.x1, rect.y0, rect.y1);
+                else gatherRect(acc, b, origin, z0, rect, out);
+            };
+            gatherField(pAcc, b.p);
+            gatherField(tAcc, b.T);
             if (mAcc) gatherRect(*mAcc, b, origin, z0, rect, b.melt);
             // the block loops below: the rows of the rectangle (all of the block in a box)
             auto forRect = [&](auto&& f) {
@@ -1170,11 +1314,11 @@ void assembleSecondOrderRows(const SecondOrderInputs& in, openvdb::tree::LeafMan
             // starts from the p the step really sees (the last step's dp alone, after a walker
             // set p = 1, put the reaction's tangent at the old p and pushed p to 1.013).
             if (dpAcc) {
-                gatherRect(*dpAcc, b, origin, z0, rect, incP);
+                gatherField(*dpAcc, incP);
                 forRect([&](size_t i0, size_t i1) { for (size_t i = i0; i < i1; ++i) incP[i] = b.p[i] - incP[i]; });
             } else std::fill(incP.begin(), incP.end(), 0.f);
             if (dtAcc) {
-                gatherRect(*dtAcc, b, origin, z0, rect, incT);
+                gatherField(*dtAcc, incT);
                 forRect([&](size_t i0, size_t i1) { for (size_t i = i0; i < i1; ++i) incT[i] = b.T[i] - incT[i]; });
             } else std::fill(incT.begin(), incT.end(), 0.f);
             // pf (in gz, free in this scheme): p extrapolated to the end of the step.
@@ -1248,7 +1392,11 @@ int64_t clipAndAddLatentHeat(const KobayashiParams& k, ImplicitSystem& ps, Impli
 /// Second-order stage 5, the write-back: the solutions into p and T (bounds checked), this
 /// step's start values into the history grids, growth and freeze time recorded, crossings of
 /// p = 1/2 listed.
-void writeBackSecondOrder(openvdb::tree::LeafManager<openvdb::FloatTree>& pLeaves,
+/// @a planeLeaves: p's leaves, or with folded fields the region's plane leaves, whose voxels are
+/// written in their folded leaves (@a foldedLeaf[li] of pLeaves, at plane::foldedOffset).
+template <typename PlaneLeavesT>
+void writeBackSecondOrder(const PlaneLeavesT& planeLeaves, const std::vector<uint32_t>* foldedLeaf,
+                          openvdb::tree::LeafManager<openvdb::FloatTree>& pLeaves,
                           openvdb::tree::LeafManager<openvdb::FloatTree>& tLeaves,
                           openvdb::tree::LeafManager<openvdb::FloatTree>& dpLeaves,
                           openvdb::tree::LeafManager<openvdb::FloatTree>& dtLeaves, const SlotLayout& layout,
@@ -1257,15 +1405,16 @@ void writeBackSecondOrder(openvdb::tree::LeafManager<openvdb::FloatTree>& pLeave
                           std::vector<openvdb::Coord>* crossings)
 {
     tbb::enumerable_thread_specific<std::vector<openvdb::Coord>> crossed;
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, pLeaves.leafCount(), 16), [&](const tbb::blocked_range<size_t>& r) {
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, planeLeaves.leafCount(), 16), [&](const tbb::blocked_range<size_t>& r) {
         std::vector<Accumulators::Pending>* pending = nullptr;
         std::vector<openvdb::Coord>* cross = crossings ? &crossed.local() : nullptr;
         for (size_t li = r.begin(); li != r.end(); ++li) {
-            FloatLeaf& pl = pLeaves.leaf(li);
-            float* pv = pl.buffer().data();
-            float* tv = tLeaves.leaf(li).buffer().data();
-            float* dpv = dpLeaves.leaf(li).buffer().data();
-            float* dtv = dtLeaves.leaf(li).buffer().data();
+            const auto& pl = planeLeaves.leaf(li);
+            const size_t fi = foldedLeaf ? (*foldedLeaf)[li] : li;
+            float* pv = pLeaves.leaf(fi).buffer().data();
+            float* tv = tLeaves.leaf(fi).buffer().data();
+            float* dpv = dpLeaves.leaf(fi).buffer().data();
+            float* dtv = dtLeaves.leaf(fi).buffer().data();
             FloatLeaf* gl = Accumulators::leafFor(acc.growth, acc.foldG, pl.origin());
             FloatLeaf* fl = Accumulators::leafFor(acc.freeze, acc.foldF, pl.origin());
             // The accumulator leaves' buffers and masks directly (what Accumulators::record does
@@ -1278,16 +1427,17 @@ void writeBackSecondOrder(openvdb::tree::LeafManager<openvdb::FloatTree>& pLeave
             for (openvdb::Index w = 0; w < FloatLeaf::NodeMaskType::WORD_COUNT; ++w) {
               for (uint64_t bits = mask.template getWord<uint64_t>(w); bits; bits &= bits - 1) {
                 const openvdb::Index n = w * 64 + openvdb::Index(__builtin_ctzll(bits));
+                const openvdb::Index v = foldedLeaf ? plane::foldedOffset(pl.origin(), int(n >> 6), int((n >> 3) & 7)) : n;
                 const size_t s = size_t(layout.rowAt(li, n));
                 const float pn = float(ps.x[s]), tn = float(ts.x[s]);
                 if (!std::isfinite(pn) || pn < -0.05f || pn > 1.05f) failure.report(pl.offsetToGlobalCoord(n), "p (ice)", pn);
                 if (!std::isfinite(tn)) failure.report(pl.offsetToGlobalCoord(n), "T (temperature)", tn);
                 if (cross && ((float(p0[s]) > 0.5f) != (pn > 0.5f))) cross->push_back(pl.offsetToGlobalCoord(n));
-                pv[n] = pn;
-                tv[n] = tn;
+                pv[v] = pn;
+                tv[v] = tn;
                 const double dp = ps.x[s] - p0[s];
-                dpv[n] = float(p0[s]);
-                dtv[n] = float(T0[s]);
+                dpv[v] = float(p0[s]);
+                dtv[v] = float(T0[s]);
                 if (acc.growth && dp > 0) {
                     if (gv) {
                         const openvdb::Index gs = Accumulators::slot(acc.foldG, pl.origin(), n);
@@ -1319,16 +1469,23 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
                                        openvdb::tree::LeafManager<openvdb::FloatTree>& pLeaves,
                                        openvdb::tree::LeafManager<openvdb::FloatTree>& tLeaves,
                                        Accumulators& acc, int64_t stepIndex, double tNext, uint64_t seed,
-                                       Failure& failure,
-                                       PhaseFieldStepStats* stats)
+                                       Failure& failure, PhaseFieldStepStats* stats,
+                                       const openvdb::tree::LeafManager<const openvdb::MaskTree>* regionLeaves)
 {
     const KobayashiParams& k = mParams;
     const bool plane = mDomain.flat();
     const Stencil stencil = mDomain.stencil();
+    const bool folded = regionLeaves != nullptr; // rows by the region's plane leaves
     // The layout depends only on the region's topology: built once per region.
     if (!mLayout || mLayoutGeneration != mGeneration) {
         // last step's layout lends its arrays (the systems that refer to it only lend theirs below)
-        mLayout = std::make_unique<SlotLayout>(pLeaves, stencil, plane, mLayout.get());
+        if (folded) { // rows by the region's plane leaves, as unfolded p's would be: a transient plane tree
+            openvdb::FloatTree planeTopology(mRegionMask->tree(), 0.f, openvdb::TopologyCopy());
+            openvdb::tree::LeafManager<openvdb::FloatTree> planeLeaves(planeTopology);
+            mLayout = std::make_unique<SlotLayout>(planeLeaves, stencil, plane, mLayout.get());
+        } else {
+            mLayout = std::make_unique<SlotLayout>(pLeaves, stencil, plane, mLayout.get());
+        }
         mLayoutGeneration = mGeneration;
     }
     const SlotLayout& layout = *mLayout;
@@ -1353,8 +1510,10 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
     const float extrapolate = dP ? float(theta * k.dt / mLastStepDt) : 0.f;
 
     // Explicit parts, per leaf on the padded block.
-    assembleSecondOrderRows({k, stencil, plane, z0, theta, extrapolate, p, T, mMelt, dP, dT, *mGroups, layout, stepIndex, seed},
-                            pLeaves, ps, ts, p0, T0);
+    const SecondOrderInputs in{k, stencil, plane, z0, theta, extrapolate, p, T, mMelt, dP, dT, folded, *mGroups,
+                               layout, stepIndex, seed};
+    if (folded) assembleSecondOrderRows(in, *regionLeaves, ps, ts, p0, T0);
+    else assembleSecondOrderRows(in, pLeaves, ps, ts, p0, T0);
     auto t0 = Clock::now();
     const LinearSolverKind kind = k.useBiCGSTAB ? LinearSolverKind::BiCGSTAB : LinearSolverKind::GaussSeidel;
     const SolveReport rp = ps.solve(kind, k.solverTolerance, k.solverMaxIterations);
@@ -1389,12 +1548,15 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
     // may), else fresh ones: only active voxels are written, off voxels keep the background.
     auto startGrid = [&](openvdb::FloatGrid::Ptr& old, const openvdb::FloatGrid* ours, float background) {
         openvdb::FloatGrid::Ptr g;
-        if (old && old.get() == ours && old.use_count() == 1 && old->treePtr().use_count() == 2) g = old;
+        if (old && old.get() == ours && old.use_count() == 1 && old->treePtr().use_count() == 2 &&
+            plane::isFolded(*old) == folded)
+            g = old;
         if (!g) {
             g = openvdb::FloatGrid::create(background);
-            g->tree().topologyUnion(pLeaves.tree());
+            g->tree().topologyUnion(pLeaves.tree()); // p's layout, folded or not
+            if (folded) plane::markFolded(*g);
         } else if (mLastInGeneration != mGeneration) {
-            matchTopology(*g, *mRegionMask);
+            matchTopology(*g, folded ? *foldedLayout().region : *mRegionMask);
         }
         return g;
     };
@@ -1402,8 +1564,12 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
     auto lastDt = startGrid(mLastInT, mLastInOwnedT, T.background());
     openvdb::tree::LeafManager<openvdb::FloatTree> dpLeaves(lastDp->tree()), dtLeaves(lastDt->tree());
     const float tn1 = float(tNext);
-    writeBackSecondOrder(pLeaves, tLeaves, dpLeaves, dtLeaves, layout, ps, ts, p0, T0, acc, failure, tn1,
-                         mCrossings);
+    if (folded)
+        writeBackSecondOrder(*regionLeaves, &foldedLayout().leafOf, pLeaves, tLeaves, dpLeaves, dtLeaves, layout, ps,
+                             ts, p0, T0, acc, failure, tn1, mCrossings);
+    else
+        writeBackSecondOrder(pLeaves, nullptr, pLeaves, tLeaves, dpLeaves, dtLeaves, layout, ps, ts, p0, T0, acc,
+                             failure, tn1, mCrossings);
     mLastInP = lastDp;
     mLastInT = lastDt;
     mLastInOwned = mLastInP.get();

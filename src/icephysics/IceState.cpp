@@ -64,7 +64,7 @@ namespace {
 /// there is no ice).
 openvdb::GridBase::Ptr iceFog(const openvdb::FloatGrid& p)
 {
-    auto ice = p.deepCopy();
+    auto ice = plane::isFolded(p) ? plane::unfoldGrid(p) : p.deepCopy(); // frames hold the plane layout
     // Per leaf: switching voxels off writes the leaf's mask words, which a voxel-parallel
     // foreach raced on (the frame's topology then varied from run to run).
     auto clampToFog = [](auto& it) {
@@ -120,7 +120,16 @@ void addIceOutputs(World& world, Frame& frame)
 
 void addIceFieldOutputs(World& world, Frame& frame)
 {
-    if (auto T = world.fields.get<openvdb::FloatGrid>(kTemperature)) {
+    if (auto T = world.fields.get<openvdb::FloatGrid>(kTemperature); T && plane::isFolded(*T)) {
+        // folded T (core/PlaneFold.h): an unfolded copy, made one at a time as it is written
+        auto make = [T]() -> openvdb::GridBase::Ptr {
+            auto temperature = plane::unfoldGrid(*T);
+            temperature->setName(out::kIceTemperature.name);
+            temperature->setGridClass(openvdb::GRID_UNKNOWN);
+            return temperature;
+        };
+        frame.addCopy(make(), make);
+    } else if (T) {
         // Shares T's tree (the largest grid: the heat's halo): the frame is written before the
         // next step, and an in-place writer copies a shared tree first (ownTree, DlaEffect::step).
         auto temperature = openvdb::gridPtrCast<openvdb::FloatGrid>(T->copyGrid());

@@ -8,6 +8,7 @@
 //  - the eq. 1 (full model, euler) vs eq. 8 (simplified, lw_cn) difference on its own;
 //  - sweeps of dt, solver tolerance, solver kind, lattice and region tolerance, error vs time;
 //  - the Pareto frontier, and the observed order of convergence in time per scheme.
+#include <frostvdb/core/PlaneFold.h>
 #include <frostvdb/core/Bench.h>
 #include <frostvdb/core/Error.h>
 #include <frostvdb/core/Simulation.h>
@@ -136,9 +137,9 @@ Result run(const Config& c, double tEnd)
     auto p = sim.world().fields.get<openvdb::FloatGrid>("p");
     r.n = c.size;
     r.p.assign(size_t(c.size) * c.size, 0.f);
-    auto acc = p->getConstAccessor();
+    plane::FloatCells cells(*p); // p may be folded (core/PlaneFold.h)
     for (int j = 0; j < c.size; ++j)
-        for (int i = 0; i < c.size; ++i) r.p[size_t(j) * c.size + i] = acc.getValue(openvdb::Coord(i, j, 0));
+        for (int i = 0; i < c.size; ++i) r.p[size_t(j) * c.size + i] = cells.getValue(openvdb::Coord(i, j, 0));
     return r;
 }
 

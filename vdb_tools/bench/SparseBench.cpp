@@ -1,6 +1,7 @@
 // `frostvdb bench sparse`: what the sparse engine buys. For one 2D domain it times a phase-field
 // step in sparse and dense mode at several ice fractions, then the kernel's voxel-update rate with
 // the whole domain active against the plain dense-array loop of the same stencil (same run).
+#include <frostvdb/core/PlaneFold.h>
 #include <frostvdb/core/Bench.h>
 #include <frostvdb/icephysics/EulerRows.h>
 #include <frostvdb/ice/PhaseFieldSolver.h>
@@ -95,6 +96,14 @@ RealisticResult realistic(int n, int steps, int rebuildEvery)
             ref.p()[ref.index(i, j)] = float(v);
             refVec.p()[refVec.index(i, j)] = float(v);
         }
+    // The plane layout a scene has: p, T and the accumulators folded (core/PlaneFold.h) unless
+    // FROSTVDB_NO_PLANE_FOLD=1 (the layout before session 13, for comparison).
+    if (plane::foldsPlaneFields(dom)) {
+        p = plane::foldGrid(*p);
+        T = plane::foldGrid(*T);
+        plane::markFolded(*growth);
+        plane::markFolded(*freeze);
+    }
     RealisticResult out;
     // Interleaved step by step so that both see the same machine load; the steps where the
     // engine's region is the whole domain are also summed apart.
@@ -133,8 +142,7 @@ RealisticResult realistic(int n, int steps, int rebuildEvery)
         out.rebuilds += st.rebuilds;
         out.finalFraction = double(st.regionVoxels) / double(dom.voxelCount());
     }
-    auto pa = p->getConstAccessor();
-    auto ta = T->getConstAccessor();
+    const plane::FloatCells pa(*p), ta(*T);
     for (int j = 0; j < n; ++j)
         for (int i = 0; i < n; ++i) {
             const openvdb::Coord q(i, j, 0);

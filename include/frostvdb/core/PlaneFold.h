@@ -55,6 +55,14 @@ inline openvdb::Index foldedOffset(const openvdb::Coord& lo, int dx, int dy)
     return openvdb::Index((dy << 6) | (lo.x() & 63) | dx);
 }
 
+/// The stored box holding the folded cells of the plane box @a planeBox (z 0): what an active
+/// tile of a folded field is clipped to before its cells are unfolded.
+inline openvdb::CoordBBox foldedBBox(const openvdb::CoordBBox& planeBox)
+{
+    return openvdb::CoordBBox(openvdb::Coord(planeBox.min().y(), planeBox.min().x() >> 3, 0),
+                              openvdb::Coord(planeBox.max().y(), planeBox.max().x() >> 3, 7));
+}
+
 /// True when @a g is a folded plane field.
 inline bool isFolded(const openvdb::GridBase& g)
 {
@@ -123,6 +131,14 @@ typename GridT::Ptr unfoldGrid(const GridT& folded);
 /// The folded layout of a plane grid (the inverse; for tests and old checkpoints).
 template <typename GridT>
 typename GridT::Ptr foldGrid(const GridT& planeGrid);
+
+/// The folded topology of a plane-layout mask @a planeRegion (active voxels only): what a
+/// folded field matched to that region has (matchTopology on the result gives it).
+openvdb::MaskGrid::Ptr foldTopology(const openvdb::MaskGrid& planeRegion);
+/// The plane-layout topology (active voxels only) of a folded grid: what the region rebuild
+/// reads of a folded p or T (core/ActiveRegion.h). Active tiles are expanded.
+template <typename GridT>
+openvdb::MaskGrid::Ptr unfoldTopology(const GridT& folded);
 
 } // namespace plane
 } // namespace frostvdb

@@ -123,11 +123,17 @@ public:
         const bool unlisted = !editsReported() || (mEditsP->empty() && mEditsT->empty());
         return {mRegionMask, mCadence.stepsLeft(), mInputsTruncated, mRegionMask && inputsAreOurs(p, T) && unlisted};
     }
+    /// @a p and @a T hold the values of @a oldP and @a oldT in the other plane layout
+    /// (core/PlaneFold.h): when the old ones were this solver's last output, the new ones are
+    /// (so a layout change does not force a rebuild out of turn, which would change the bits).
+    void adoptRelaidFields(const openvdb::FloatGrid& oldP, const openvdb::FloatGrid& oldT, const openvdb::FloatGrid& p,
+                           const openvdb::FloatGrid& T);
     /// Restores @a state and adopts @a p and @a T (the restored fields) as this solver's last output.
     void restoreCadence(const CadenceState& state, const openvdb::FloatGrid& p, const openvdb::FloatGrid& T);
 
     struct Failure;
     struct Accumulators;
+    struct FoldedLayout;
 
 private:
     using FloatLeaf = openvdb::FloatTree::LeafNodeType;
@@ -138,9 +144,18 @@ private:
                          openvdb::tree::LeafManager<openvdb::FloatTree>& pLeaves,
                          openvdb::tree::LeafManager<openvdb::FloatTree>& tLeaves,
                          Accumulators& acc, int64_t stepIndex, double tNext, uint64_t seed, Failure& failure,
-                         PhaseFieldStepStats* stats);
+                         PhaseFieldStepStats* stats,
+                         const openvdb::tree::LeafManager<const openvdb::MaskTree>* regionLeaves);
     /// True when @a p and @a T are, unchanged, the grids this solver returned last step.
     bool inputsAreOurs(const openvdb::FloatGrid& p, const openvdb::FloatGrid& T) const;
+    /// The region rebuild of a step: truncation when out of turn, the new region and its
+    /// generation (@a inputGeneration is reset when the inputs were truncated).
+    void rebuildRegionOf(openvdb::FloatGrid& p, openvdb::FloatGrid& T, bool ours, uint64_t& inputGeneration,
+                         PhaseFieldStepStats* stats);
+    /// The region built from @a p and @a T (their plane-layout topology when folded) for @a steps.
+    openvdb::MaskGrid::Ptr rebuildRegion(const openvdb::FloatGrid& p, const openvdb::FloatGrid& T, int steps) const;
+    /// Folded p and T: the current region's folded layout (made once per region generation).
+    const FoldedLayout& foldedLayout();
     /// An output grid with the region's topology, reusing @a spare when nobody else holds it.
     openvdb::FloatGrid::Ptr outputGrid(openvdb::FloatGrid::Ptr& spare, uint64_t spareGeneration,
                                        openvdb::FloatGrid& like);
@@ -169,6 +184,7 @@ private:
     uint64_t mSpareGeneration = 0;
     bool mSpareOurs = false; ///< the spares were this solver's outputs (their off voxels hold the background)
     std::unique_ptr<LeafGroups> mGroups;      ///< the region's leaves in kernel blocks
+    std::unique_ptr<FoldedLayout> mFolded;    ///< folded p and T: the region's folded layout
     uint64_t mGroupsGeneration = 0;
     std::unique_ptr<SlotLayout> mLayout;      ///< the implicit systems' rows (second order)
     uint64_t mLayoutGeneration = 0;
