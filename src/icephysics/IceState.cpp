@@ -121,14 +121,13 @@ void addIceOutputs(World& world, Frame& frame)
 void addIceFieldOutputs(World& world, Frame& frame)
 {
     if (auto T = world.fields.get<openvdb::FloatGrid>(kTemperature); T && plane::isFolded(*T)) {
-        // folded T (core/PlaneFold.h): an unfolded copy, made one at a time as it is written
-        auto make = [T]() -> openvdb::GridBase::Ptr {
+        // folded T (core/PlaneFold.h): its plane-layout copy (36 bytes per voxel, the frame's
+        // largest grid) is made only when the writer reaches it, and dropped once written
+        frame.addDeferred(out::kIceTemperature, [T]() -> openvdb::GridBase::Ptr {
             auto temperature = plane::unfoldGrid(*T);
-            temperature->setName(out::kIceTemperature.name);
             temperature->setGridClass(openvdb::GRID_UNKNOWN);
             return temperature;
-        };
-        frame.addCopy(make(), make);
+        });
     } else if (T) {
         // Shares T's tree (the largest grid: the heat's halo): the frame is written before the
         // next step, and an in-place writer copies a shared tree first (ownTree, DlaEffect::step).
