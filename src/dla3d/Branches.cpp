@@ -60,6 +60,26 @@ openvdb::points::PointDataGrid::Ptr makePointGrid(const std::vector<Vec3d>& posi
 
 namespace {
 
+/// Capsule i of the branches: from its parent's centre a (its own when it has none) to its
+/// centre b, radii of at least half a voxel, and how far beyond the segment the level set
+/// reaches (the larger radius plus the background width). Shared by the raster and the two
+/// counts that must see its boxes.
+struct Capsule {
+    Vec3d a, b;
+    double ra, rb, reach;
+};
+Capsule capsuleOf(size_t i, const std::vector<Vec3d>& pos, const std::vector<int32_t>& parents,
+                  const std::vector<float>& radii, double dx, double background)
+{
+    Capsule c;
+    c.b = pos[i];
+    c.rb = std::max<double>(radii[i], 0.5 * dx);
+    c.a = parents[i] >= 0 ? pos[size_t(parents[i])] : c.b;
+    c.ra = parents[i] >= 0 ? std::max<double>(radii[size_t(parents[i])], 0.5 * dx) : c.rb;
+    c.reach = std::max(c.ra, c.rb) + background;
+    return c;
+}
+
 /// Rasterises a range of capsules into its own tree; joined by a voxel-wise minimum.
 struct CapsuleRaster {
     const std::vector<Vec3d>& pos;
@@ -82,11 +102,7 @@ struct CapsuleRaster {
         openvdb::tree::ValueAccessor<openvdb::FloatTree> acc(*tree);
         const double dx = xform.voxelSize()[0];
         for (size_t i = range.begin(); i != range.end(); ++i) {
-            const Vec3d b = pos[i];
-            const double rb = std::max<double>(radii[i], 0.5 * dx);
-            const Vec3d a = parents[i] >= 0 ? pos[size_t(parents[i])] : b;
-            const double ra = parents[i] >= 0 ? std::max<double>(radii[size_t(parents[i])], 0.5 * dx) : rb;
-            const double reach = std::max(ra, rb) + background;
+            const auto [a, b, ra, rb, reach] = capsuleOf(i, pos, parents, radii, dx, background);
             const Vec3d lo = xform.worldToIndex(openvdb::math::minComponent(a, b) - Vec3d(reach));
             const Vec3d hi = xform.worldToIndex(openvdb::math::maxComponent(a, b) + Vec3d(reach));
             const Vec3d ab = b - a;
@@ -147,11 +163,7 @@ double branchVoxelVisits(const std::vector<Vec3d>& pos, const std::vector<int32_
     const double dx = voxelSize, background = float(halfWidth * voxelSize);
     double visits = 0;
     for (size_t i = 0; i < pos.size(); ++i) {
-        const Vec3d b = pos[i];
-        const double rb = std::max<double>(radii[i], 0.5 * dx);
-        const Vec3d a = parents[i] >= 0 ? pos[size_t(parents[i])] : b;
-        const double ra = parents[i] >= 0 ? std::max<double>(radii[size_t(parents[i])], 0.5 * dx) : rb;
-        const double reach = std::max(ra, rb) + background;
+        const auto [a, b, ra, rb, reach] = capsuleOf(i, pos, parents, radii, dx, background);
         const Vec3d lo = (openvdb::math::minComponent(a, b) - Vec3d(reach)) / dx;
         const Vec3d hi = (openvdb::math::maxComponent(a, b) + Vec3d(reach)) / dx;
         double box = 1;
@@ -183,11 +195,7 @@ struct LeafReach {
         // a 4^3 block's voxel centres lie within 1.5 voxels of its centre on each axis
         const double blockReach = std::sqrt(3.0) * 1.5 * dx;
         for (size_t i = range.begin(); i != range.end(); ++i) {
-            const Vec3d b = pos[i];
-            const double rb = std::max<double>(radii[i], 0.5 * dx);
-            const Vec3d a = parents[i] >= 0 ? pos[size_t(parents[i])] : b;
-            const double ra = parents[i] >= 0 ? std::max<double>(radii[size_t(parents[i])], 0.5 * dx) : rb;
-            const double reach = std::max(ra, rb) + background;
+            const auto [a, b, ra, rb, reach] = capsuleOf(i, pos, parents, radii, dx, background);
             const Vec3d lo = (openvdb::math::minComponent(a, b) - Vec3d(reach)) / dx;
             const Vec3d hi = (openvdb::math::maxComponent(a, b) + Vec3d(reach)) / dx;
             const Vec3d ab = b - a;

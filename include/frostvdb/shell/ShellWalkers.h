@@ -34,8 +34,6 @@
 
 #include <array>
 #include <memory>
-#include <unordered_map>
-#include <unordered_set>
 #include <vector>
 
 namespace frostvdb::shell {
