@@ -180,6 +180,18 @@ void SurfacePointIndex::clear()
     for (auto& c : mCounts) c = std::make_shared<CountTree>(0);
     for (auto& c : mNear) c = std::make_shared<NearTree>(uint8_t(0));
     mCount = 0;
+    if (!mClearSlots) {
+        mClearSlots = std::make_shared<CountTree>(0);
+        mClearBlocks = std::make_shared<CountTree>(0);
+    }
+    forgetClearances();
+}
+
+void SurfacePointIndex::forgetClearances()
+{
+    mPendingInserts.clear();
+    mPendingErases.clear();
+    for (size_t s = 0; s < mClearBucket.size(); ++s) mClear[s].store(-1.f, std::memory_order_relaxed);
 }
 
 void SurfacePointIndex::addNear(int k, const Coord& b, int32_t delta)
@@ -201,7 +213,141 @@ Coord bucketOf(const Vec3d& q, int level)
     const double size = SurfacePointIndex::kBucket * double(1 << level);
     return Coord(int(std::floor(q.x() / size)), int(std::floor(q.y() / size)), int(std::floor(q.z() / size)));
 }
+
+
+/// Squared distance from @a q to fine bucket @a b's box.
+double boxDistance2(const Coord& b, const Vec3d& q)
+{
+    const double k = SurfacePointIndex::kBucket;
+    double d2 = 0;
+    for (int a = 0; a < 3; ++a) {
+        const double lo = k * double(b[a]), gap = std::max({lo - q[a], 0.0, q[a] - (lo + k)});
+        d2 += gap * gap;
+    }
+    return d2;
+}
 } // namespace
+
+void SurfacePointIndex::enableClearance(const std::vector<Vec3d>& sites)
+{
+    // slots block by block (each block's slots contiguous, for the scans of inserts and erases)
+    auto blockOf = [](const Coord& b) { return Coord(b.x() >> 2, b.y() >> 2, b.z() >> 2); };
+    std::vector<std::pair<uint64_t, uint64_t>> keys(sites.size()); // (block key, bucket key)
+    for (size_t i = 0; i < sites.size(); ++i) {
+        const Coord b = bucketOf(sites[i], 0);
+        keys[i] = {packBucket(blockOf(b)), packBucket(b)};
+    }
+    std::vector<size_t> order(sites.size());
+    for (size_t i = 0; i < order.size(); ++i) order[i] = i;
+    std::sort(order.begin(), order.end(), [&](size_t a, size_t b) { return keys[a] < keys[b]; });
+    mClearSlots = std::make_shared<CountTree>(0);
+    mClearBlocks = std::make_shared<CountTree>(0);
+    mClearBucket.clear();
+    mClearBlockRanges.clear();
+    openvdb::tree::ValueAccessor<CountTree, false> slots(*mClearSlots), blocks(*mClearBlocks);
+    for (size_t k = 0; k < order.size(); ++k) {
+        if (k > 0 && keys[order[k]] == keys[order[k - 1]]) continue;
+        const Coord b = bucketOf(sites[order[k]], 0);
+        const int32_t s = int32_t(mClearBucket.size());
+        mClearBucket.push_back(b);
+        slots.setValue(b, s + 1);
+        if (k == 0 || keys[order[k]].first != keys[order[k - 1]].first) { // a new block
+            blocks.setValue(blockOf(b), int32_t(mClearBlockRanges.size()) + 1);
+            mClearBlockRanges.emplace_back(s, s);
+        }
+        mClearBlockRanges.back().second = s + 1;
+    }
+    mClear.reset(new std::atomic<float>[mClearBucket.size()]);
+    forgetClearances();
+}
+
+template<typename F> void SurfacePointIndex::forEachClearanceNear(const Vec3d& q, F&& f) const
+{
+    if (mClearBucket.empty()) return;
+    const double cap2 = kClearCap * kClearCap, blockSize = 4.0 * kBucket;
+    const Coord lo = bucketOf(q - Vec3d(kClearCap), 2), hi = bucketOf(q + Vec3d(kClearCap), 2);
+    openvdb::tree::ValueAccessor<const CountTree, false> blocks(*mClearBlocks);
+    for (int z = lo.z(); z <= hi.z(); ++z)
+        for (int y = lo.y(); y <= hi.y(); ++y)
+            for (int x = lo.x(); x <= hi.x(); ++x) {
+                const int32_t at = blocks.getValue(Coord(x, y, z)) - 1;
+                if (at < 0) continue;
+                double gap2 = 0; // the block's box: none of its buckets is nearer
+                for (int a = 0; a < 3; ++a) {
+                    const double l = blockSize * double(Coord(x, y, z)[a]);
+                    const double g = std::max({l - q[a], 0.0, q[a] - (l + blockSize)});
+                    gap2 += g * g;
+                }
+                if (gap2 >= cap2) continue;
+                const auto [begin, end] = mClearBlockRanges[size_t(at)];
+                for (int32_t s = begin; s < end; ++s) {
+                    const float v = mClear[size_t(s)].load(std::memory_order_relaxed);
+                    if (v < 0.f) continue; // not known: computed in full when read
+                    const double d2 = boxDistance2(mClearBucket[size_t(s)], q);
+                    if (d2 < cap2) f(size_t(s), v, float(std::sqrt(d2)));
+                }
+            }
+}
+
+void SurfacePointIndex::flushClearances() const
+{
+    if (mPendingInserts.empty() && mPendingErases.empty()) return;
+    // Erases first: a known clearance stays exact unless an erased point was at its distance
+    // (then it is forgotten, and computed again when read). Each check reads the value before
+    // any erase (or the -1 another erase stored): the same slots are forgotten in any order.
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, mPendingErases.size(), 64), [&](const auto& r) {
+        for (size_t i = r.begin(); i < r.end(); ++i)
+            forEachClearanceNear(mPendingErases[i], [&](size_t s, float v, float d) {
+                if (d <= v) mClear[s].store(-1.f, std::memory_order_relaxed);
+            });
+    });
+    // Then the inserts still present (one erased again since is not ice): each known clearance
+    // takes the minimum with the points' distances (an atomic minimum: any order, same values).
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, mPendingInserts.size(), 64), [&](const auto& r) {
+        CountAccessor slots(*mSlots);
+        for (size_t i = r.begin(); i < r.end(); ++i) {
+            const Vec3d& q = mPendingInserts[i];
+            const int32_t slot = slots.getValue(bucketOf(q, 0)) - 1;
+            if (slot < 0) continue;
+            const auto& v = mBuckets[size_t(slot)];
+            if (std::find(v.begin(), v.end(), q) == v.end()) continue;
+            forEachClearanceNear(q, [&](size_t s, float known, float d) {
+                while (d < known && !mClear[s].compare_exchange_weak(known, d, std::memory_order_relaxed)) {
+                }
+            });
+        }
+    });
+    mPendingInserts.clear();
+    mPendingErases.clear();
+}
+
+double SurfacePointIndex::clearance(const Coord& b, CountAccessor& slots, CountAccessor& clearSlots) const
+{
+    const int32_t s = clearSlots.getValue(b) - 1;
+    if (s < 0) return -1.0;
+    const float known = mClear[size_t(s)].load(std::memory_order_relaxed);
+    if (known >= 0.f) return double(known);
+    // rings of fine buckets around b, out to the last whose gap to b's box is below the cap,
+    // until the gap reaches the nearest point found
+    double best2 = kClearCap * kClearCap;
+    const int rings = int(std::ceil(kClearCap / kBucket));
+    for (int r = 0; r <= rings; ++r) {
+        const double gap = kBucket * double(std::max(0, r - 1));
+        if (gap * gap >= best2) break;
+        for (int dz = -r; dz <= r; ++dz)
+            for (int dy = -r; dy <= r; ++dy) {
+                const bool face = std::abs(dz) == r || std::abs(dy) == r;
+                for (int dx = -r; dx <= r; dx += face ? 1 : std::max(1, 2 * r)) {
+                    const int32_t slot = slots.getValue(b + Coord(dx, dy, dz)) - 1;
+                    if (slot < 0) continue;
+                    for (const Vec3d& q : mBuckets[size_t(slot)]) best2 = std::min(best2, boxDistance2(b, q));
+                }
+            }
+    }
+    const float value = float(std::sqrt(best2));
+    mClear[size_t(s)].store(value, std::memory_order_relaxed);
+    return double(value);
+}
 
 SurfacePointIndex::NearAccessors SurfacePointIndex::nearAccessors() const
 {
@@ -237,6 +383,7 @@ void SurfacePointIndex::insert(const Vec3d& q)
         if (n == 1) addNear(k, b, 1);
     }
     ++mCount;
+    if (!mClearBucket.empty()) mPendingInserts.push_back(q);
 }
 
 void SurfacePointIndex::assign(const std::vector<Vec3d>& points)
@@ -305,6 +452,7 @@ bool SurfacePointIndex::erase(const Vec3d& q)
         }
     }
     --mCount;
+    if (!mClearBucket.empty()) mPendingErases.push_back(q);
     return true;
 }
 
@@ -322,8 +470,25 @@ std::vector<double> SurfacePointIndex::pointList() const
 
 double SurfacePointIndex::distance(const Vec3d& x) const
 {
+    flushClearances();
     Cursor c(*this);
     return c.distance(x);
+}
+
+double SurfacePointIndex::nearDistance(const Vec3d& x) const
+{
+    if (mCount == 0) return kBucket;
+    const Coord b = bucketOf(x, 0);
+    CountAccessor slots(*mSlots);
+    double best2 = kBucket * kBucket; // the 3x3x3 fine buckets around x hold every point nearer
+    for (int dz = -1; dz <= 1; ++dz)
+        for (int dy = -1; dy <= 1; ++dy)
+            for (int dx = -1; dx <= 1; ++dx) {
+                const int32_t slot = slots.getValue(b + Coord(dx, dy, dz)) - 1;
+                if (slot < 0) continue;
+                for (const Vec3d& q : mBuckets[size_t(slot)]) best2 = std::min(best2, (q - x).lengthSqr());
+            }
+    return std::sqrt(best2);
 }
 
 double SurfacePointIndex::coarseBound(const Vec3d& x, NearAccessors& near) const
@@ -349,6 +514,15 @@ double SurfacePointIndex::Cursor::distance(const Vec3d& x)
     const uint64_t key = packBucket(b);
     if (key != mKey) {
         mKey = key;
+        mNearCount = -1; // gathered when first needed
+        // the bucket's lower bound: its clearance (exact below the cap, where it is the
+        // largest bound any point of the box has), else the pyramid's too
+        const double c = mIndex.clearance(b, mSlotAcc, mClearAcc);
+        mLower = c >= 0.0 && c < kClearCap ? c : std::max(c, mIndex.coarseBound(x, mNearAcc));
+    }
+    // no point within kBucket: the nearest fine buckets' points would not give the distance
+    if (mLower > kBucket) return mLower;
+    if (mNearCount < 0) {
         mNearCount = 0;
         for (int dz = -1; dz <= 1; ++dz)
             for (int dy = -1; dy <= 1; ++dy)
@@ -356,15 +530,14 @@ double SurfacePointIndex::Cursor::distance(const Vec3d& x)
                     const int32_t slot = mSlotAcc.getValue(b + Coord(dx, dy, dz)) - 1;
                     if (slot >= 0) mNear[size_t(mNearCount++)] = &mIndex.mBuckets[size_t(slot)];
                 }
-        mCoarse = -1; // computed when first needed
     }
     double best2 = kFar * kFar;
     for (int k = 0; k < mNearCount; ++k)
         for (const Vec3d& q : *mNear[size_t(k)]) best2 = std::min(best2, (q - x).lengthSqr());
     const double best = std::sqrt(best2);
     if (best <= kBucket) return best;
-    if (mCoarse < 0) mCoarse = mIndex.coarseBound(x, mNearAcc);
-    return std::min(best, mCoarse);
+    // nothing within kBucket of x: the 3x3x3 fine buckets around it hold every point nearer
+    return std::min(best, std::max(mLower, kBucket));
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -390,6 +563,11 @@ ShellWalkers::ShellWalkers(std::shared_ptr<const ShellBand> band, const ice::Dla
     if (mBorder.size() > 0)
         for (size_t i : mLayer)
             if (mBorder.distance(b.closestPoint(i)) <= 1.5) mBorderLayer.push_back(i);
+    // walkers query distances on the surface: a clearance for each fine bucket it crosses
+    std::vector<Vec3d> sites(b.size());
+    for (size_t i = 0; i < b.size(); ++i) sites[i] = b.closestPoint(i);
+    mIce.enableClearance(sites);
+    mBorder.enableClearance(sites);
     if (b.surfaceNodes()) mIceNode.assign(b.size(), 0);
 }
 
@@ -549,6 +727,7 @@ void ShellWalkers::walkBatch(int64_t step, uint64_t first, uint64_t count, const
                              std::vector<ShellWalkEnd>& out) const
 {
     out.assign(size_t(count), ShellWalkEnd{});
+    mIce.flushClearances();
     // one walker per task at most: a walk takes tens of microseconds, and a few long ones in a
     // chunk of 16 left the other thread idle at the batch's end
     tbb::parallel_for(tbb::blocked_range<uint64_t>(0, count, 1), [&](const tbb::blocked_range<uint64_t>& r) {
@@ -615,6 +794,7 @@ ShellWalkEnd ShellWalkers::walk(int64_t step, uint64_t walker, uint64_t salt, co
 {
     // a closed surface without ice: nothing to stick to and no border to leave by
     if (mIce.size() == 0 && !mOpen) return ShellWalkEnd{};
+    mIce.flushClearances(); // a serial walk after sticks (in a batch: flushed before it, returns at once)
     Walk w(*this, in, ice::WalkerRng(mSeed, walker, uint64_t(step), salt));
     if (start) w.x = *start;
     else if (!releaseSite(w, walker)) return w.end;
@@ -656,7 +836,7 @@ bool ShellWalkers::releaseSite(Walk& w, uint64_t walker) const
             const uint64_t pick = uint64_t((static_cast<unsigned __int128>(w.rng.next()) * sites.size()) >> 64);
             w.x = w.b.closestPoint(sites[size_t(pick)]);
         }
-        if (mIce.distance(w.x) > kStickRadius) return true;
+        if (mIce.nearDistance(w.x) > kStickRadius) return true;
     }
     return false;
 }

@@ -33,17 +33,21 @@
 #include <openvdb/openvdb.h>
 
 #include <array>
+#include <atomic>
 #include <memory>
 #include <vector>
 
 namespace frostvdb::shell {
 
 /// Points in index space, bucketed for distance queries: exact up to one bucket (4 voxels),
-/// a lower bound beyond (an occupancy pyramid of buckets 8 .. 512 voxels).
+/// a lower bound beyond: each fine bucket's clearance (below) where sites were given, and an
+/// occupancy pyramid of buckets 8 .. 512 voxels.
 class SurfacePointIndex {
 public:
     static constexpr double kBucket = 4.0;
     static constexpr int kLevels = 8;
+    /// Clearances are exact below this (voxels) and read kClearCap beyond.
+    static constexpr double kClearCap = 24.0;
 
     SurfacePointIndex() { clear(); }
     void clear();
@@ -60,6 +64,23 @@ public:
     /// most kBucket; kFar when there is no point within the pyramid's top level.
     double distance(const openvdb::Vec3d& x) const;
     static constexpr double kFar = 1e9;
+    /// min(kBucket, the distance): for tests against a distance below kBucket, between the
+    /// inserts of a batch's sticks (no clearance is read, so nothing needs flushing).
+    double nearDistance(const openvdb::Vec3d& x) const;
+
+    /// Keeps a clearance for every fine bucket holding one of @a sites (where queries will be):
+    /// min(kClearCap, the distance from the bucket's box to the nearest point), a lower bound for
+    /// any x in it. The pyramid's bound is a power of two below the distance (4 for any point 4-16
+    /// voxels from the ice), which kept walkers there from jumping (docs/shells.md "Walkers").
+    /// Clearances are computed when first read and kept exact as points come and go (an insert
+    /// lowers the ones it beats, an erase forgets the ones it may have set), so every value read
+    /// is the same function of the points whatever the order of queries, inserts and threads.
+    void enableClearance(const std::vector<openvdb::Vec3d>& sites);
+    /// Brings the clearances up to the points inserted and erased since the last call (in
+    /// parallel: the erases' checks, then the inserts' minima, each in any order give the same
+    /// values). Queries beyond kBucket read clearances: call this first, never beside them.
+    /// distance() and the walkers' batches call it; it returns at once when nothing is pending.
+    void flushClearances() const;
 
     /// Repeated queries along a walk: the points of the 3x3x3 fine buckets around the last
     /// query's bucket and the coarse levels' bound are kept until the walk leaves that bucket
@@ -79,7 +100,8 @@ public:
     class Cursor {
     public:
         explicit Cursor(const SurfacePointIndex& index)
-            : mIndex(index), mSlotAcc(*index.mSlots), mNearAcc(index.nearAccessors())
+            : mIndex(index), mSlotAcc(*index.mSlots), mNearAcc(index.nearAccessors()),
+              mClearAcc(*index.mClearSlots)
         {
         }
         double distance(const openvdb::Vec3d& x);
@@ -88,16 +110,34 @@ public:
         const SurfacePointIndex& mIndex;
         CountAccessor mSlotAcc; ///< the fine buckets' slots
         NearAccessors mNearAcc;
+        CountAccessor mClearAcc; ///< the fine buckets' clearance slots
         uint64_t mKey = ~uint64_t(0);
         /// the occupied fine buckets of the 3x3x3 around the last query's (read in place)
         std::array<const std::vector<openvdb::Vec3d>*, 27> mNear{};
-        int mNearCount = 0;
-        double mCoarse = -1; ///< bound from the coarse levels (-1: not computed yet)
+        int mNearCount = -1; ///< -1: not gathered yet
+        double mLower = -1;  ///< the bucket's lower bound (clearance, or the pyramid's beyond the cap)
     };
 
 private:
     /// The coarse levels' lower bound for any point of the fine bucket holding @a x.
     double coarseBound(const openvdb::Vec3d& x, NearAccessors& near) const;
+    /// The clearance of fine bucket @a b (-1 when it holds no site), computed when unknown.
+    double clearance(const openvdb::Coord& b, CountAccessor& slots, CountAccessor& clearSlots) const;
+    /// Calls @a f(slot, its clearance, distance from its box to @a q) for each known clearance
+    /// whose bucket is nearer than kClearCap to @a q.
+    template<typename F> void forEachClearanceNear(const openvdb::Vec3d& q, F&& f) const;
+
+    /// Clearances (see enableClearance): slot s + 1 of a fine bucket in mClearSlots, its bucket
+    /// mClearBucket[s] and value mClear[s] (-1: not known); the slots of a block of 4^3 fine
+    /// buckets are a range (mClearBlocks: index + 1 into mClearBlockRanges), for inserts and erases.
+    CountTree::Ptr mClearSlots, mClearBlocks;
+    std::vector<openvdb::Coord> mClearBucket;
+    std::unique_ptr<std::atomic<float>[]> mClear;
+    std::vector<std::pair<int32_t, int32_t>> mClearBlockRanges;
+    /// Points inserted and erased since the last flushClearances() (mutable: flushed by const
+    /// queries in serial code, before any parallel walk reads the clearances).
+    mutable std::vector<openvdb::Vec3d> mPendingInserts, mPendingErases;
+    void forgetClearances();
 
     /// The fine buckets' points: slot s holds a bucket's points in the order they came (the
     /// slot of fine bucket b is mSlots(b) - 1; 0: empty). A tree read through a cached accessor:
@@ -160,6 +200,8 @@ public:
     void forgetSticks(const std::vector<openvdb::Vec3d>& sticks, const std::vector<float>& p);
     /// Lower bound of the distance (voxels) from @a x to the ice.
     double iceDistance(const openvdb::Vec3d& x) const { return mIce.distance(x); }
+    /// min(SurfacePointIndex::kBucket, the distance from @a x to the ice), exact below.
+    double iceNearDistance(const openvdb::Vec3d& x) const { return mIce.nearDistance(x); }
     size_t icePoints() const { return mIce.size(); }
     /// The walkers' ice as x, y, z triples (bucket by bucket in key order; for checkpoints), and
     /// the same set restored (distances are minima: the order does not change any result).
