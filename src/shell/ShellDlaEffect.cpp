@@ -422,11 +422,11 @@ void ShellDlaEffect::walkAndFreeze(StepContext& ctx, int64_t step, uint64_t tota
             ShellWalkEnd e = ends[size_t(w)];
             account(e);
             if (e.kind != ShellWalkEnd::Stuck) continue;
-            if (mWalkers->iceNearDistance(e.point) < 0.5) {
+            if (mWalkers->iceNearer(e.point, 0.5)) {
                 // ice froze on top of it earlier in this batch: the walk goes on from its last
                 // step's point, serially, against the current ice (the plane's rule)
                 ++mStats.conflicts;
-                if (!e.hasPrev || mWalkers->iceNearDistance(e.prev) < 0.5) continue;
+                if (!e.hasPrev || mWalkers->iceNearer(e.prev, 0.5)) continue;
                 const openvdb::Vec3d start = e.prev;
                 e = mWalkers->walk(step, first + w, kResumeSalt, &start, in);
                 account(e);

@@ -475,20 +475,22 @@ double SurfacePointIndex::distance(const Vec3d& x) const
     return c.distance(x);
 }
 
-double SurfacePointIndex::nearDistance(const Vec3d& x) const
+bool SurfacePointIndex::hasPointWithin(const Vec3d& x, double r, bool inclusive) const
 {
-    if (mCount == 0) return kBucket;
-    const Coord b = bucketOf(x, 0);
+    if (mCount == 0) return false;
+    const Coord lo = bucketOf(x - Vec3d(r), 0), hi = bucketOf(x + Vec3d(r), 0);
     CountAccessor slots(*mSlots);
-    double best2 = kBucket * kBucket; // the 3x3x3 fine buckets around x hold every point nearer
-    for (int dz = -1; dz <= 1; ++dz)
-        for (int dy = -1; dy <= 1; ++dy)
-            for (int dx = -1; dx <= 1; ++dx) {
-                const int32_t slot = slots.getValue(b + Coord(dx, dy, dz)) - 1;
+    for (int z = lo.z(); z <= hi.z(); ++z)
+        for (int y = lo.y(); y <= hi.y(); ++y)
+            for (int xb = lo.x(); xb <= hi.x(); ++xb) {
+                const int32_t slot = slots.getValue(Coord(xb, y, z)) - 1;
                 if (slot < 0) continue;
-                for (const Vec3d& q : mBuckets[size_t(slot)]) best2 = std::min(best2, (q - x).lengthSqr());
+                for (const Vec3d& q : mBuckets[size_t(slot)]) {
+                    const double d = std::sqrt((q - x).lengthSqr()); // as distance() rounds it
+                    if (inclusive ? d <= r : d < r) return true;
+                }
             }
-    return std::sqrt(best2);
+    return false;
 }
 
 double SurfacePointIndex::coarseBound(const Vec3d& x, NearAccessors& near) const
@@ -836,7 +838,7 @@ bool ShellWalkers::releaseSite(Walk& w, uint64_t walker) const
             const uint64_t pick = uint64_t((static_cast<unsigned __int128>(w.rng.next()) * sites.size()) >> 64);
             w.x = w.b.closestPoint(sites[size_t(pick)]);
         }
-        if (mIce.nearDistance(w.x) > kStickRadius) return true;
+        if (!mIce.hasPointWithin(w.x, kStickRadius, true)) return true;
     }
     return false;
 }

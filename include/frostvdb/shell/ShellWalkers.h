@@ -64,9 +64,11 @@ public:
     /// most kBucket; kFar when there is no point within the pyramid's top level.
     double distance(const openvdb::Vec3d& x) const;
     static constexpr double kFar = 1e9;
-    /// min(kBucket, the distance): for tests against a distance below kBucket, between the
-    /// inserts of a batch's sticks (no clearance is read, so nothing needs flushing).
-    double nearDistance(const openvdb::Vec3d& x) const;
+    /// Whether a point lies nearer than @a r (at most @a r when @a inclusive) to @a x, for
+    /// r <= kBucket: the same answer as comparing distance() with r, from the (at most 8) fine
+    /// buckets the ball touches, stopping at the first such point (near the ice a fine bucket's
+    /// 3x3x3 hold hundreds of points), and reading no clearance (nothing needs flushing).
+    bool hasPointWithin(const openvdb::Vec3d& x, double r, bool inclusive) const;
 
     /// Keeps a clearance for every fine bucket holding one of @a sites (where queries will be):
     /// min(kClearCap, the distance from the bucket's box to the nearest point), a lower bound for
@@ -200,8 +202,8 @@ public:
     void forgetSticks(const std::vector<openvdb::Vec3d>& sticks, const std::vector<float>& p);
     /// Lower bound of the distance (voxels) from @a x to the ice.
     double iceDistance(const openvdb::Vec3d& x) const { return mIce.distance(x); }
-    /// min(SurfacePointIndex::kBucket, the distance from @a x to the ice), exact below.
-    double iceNearDistance(const openvdb::Vec3d& x) const { return mIce.nearDistance(x); }
+    /// Whether ice lies nearer than @a r (at most SurfacePointIndex::kBucket) to @a x.
+    bool iceNearer(const openvdb::Vec3d& x, double r) const { return mIce.hasPointWithin(x, r, false); }
     size_t icePoints() const { return mIce.size(); }
     /// The walkers' ice as x, y, z triples (bucket by bucket in key order; for checkpoints), and
     /// the same set restored (distances are minima: the order does not change any result).
