@@ -445,7 +445,7 @@ TEST_CASE("Surface point index: bucket clearances are lower bounds, exact below 
     // history: inserts (ice near the +z pole and a few elsewhere), queries that compute
     // clearances, erases of some of them and more inserts, queries between each
     shell::SurfacePointIndex grown;
-    grown.enableClearance(sphere);
+    grown.enableClearance(sphere.size(), [&](size_t i) { return sphere[i]; });
     std::vector<Vec3d> ice;
     for (int round = 0; round < 6; ++round) {
         for (int k = 0; k < 60; ++k) {
@@ -463,7 +463,7 @@ TEST_CASE("Surface point index: bucket clearances are lower bounds, exact below 
         if (round % 2) queryAll(grown);
     }
     shell::SurfacePointIndex fresh;
-    fresh.enableClearance(sphere);
+    fresh.enableClearance(sphere.size(), [&](size_t i) { return sphere[i]; });
     fresh.assign(ice);
     shell::SurfacePointIndex pyramid; // no clearances: the occupancy pyramid's bound alone
     pyramid.assign(ice);

@@ -228,30 +228,38 @@ double boxDistance2(const Coord& b, const Vec3d& q)
 }
 } // namespace
 
-void SurfacePointIndex::enableClearance(const std::vector<Vec3d>& sites)
+void SurfacePointIndex::enableClearance(size_t count, const std::function<Vec3d(size_t)>& site)
 {
-    // slots block by block (each block's slots contiguous, for the scans of inserts and erases)
+    // the fine buckets the sites touch (8 bytes per site while they are found: the windshield
+    // hero has 4.5 M), then their slots block by block (each block's slots contiguous, for the
+    // scans of inserts and erases)
+    std::vector<uint64_t> fine(count);
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, count, 4096), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t i = r.begin(); i < r.end(); ++i) fine[i] = packBucket(bucketOf(site(i), 0));
+    });
+    tbb::parallel_sort(fine.begin(), fine.end());
+    fine.erase(std::unique(fine.begin(), fine.end()), fine.end());
+    auto unpack = [](uint64_t key) {
+        constexpr int64_t kOff = int64_t(1) << 20, kMask = (int64_t(1) << 21) - 1;
+        return Coord(int(int64_t(key & kMask) - kOff), int(int64_t((key >> 21) & kMask) - kOff),
+                     int(int64_t((key >> 42) & kMask) - kOff));
+    };
     auto blockOf = [](const Coord& b) { return Coord(b.x() >> 2, b.y() >> 2, b.z() >> 2); };
-    std::vector<std::pair<uint64_t, uint64_t>> keys(sites.size()); // (block key, bucket key)
-    for (size_t i = 0; i < sites.size(); ++i) {
-        const Coord b = bucketOf(sites[i], 0);
-        keys[i] = {packBucket(blockOf(b)), packBucket(b)};
-    }
-    std::vector<size_t> order(sites.size());
-    for (size_t i = 0; i < order.size(); ++i) order[i] = i;
-    std::sort(order.begin(), order.end(), [&](size_t a, size_t b) { return keys[a] < keys[b]; });
+    std::vector<std::pair<uint64_t, uint64_t>> keys(fine.size()); // (block key, bucket key)
+    for (size_t k = 0; k < fine.size(); ++k) keys[k] = {packBucket(blockOf(unpack(fine[k]))), fine[k]};
+    std::vector<uint64_t>().swap(fine);
+    std::sort(keys.begin(), keys.end());
     mClearSlots = std::make_shared<CountTree>(0);
     mClearBlocks = std::make_shared<CountTree>(0);
     mClearBucket.clear();
     mClearBlockRanges.clear();
     openvdb::tree::ValueAccessor<CountTree, false> slots(*mClearSlots), blocks(*mClearBlocks);
-    for (size_t k = 0; k < order.size(); ++k) {
-        if (k > 0 && keys[order[k]] == keys[order[k - 1]]) continue;
-        const Coord b = bucketOf(sites[order[k]], 0);
+    for (size_t k = 0; k < keys.size(); ++k) {
+        const Coord b = unpack(keys[k].second);
         const int32_t s = int32_t(mClearBucket.size());
         mClearBucket.push_back(b);
         slots.setValue(b, s + 1);
-        if (k == 0 || keys[order[k]].first != keys[order[k - 1]].first) { // a new block
+        if (k == 0 || keys[k].first != keys[k - 1].first) { // a new block
             blocks.setValue(blockOf(b), int32_t(mClearBlockRanges.size()) + 1);
             mClearBlockRanges.emplace_back(s, s);
         }
@@ -566,10 +574,9 @@ ShellWalkers::ShellWalkers(std::shared_ptr<const ShellBand> band, const ice::Dla
         for (size_t i : mLayer)
             if (mBorder.distance(b.closestPoint(i)) <= 1.5) mBorderLayer.push_back(i);
     // walkers query distances on the surface: a clearance for each fine bucket it crosses
-    std::vector<Vec3d> sites(b.size());
-    for (size_t i = 0; i < b.size(); ++i) sites[i] = b.closestPoint(i);
-    mIce.enableClearance(sites);
-    mBorder.enableClearance(sites);
+    const auto site = [&b](size_t i) { return b.closestPoint(i); };
+    mIce.enableClearance(b.size(), site);
+    mBorder.enableClearance(b.size(), site);
     if (b.surfaceNodes()) mIceNode.assign(b.size(), 0);
 }
 

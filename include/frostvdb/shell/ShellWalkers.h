@@ -34,6 +34,7 @@
 
 #include <array>
 #include <atomic>
+#include <functional>
 #include <memory>
 #include <vector>
 
@@ -70,14 +71,15 @@ public:
     /// 3x3x3 hold hundreds of points), and reading no clearance (nothing needs flushing).
     bool hasPointWithin(const openvdb::Vec3d& x, double r, bool inclusive) const;
 
-    /// Keeps a clearance for every fine bucket holding one of @a sites (where queries will be):
+    /// Keeps a clearance for every fine bucket holding one of the @a count points @a site(k)
+    /// (where queries will be):
     /// min(kClearCap, the distance from the bucket's box to the nearest point), a lower bound for
     /// any x in it. The pyramid's bound is a power of two below the distance (4 for any point 4-16
     /// voxels from the ice), which kept walkers there from jumping (docs/shells.md "Walkers").
     /// Clearances are computed when first read and kept exact as points come and go (an insert
     /// lowers the ones it beats, an erase forgets the ones it may have set), so every value read
     /// is the same function of the points whatever the order of queries, inserts and threads.
-    void enableClearance(const std::vector<openvdb::Vec3d>& sites);
+    void enableClearance(size_t count, const std::function<openvdb::Vec3d(size_t)>& site);
     /// Brings the clearances up to the points inserted and erased since the last call (in
     /// parallel: the erases' checks, then the inserts' minima, each in any order give the same
     /// values). Queries beyond kBucket read clearances: call this first, never beside them.
