@@ -425,7 +425,8 @@ TEST_CASE("Probe 25.2: a GG 3D frame whose grids would not fit run.memory_limit 
     CHECK(message.find("frame 1: the grids of") != std::string::npos);
     CHECK(message.find("run.memory_limit") != std::string::npos);
     // a seed of 25,000 cells is refused by the scene's estimate, before a step
-    const std::string seedError = errorOf(text, {"gravner_griffeath_3d.seed_radius=30", "gravner_griffeath_3d.seed_height=9",
+    const std::string seedError = errorOf(text, {"gravner_griffeath_3d.domain_radius=40", "gravner_griffeath_3d.layers=20",
+                                                 "gravner_griffeath_3d.seed_radius=30", "gravner_griffeath_3d.seed_height=9",
                                                  "gravner_griffeath_3d.voxels_per_cell=3", "scene.steps_per_frame=1",
                                                  "run.memory_limit=0.02"});
     INFO(seedError);
