@@ -573,3 +573,53 @@ TEST_CASE("gg3d: the time-switched preset follows the facts table (Fig. 32)", "[
     CHECK(a.params().beta[1] == 1.15);
     CHECK(a.params().beta[2] == 1.15);
 }
+
+TEST_CASE("gg3d: the memory estimate follows the crystal a run grows (issue 25)", "[gg3d][fast][memory]")
+{
+    // The frame's grids follow the crystal's attached cells (1,000-1,300 bytes each at
+    // voxels_per_cell 3), which no key bounds: the scene's estimate charged the seed's grids only,
+    // 0.15-0.40 of the shipped scenes' peaks. The growth model (gg3dCrystalCellsEstimate) against
+    // the cells a run really attaches: a plate and a dendrite that use up their vapour ...
+    struct Case {
+        const char* preset;
+        int radius, layers, steps;
+    };
+    for (const Case& c : {Case{"fig04_plate_ridges", 24, 12, 3000}, Case{"fig14_classic_dendrite", 30, 15, 3000}}) {
+        INFO(c.preset);
+        GG3DConfig cfg = presetConfig(c.preset, c.radius, c.layers);
+        const double predicted = gg3dCrystalCellsEstimate(cfg, c.steps);
+        GG3D a(cfg);
+        for (int s = 0; s < c.steps && !a.stopped(); ++s) a.step();
+        const double attached = double(a.attachedCount());
+        INFO("predicted " << predicted << ", attached " << attached);
+        CHECK(predicted <= 1.5 * attached);
+        CHECK(predicted >= attached / 1.5);
+    }
+    // ... a short run's crystal stays within the kinetic bound (radius and height grow at most
+    // (1 - kappa) d_max / beta a step), far below the vapour's share ...
+    {
+        GG3DConfig cfg = presetConfig("fig04_plate_ridges", 60, 31);
+        const double predicted = gg3dCrystalCellsEstimate(cfg, 60);
+        GG3D a(cfg);
+        for (int s = 0; s < 60; ++s) a.step();
+        INFO("predicted " << predicted << ", attached " << a.attachedCount());
+        CHECK(predicted >= double(a.attachedCount()));
+        CHECK(predicted < 0.1 * gg3dCrystalCellsEstimate(cfg, 6000));
+    }
+    // ... and the scene's estimate charges those cells' grids (at voxels_per_cell 16 a cell is
+    // 4,096 voxels: 1,000 attached cells outweigh the seed's grids tenfold).
+    const std::string text = "[scene]\nsteps_per_frame = 3000\n[domain]\nsize = [49, 49]\nvoxel_size = 0.001\n"
+                             "[gravner_griffeath_3d]\npreset = \"fig04_plate_ridges\"\ndomain_radius = 24\n"
+                             "layers = 12\nvoxels_per_cell = 16\n";
+    Simulation sim(Scene::fromString(text, "<t>"));
+    const double estimate = sim.effects()[0]->memoryEstimate(sim.world()).bytes;
+    sim.initialize();
+    auto* gg = dynamic_cast<GG3DEffect*>(sim.effects()[0].get());
+    REQUIRE(gg);
+    GG3D& flake = *gg->flakes()[0];
+    for (int s = 0; s < 3000 && !flake.stopped(); ++s) flake.step();
+    const double gridBytes = double(flake.attachedCount()) * 44.0 * 4096.0;
+    INFO("estimate " << estimate << ", grids of the attached cells " << gridBytes);
+    CHECK(estimate >= gridBytes / 1.5);
+    CHECK(estimate <= gridBytes * 1.5 + 20e6);
+}

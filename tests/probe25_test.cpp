@@ -400,13 +400,17 @@ layers = 9
 TEST_CASE("Probe 25.2: a GG 3D frame whose grids would not fit run.memory_limit is refused before they are built",
           "[fast][probe][memory]")
 {
-    // The scene's estimate counts a seed's grids (about 14 MB); a 25,000-cell seed's take about
-    // 34 MB more, found from the crystal's cells before the frame is built.
-    const std::string text = "[scene]\nname = \"gg\"\nframes = 1\nsteps_per_frame = 1\n[run]\nmemory_limit = 0.02\n"
-                             "[output]\npreview = \"none\"\n[domain]\nsize = [81, 81]\nvoxel_size = 0.0001\n"
-                             "[gravner_griffeath_3d]\ndomain_radius = 40\nlayers = 20\n";
+    // The scene's estimate charges the crystal its growth model expects (gg3dCrystalCellsEstimate:
+    // 1,633 cells for this dendrite, 294 MiB of grids at voxels_per_cell 16); the run grows 2,079,
+    // which the frame counts before its grids are built (420 MiB at the frame check's rate). A
+    // limit between the two lets the scene load and refuses its frame. (Until session 14 a
+    // 25,000-cell seed showed this; the scene's estimate now counts a seed's cells itself.)
+    const std::string text = "[scene]\nname = \"gd\"\nframes = 1\nsteps_per_frame = 3000\n[run]\nmemory_limit = 0.33\n"
+                             "[output]\npreview = \"none\"\n[domain]\nsize = [61, 61]\nvoxel_size = 0.001\n"
+                             "[gravner_griffeath_3d]\npreset = \"fig14_classic_dendrite\"\ndomain_radius = 30\n"
+                             "layers = 15\nvoxels_per_cell = 16\n";
     CHECK(errorOf(text) == "");
-    auto sim = makeSim(text, {"gravner_griffeath_3d.seed_radius=30", "gravner_griffeath_3d.seed_height=9"});
+    auto sim = makeSim(text);
     RunOptions ro;
     ro.progress = false;
     ro.outDir = tempDir("p25_gg3d_budget");
@@ -420,8 +424,16 @@ TEST_CASE("Probe 25.2: a GG 3D frame whose grids would not fit run.memory_limit 
     CHECK(message.find("gravner_griffeath_3d.voxels_per_cell: needs about") != std::string::npos);
     CHECK(message.find("frame 1: the grids of") != std::string::npos);
     CHECK(message.find("run.memory_limit") != std::string::npos);
+    // a seed of 25,000 cells is refused by the scene's estimate, before a step
+    const std::string seedError = errorOf(text, {"gravner_griffeath_3d.domain_radius=40", "gravner_griffeath_3d.layers=20",
+                                                 "gravner_griffeath_3d.seed_radius=30", "gravner_griffeath_3d.seed_height=9",
+                                                 "gravner_griffeath_3d.voxels_per_cell=3", "scene.steps_per_frame=1",
+                                                 "run.memory_limit=0.02"});
+    INFO(seedError);
+    CHECK(seedError.find("gravner_griffeath_3d.domain_radius: needs about") != std::string::npos);
+    CHECK(seedError.find("attached cells") != std::string::npos);
     // the seed alone fits
-    auto small = makeSim(text);
+    auto small = makeSim(text, {"scene.steps_per_frame=1"});
     RunOptions ro2 = ro;
     ro2.outDir = tempDir("p25_gg3d_budget_small");
     CHECK(small.run(ro2).status == "complete");
@@ -919,6 +931,10 @@ TEST_CASE("Probe 25.2: the estimates of the larger scenes (gases, GG 3D, a 1024^
     // GG 3D's box grows with the disturbance: 60 steps take it to a 40-cell domain
     checkRatios(dir, {{"gg3d", kPlane + "[domain]\nsize = [161, 161]\nvoxel_size = 0.0001\n[gravner_griffeath_3d]\n"
                                         "domain_radius = 40\nlayers = 120\nwedge = false\n"}}, 60);
+    // a grown crystal: scenes/gg3d_plate_ridges.toml as shipped (6,000 steps, 18,469 attached
+    // cells; the grids follow them: the scene's estimate from the growth model, session 14: 0.99)
+    checkRatios(dir, {{"gg3d_grown", kPlane + "[domain]\nsize = [121, 121]\nvoxel_size = 0.0001\n[gravner_griffeath_3d]\n"
+                                              "preset = \"fig04_plate_ridges\"\ndomain_radius = 60\nlayers = 31\n"}}, 6000);
 }
 
 TEST_CASE("Probe 25.2: the share of a gas's candidate leaves that hold gas is sampled without aliasing",

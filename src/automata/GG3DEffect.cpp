@@ -384,20 +384,31 @@ double originTreeBytes()
 /// the slab and mask trees they are made from (measured: a one-step run's output took 13.0 MiB,
 /// 5.6 of them, with a 19-cell seed).
 constexpr double kOutputTrees = 5.5;
+/// Bytes of a frame's grids per voxel of an attached cell (voxels_per_cell^3 x prism_height of
+/// them): automaton_ice, ice_sdf and the mask and filter trees topologyToLevelSet makes, at the
+/// output's peak (measured: 132 MiB for the dendrite's 114,587 cells at voxels_per_cell 3, 44.7;
+/// the per-frame check, GG3DOutput.cpp, charges 50).
+constexpr double kGridBytesPerCellVoxel = 44.0;
 } // namespace
 
 MemoryEstimate GG3DEffect::memoryEstimate(const World& world) const
 {
     // the box a run of this many steps can reach (issue 25: a one-step run was charged the
     // whole domain, 5x its peak); the box doubles while it grows (old and new arrays), the
-    // frame's grids come on top of the grown box (a one-step run's 13 MiB of grids were missed)
-    const double solver = double(gg3dMemoryEstimate(mCfg, world.frames * world.stepsPerFrame));
-    const double grids = kOutputTrees * originTreeBytes();
+    // frame's grids come on top of the grown box (a one-step run's 13 MiB of grids were missed),
+    // and they follow the crystal the run may grow (the shipped scenes were charged 0.15-0.40 of
+    // their peaks): its attached cells from the growth model (gg3dCrystalCellsEstimate)
+    const int64_t steps = world.frames * world.stepsPerFrame;
+    const double solver = double(gg3dMemoryEstimate(mCfg, steps));
+    std::string cellsDetail;
+    const double cells = gg3dCrystalCellsEstimate(mCfg, steps, &cellsDetail);
+    const double perCell = kGridBytesPerCellVoxel * std::pow(double(mOut.voxelsPerCell), 3.0) * mOut.prismHeight;
+    const double grids = kOutputTrees * originTreeBytes() + cells * perCell;
     const double flakes = double(mOut.batch) + (mOut.batch > 1 ? 1.0 : 0.0); // and the combined grids
-    char what[240];
+    char what[400];
     std::snprintf(what, sizeof what,
-                  "%d flakes x %.3g bytes of solver arrays at domain_radius %d, layers %d, and their frame grids",
-                  mOut.batch, solver, mCfg.domainRadius, mCfg.layers);
+                  "%d flakes x %.3g bytes of solver arrays at domain_radius %d, layers %d, and their frame grids: %s",
+                  mOut.batch, solver, mCfg.domainRadius, mCfg.layers, cellsDetail.c_str());
     return {std::max(solver * mOut.batch, 0.5 * solver * mOut.batch + grids * flakes),
             std::string(name()) + (mOut.batch > 1 ? ".batch" : ".domain_radius"), what};
 }

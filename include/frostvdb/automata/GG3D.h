@@ -84,6 +84,20 @@ uint64_t gg3dMemoryEstimate(const GG3DConfig& cfg);
 /// reaches its edge; so a short run's box is bounded by its steps, not only by the domain.
 uint64_t gg3dMemoryEstimate(const GG3DConfig& cfg, int64_t steps);
 
+/// Attached cells a run of @a steps steps may end with, before anything grows (issue 25: the
+/// frame's grids follow the crystal, 1,000-1,300 bytes per attached cell). The smaller of
+///  - a kinetic bound: the first cell at a new radius has only its 1-2 horizontal neighbours
+///    attached (configuration 10 or 20), the first at a new layer only its vertical one (01), and
+///    its boundary mass gains at most (1 - kappa) d_max a step towards beta, so the crystal's
+///    radius and half height grow by at most (1 - kappa) d_max / beta a step; both stop at the
+///    stop radius and 80 % of the half height. The whole prism they span is counted;
+///  - the vapour: with reflecting walls the crystal holds at most the domain's mass rho x cells,
+///    less what stays vapour because growth stalls below mu beta / (1 - kappa) (the guard rail);
+///    at the end of the shipped scenes it held 19-55 % of that (kMassShare, 45 %); a vapour
+///    reservoir at the walls feeds it on (kReservoirMassShare).
+/// With @a detail: the model's terms, for messages.
+double gg3dCrystalCellsEstimate(const GG3DConfig& cfg, int64_t steps, std::string* detail = nullptr);
+
 class GG3D {
 public:
     explicit GG3D(const GG3DConfig& cfg);
