@@ -14,10 +14,13 @@
 
 #include "test_util.h"
 
+#include <frostvdb/core/ActiveRegion.h>
+#include <frostvdb/core/Export.h>
 #include <frostvdb/core/FieldEdits.h>
 #include <frostvdb/core/FieldWriters.h>
 #include <frostvdb/core/PlaneFold.h>
 #include <frostvdb/core/Random.h>
+#include <frostvdb/core/RegionOfTopology.h>
 
 #include <cstdlib>
 
@@ -229,4 +232,70 @@ TEST_CASE("A plane region's folded topology and a folded grid's plane topology a
     CHECK(plane::foldTopology(*region)->tree().probeConstLeaf(plane::foldedLeafOrigin(openvdb::Coord(400, 400, 0))));
     auto back = plane::unfoldTopology(*plane::foldGrid(*g));
     CHECK(back->tree().hasSameTopology(openvdb::MaskTree(g->tree(), false, openvdb::TopologyCopy())));
+}
+
+TEST_CASE("The region of folded p and T is the region of the plane layout's, for every reach", "[fast][fold][region]")
+{
+    // random sources on a domain with a negative origin off the leaf grid, some outside it;
+    // steps 1..3: the leaf-level path reading folded chunks, 9: through the unfolded topology
+    for (auto kind : {LatticeKind::Square, LatticeKind::Hexagonal}) {
+        const Lattice lat{kind, 3.0 / 64.0};
+        const Domain dom = makePlaneDomain(lat, openvdb::Coord(203, 150, 1), 1e-4, openvdb::Coord(-77, -13, 0));
+        auto p = openvdb::FloatGrid::create(0.f), T = openvdb::FloatGrid::create(0.f);
+        for (uint64_t i = 0; i < 300; ++i) {
+            const int x = -90 + int(toUnit(hashCounters(7, i, 0, 0)) * 240);
+            const int y = -20 + int(toUnit(hashCounters(7, i, 1, 0)) * 180);
+            (i % 3 ? T : p)->tree().setValue(openvdb::Coord(x, y, 0), 0.25f);
+        }
+        const auto pf = plane::foldGrid(*p), tf = plane::foldGrid(*T);
+        RegionSettings rs;
+        for (int steps : {1, 2, 3, 9}) {
+            INFO("lattice " << int(kind) << ", steps " << steps);
+            const auto want = buildActiveRegion({p.get(), T.get()}, rs, 2, dom, steps);
+            const auto got = buildActiveRegionOfFolded({pf.get(), tf.get()}, rs, 2, dom, steps);
+            CHECK(got->tree().hasSameTopology(want->tree()));
+            CHECK(got->activeVoxelCount() == want->activeVoxelCount());
+            // unchanged fields: the last region comes back as it is
+            CHECK(buildActiveRegionOfFolded({pf.get(), tf.get()}, rs, 2, dom, steps, got) == got);
+        }
+    }
+}
+
+TEST_CASE("A folded field resampled in place exports the bits its unfolded copy exports", "[fast][fold][export]")
+{
+    // inactive values off the background, chunks of inactive values only, a domain's edge
+    const Lattice hex{LatticeKind::Hexagonal, 3.0 / 64.0};
+    const Domain dom = makePlaneDomain(hex, openvdb::Coord(300, 200, 1), 1e-4, openvdb::Coord(-40, -8, 0));
+    auto g = openvdb::FloatGrid::create(0.25f);
+    g->setName("g");
+    g->setTransform(dom.transform()->copy());
+    for (int i = 0; i < 6000; ++i) {
+        const uint64_t h = hashCounters(11, uint64_t(i));
+        const openvdb::Coord c(int(h % 300) - 40, int((h >> 20) % 200) - 8, 0);
+        if (h >> 60 & 1) g->tree().setValueOn(c, float(h % 1000) * 0.001f);
+        else g->tree().setValueOff(c, -float(h % 1000));
+    }
+    const auto folded = plane::foldGrid(*g);
+    auto dress = [](openvdb::FloatGrid& x) {
+        x.setName("dressed");
+        x.setGridClass(openvdb::GRID_UNKNOWN);
+    };
+    for (bool keep : {false, true}) {
+        INFO("keep lattice " << keep);
+        auto copy = plane::unfoldGrid(*folded);
+        dress(*copy);
+        const auto want = openvdb::gridPtrCast<openvdb::FloatGrid>(exportGrid(copy, dom, keep));
+        const auto got = openvdb::gridPtrCast<openvdb::FloatGrid>(exportFolded(*folded, dom, keep, dress));
+        REQUIRE(want);
+        REQUIRE(got);
+        CHECK(got->str() == want->str()); // name, class, metadata
+        CHECK(got->transform() == want->transform());
+        CHECK(got->tree().hasSameTopology(want->tree()));
+        CHECK(got->activeVoxelCount() > 0);
+        auto acc = got->getConstAccessor();
+        size_t differ = 0;
+        for (auto it = want->cbeginValueAll(); it; ++it)
+            if (std::memcmp(&*it, &static_cast<const float&>(acc.getValue(it.getCoord())), sizeof(float)) != 0) ++differ;
+        CHECK(differ == 0);
+    }
 }

@@ -1,4 +1,5 @@
 #include <frostvdb/core/ActiveRegion.h>
+#include <frostvdb/core/PlaneFold.h>
 #include <frostvdb/core/RegionOfTopology.h>
 
 #include <openvdb/tools/Morphology.h>
@@ -13,6 +14,7 @@
 #include <atomic>
 #include <cmath>
 #include <cstring>
+#include <stdexcept>
 
 namespace frostvdb {
 
@@ -154,10 +156,66 @@ bool anyActiveTile(const std::vector<const GridT*>& fields)
 /// dilating a voxel mask: each source leaf marks the neighbour leaves its voxels reach. Cost
 /// follows the fields' leaves. Returns @a previous itself when the leaf set is unchanged.
 /// Null when the reach spans more than two leaves (the voxel dilation handles that).
+/// A field's plane leaves as the leaf-level region path reads them: per plane leaf its origin
+/// and, per x, the active y's of the plane layer (bit y). A plane-layout tree gives one per
+/// leaf; a folded tree (core/PlaneFold.h) one per 8 x 8 chunk of each folded leaf, so the
+/// region is built from folded fields without unfolding them.
+template <typename TreeT>
+struct PlaneLeafRows {
+    using LeafT = typename TreeT::LeafNodeType;
+    const openvdb::tree::LeafManager<const TreeT>& leaves;
+    bool folded;
+    int zLeaf, zBit;
+
+    size_t count() const { return leaves.leafCount() * (folded ? 8 : 1); }
+    /// Origin of plane leaf @a i and its rows; false when it has no voxel on the plane layer.
+    bool rows(size_t i, openvdb::Coord& o, uint8_t r[kLeafDim]) const
+    {
+        if (!folded) {
+            const LeafT& leaf = leaves.leaf(i);
+            o = leaf.origin();
+            if (o.z() != zLeaf) return false;
+            bool any = false;
+            for (int x = 0; x < kLeafDim; ++x) {
+                const uint64_t w = leaf.getValueMask().template getWord<uint64_t>(openvdb::Index(x)) >> zBit;
+                uint8_t b = 0;
+                for (int y = 0; y < kLeafDim; ++y)
+                    if ((w >> (y * 8)) & 1u) b |= uint8_t(1u << y);
+                r[x] = b;
+                any = any || b;
+            }
+            return any;
+        }
+        // folded leaf i / 8, chunk g: word dy's byte g holds (dx, dy) at bit dx
+        const LeafT& leaf = leaves.leaf(i / 8);
+        const int g = int(i % 8);
+        const openvdb::Coord fo = leaf.origin();
+        if (fo.z() != 0) throw std::logic_error("planeRegionByLeaves: a folded plane field has a leaf off layer 0");
+        o = openvdb::Coord((fo.y() + g) * kLeafDim, fo.x(), 0);
+        uint64_t bytes = 0; // byte dy: the chunk's row dy (bit dx)
+        for (int dy = 0; dy < kLeafDim; ++dy)
+            bytes |= ((leaf.getValueMask().template getWord<uint64_t>(openvdb::Index(dy)) >> (g * 8)) & 0xffu) << (dy * 8);
+        if (!bytes) return false;
+        for (int x = 0; x < kLeafDim; ++x) {
+            uint8_t b = 0;
+            for (int y = 0; y < kLeafDim; ++y) b |= uint8_t(((bytes >> (y * 8 + x)) & 1u) << y);
+            r[x] = b;
+        }
+        return true;
+    }
+};
+
+/// The plane region computed leaf by leaf, the same set of whole leaves the voxel dilation
+/// gives (a leaf is in when one of its cells lies within `iterations` of a source voxel: L1
+/// for the 4-neighbour dilation, Chebyshev for the hexagonal 3x3 one), without building or
+/// dilating a voxel mask: each source leaf marks the neighbour leaves its voxels reach. Cost
+/// follows the fields' leaves. Returns @a previous itself when the leaf set is unchanged.
+/// Null when the reach spans more than two leaves (the voxel dilation handles that).
+/// @a folded: the fields are folded plane fields (core/PlaneFold.h), read chunk by chunk.
 template <typename GridT>
 openvdb::MaskGrid::Ptr planeRegionByLeaves(const std::vector<const GridT*>& fields, int iterations,
                                            bool chebyshev, const Domain& domain,
-                                           const openvdb::MaskGrid::Ptr& previous)
+                                           const openvdb::MaskGrid::Ptr& previous, bool folded = false)
 {
     constexpr int kMaxLeaves = 3; // neighbour leaves reached along an axis
     const int R = (iterations + kLeafDim - 1) / kLeafDim;
@@ -168,34 +226,36 @@ openvdb::MaskGrid::Ptr planeRegionByLeaves(const std::vector<const GridT*>& fiel
     const int lx0 = floorDiv(box.min().x()), ly0 = floorDiv(box.min().y());
     const int nx = floorDiv(box.max().x()) - lx0 + 1, ny = floorDiv(box.max().y()) - ly0 + 1;
     const int z0 = box.min().z(), zLeaf = z0 & ~(kLeafDim - 1), zBit = z0 & (kLeafDim - 1);
+    if (folded && z0 != 0) return nullptr; // folded fields live on layer 0
     // gap from local coordinate v (0..7) to the cells of the leaf d leaves away along that axis
     auto gap = [](int v, int d) { return d == 0 ? 0 : d > 0 ? d * kLeafDim - v : v + 1 + (-d - 1) * kLeafDim; };
     std::vector<uint8_t> table(size_t(nx) * size_t(ny), 0);
     for (const auto* f : fields) {
-        openvdb::tree::LeafManager<const typename GridT::TreeType> leaves(f->tree());
-        // Per source leaf: which of the (2R+1)^2 leaves around it its voxels reach (bit per leaf).
-        std::vector<uint64_t> reached(leaves.leafCount(), 0);
-        leaves.foreach([&](const typename GridT::TreeType::LeafNodeType& leaf, size_t i) {
-            const openvdb::Coord o = leaf.origin();
-            if (o.z() != zLeaf) return;
-            // per x: the plane layer's active y's inside the domain (bit y)
-            const openvdb::CoordBBox in = leaf.getNodeBoundingBox();
-            const bool inside = box.isInside(openvdb::CoordBBox(openvdb::Coord(in.min().x(), in.min().y(), z0),
-                                                                openvdb::Coord(in.max().x(), in.max().y(), z0)));
+        using TreeT = typename GridT::TreeType;
+        openvdb::tree::LeafManager<const TreeT> leaves(f->tree());
+        const PlaneLeafRows<TreeT> source{leaves, folded, zLeaf, zBit};
+        // Per source plane leaf: which of the (2R+1)^2 leaves around it its voxels reach (bit per leaf).
+        std::vector<uint64_t> reached(source.count(), 0);
+        std::vector<openvdb::Coord> origins(source.count());
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, source.count(), 64), [&](const tbb::blocked_range<size_t>& range) {
+          for (size_t i = range.begin(); i != range.end(); ++i) {
+            openvdb::Coord o;
             uint8_t rows[kLeafDim];
+            if (!source.rows(i, o, rows)) continue;
+            origins[i] = o;
+            // per x: the plane layer's active y's inside the domain (bit y)
+            const bool inside = box.isInside(openvdb::CoordBBox(openvdb::Coord(o.x(), o.y(), z0),
+                                                                openvdb::Coord(o.x() + kLeafDim - 1, o.y() + kLeafDim - 1, z0)));
             bool any = false;
             for (int x = 0; x < kLeafDim; ++x) {
-                const uint64_t w = leaf.getValueMask().template getWord<uint64_t>(openvdb::Index(x)) >> zBit;
-                uint8_t r = 0;
-                for (int y = 0; y < kLeafDim; ++y)
-                    if ((w >> (y * 8)) & 1u) r |= uint8_t(1u << y);
+                uint8_t r = rows[x];
                 if (r && !inside)
                     for (int y = 0; y < kLeafDim; ++y)
                         if (!box.isInside(openvdb::Coord(o.x() + x, o.y() + y, z0))) r &= uint8_t(~(1u << y));
                 rows[x] = r;
                 any = any || r;
             }
-            if (!any) return;
+            if (!any) continue;
             uint64_t bits = 0;
             for (int dy = -R; dy <= R; ++dy)
                 for (int dx = -R; dx <= R; ++dx) {
@@ -210,10 +270,11 @@ openvdb::MaskGrid::Ptr planeRegionByLeaves(const std::vector<const GridT*>& fiel
                     if (best <= iterations) bits |= uint64_t(1) << ((dy + kMaxLeaves) * kSide + dx + kMaxLeaves);
                 }
             reached[i] = bits;
+          }
         });
         for (size_t i = 0; i < reached.size(); ++i) {
             if (!reached[i]) continue;
-            const int lx = floorDiv(leaves.leaf(i).origin().x()), ly = floorDiv(leaves.leaf(i).origin().y());
+            const int lx = floorDiv(origins[i].x()), ly = floorDiv(origins[i].y());
             for (uint64_t b = reached[i]; b; b &= b - 1) {
                 const int k = __builtin_ctzll(b);
                 const int x = lx + k % kSide - kMaxLeaves - lx0, y = ly + k / kSide - kMaxLeaves - ly0;
@@ -303,6 +364,27 @@ openvdb::MaskGrid::Ptr buildActiveRegionOfTopology(const std::vector<const openv
                                                    const RegionSettings& settings, int reach, const Domain& domain,
                                                    int steps, const openvdb::MaskGrid::Ptr& previous)
 {
+    return regionOf(topologies, settings, reach, domain, steps, previous);
+}
+
+openvdb::MaskGrid::Ptr buildActiveRegionOfFolded(const std::vector<const openvdb::FloatGrid*>& folded,
+                                                 const RegionSettings& settings, int reach, const Domain& domain,
+                                                 int steps, const openvdb::MaskGrid::Ptr& previous)
+{
+    if (settings.dense) // the whole support: the fields are not read
+        return regionOf(std::vector<const openvdb::MaskGrid*>{}, settings, reach, domain, steps, previous);
+    if (domain.flat() && !anyActiveTile(folded)) {
+        const int iterations = std::max(1, steps) * (reach + settings.frontTravel);
+        const bool hex = domain.lattice().kind() == LatticeKind::Hexagonal;
+        if (auto r = planeRegionByLeaves(folded, iterations, hex, domain, previous, true)) return r;
+    }
+    // a reach beyond the leaf-level path, or active tiles: through the plane-layout topology
+    std::vector<openvdb::MaskGrid::Ptr> held;
+    std::vector<const openvdb::MaskGrid*> topologies;
+    for (const auto* f : folded) {
+        held.push_back(plane::unfoldTopology(*f));
+        topologies.push_back(held.back().get());
+    }
     return regionOf(topologies, settings, reach, domain, steps, previous);
 }
 

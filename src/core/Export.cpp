@@ -1,4 +1,5 @@
 #include <frostvdb/core/Export.h>
+#include <frostvdb/core/PlaneFold.h>
 #include <frostvdb/io/Png.h>
 
 #include <openvdb/tools/GridTransformer.h>
@@ -11,6 +12,7 @@
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
+#include <functional>
 #include <cmath>
 #include <stdexcept>
 
@@ -47,38 +49,27 @@ openvdb::CoordBBox footprint(const openvdb::CoordBBox& inBox, const openvdb::mat
 /// interpolation weight is; its value is the sampler's (BoxSampler: trilinear; PointSampler:
 /// nearest). Each output voxel is a pure function of its position: the result does not depend
 /// on the thread count.
-template <typename GridT, typename Sampler, bool Nearest>
-openvdb::GridBase::Ptr resampleSparse(const openvdb::GridBase& base, const openvdb::math::Transform& target)
+///
+/// @a boxes: the input's active voxels, as index boxes (each widened by one voxel within its
+/// leaf); @a makeReader: a per-thread reader of the input (getValue, probeValue, isValueOn by
+/// input index), a grid's accessor or a folded plane field's plane-layout view (FoldedReader);
+/// @a like: the input grid whose background and metadata the output takes.
+template <typename GridT, typename Sampler, bool Nearest, typename MakeReader>
+typename GridT::Ptr resampleBoxes(const std::vector<openvdb::CoordBBox>& inBoxes, const MakeReader& makeReader,
+                                  const GridT& like, const openvdb::math::Transform& target)
 {
     using TreeT = typename GridT::TreeType;
     using LeafT = typename TreeT::LeafNodeType;
-    const auto& in = static_cast<const GridT&>(base);
-    const auto& inXf = in.transform();
-    auto out = GridT::create(in.background());
+    const auto& inXf = like.transform();
+    auto out = GridT::create(like.background());
     out->setTransform(target.copy());
-    for (auto it = in.beginMeta(); it != in.endMeta(); ++it) out->insertMeta(it->first, *it->second);
+    for (auto it = like.beginMeta(); it != like.endMeta(); ++it) out->insertMeta(it->first, *it->second);
 
-    // 1. the footprints: output leaf origins, from every active leaf and tile
-    std::vector<openvdb::CoordBBox> boxes;
-    {
-        openvdb::tree::LeafManager<const TreeT> leaves(in.tree());
-        boxes.resize(leaves.leafCount());
-        tbb::parallel_for(size_t(0), leaves.leafCount(), [&](size_t i) {
-            const auto& leaf = leaves.leaf(i);
-            if (leaf.isEmpty()) return;
-            // The active voxels' box widened by one voxel (a margin far above the footprint's
-            // rounding), within the leaf's node box: not the whole node box, which for a flat
-            // grid samples all 8 z layers of the output leaves where 1 or 2 can be reached.
-            openvdb::CoordBBox bb;
-            leaf.evalActiveBoundingBox(bb, true);
-            bb.expand(1);
-            bb.intersect(leaf.getNodeBoundingBox());
-            boxes[i] = footprint(bb, inXf, target, Nearest);
-        });
-        auto tile = in.tree().cbeginValueOn();
-        tile.setMaxDepth(TreeT::ValueOnCIter::LEAF_DEPTH - 1);
-        for (; tile; ++tile) boxes.push_back(footprint(tile.getBoundingBox(), inXf, target, Nearest));
-    }
+    // 1. the footprints: output leaf origins
+    std::vector<openvdb::CoordBBox> boxes(inBoxes.size());
+    tbb::parallel_for(size_t(0), inBoxes.size(), [&](size_t i) {
+        if (!inBoxes[i].empty()) boxes[i] = footprint(inBoxes[i], inXf, target, Nearest);
+    });
     std::vector<std::vector<openvdb::Coord>> origins(boxes.size());
     tbb::parallel_for(size_t(0), boxes.size(), [&](size_t i) {
         const auto& b = boxes[i];
@@ -94,6 +85,7 @@ openvdb::GridBase::Ptr resampleSparse(const openvdb::GridBase& base, const openv
         if (!boxes[i].empty()) zone.expand(boxes[i]);
         all.insert(all.end(), origins[i].begin(), origins[i].end());
     }
+    std::vector<std::vector<openvdb::Coord>>().swap(origins);
     std::sort(all.begin(), all.end());
     all.erase(std::unique(all.begin(), all.end()), all.end());
     std::vector<LeafT*> outLeaves;
@@ -105,7 +97,7 @@ openvdb::GridBase::Ptr resampleSparse(const openvdb::GridBase& base, const openv
     const openvdb::Vec3d p0 = map(openvdb::Vec3d(0.0)), ax = map(openvdb::Vec3d(1, 0, 0)) - p0,
                          ay = map(openvdb::Vec3d(0, 1, 0)) - p0, az = map(openvdb::Vec3d(0, 0, 1)) - p0;
     tbb::parallel_for(tbb::blocked_range<size_t>(0, outLeaves.size(), 4), [&](const tbb::blocked_range<size_t>& r) {
-        typename GridT::ConstAccessor acc = in.getConstAccessor();
+        const auto acc = makeReader();
         for (size_t l = r.begin(); l != r.end(); ++l) {
             LeafT& leaf = *outLeaves[l];
             for (openvdb::Index n = 0; n < LeafT::SIZE; ++n) {
@@ -136,6 +128,117 @@ openvdb::GridBase::Ptr resampleSparse(const openvdb::GridBase& base, const openv
     return out;
 }
 
+template <typename GridT, typename Sampler, bool Nearest>
+openvdb::GridBase::Ptr resampleSparse(const openvdb::GridBase& base, const openvdb::math::Transform& target)
+{
+    using TreeT = typename GridT::TreeType;
+    const auto& in = static_cast<const GridT&>(base);
+    // every active leaf and tile
+    std::vector<openvdb::CoordBBox> boxes;
+    {
+        openvdb::tree::LeafManager<const TreeT> leaves(in.tree());
+        boxes.resize(leaves.leafCount());
+        tbb::parallel_for(size_t(0), leaves.leafCount(), [&](size_t i) {
+            const auto& leaf = leaves.leaf(i);
+            if (leaf.isEmpty()) return;
+            // The active voxels' box widened by one voxel (a margin far above the footprint's
+            // rounding), within the leaf's node box: not the whole node box, which for a flat
+            // grid samples all 8 z layers of the output leaves where 1 or 2 can be reached.
+            openvdb::CoordBBox bb;
+            leaf.evalActiveBoundingBox(bb, true);
+            bb.expand(1);
+            bb.intersect(leaf.getNodeBoundingBox());
+            boxes[i] = bb;
+        });
+        auto tile = in.tree().cbeginValueOn();
+        tile.setMaxDepth(TreeT::ValueOnCIter::LEAF_DEPTH - 1);
+        for (; tile; ++tile) boxes.push_back(tile.getBoundingBox());
+    }
+    return resampleBoxes<GridT, Sampler, Nearest>(boxes, [&] { return in.getConstAccessor(); }, in, target);
+}
+
+/// A folded plane field (core/PlaneFold.h) read as its plane layout (plane::unfoldGrid's
+/// result) by plane index, without making that copy: a plane cell reads its folded cell when
+/// its 8 x 8 chunk holds an active voxel (unfoldGrid makes a plane leaf only there) and the
+/// background elsewhere, as do cells off layer 0. The folded tree has no active tiles.
+class FoldedReader {
+public:
+    using ValueType = float;
+    using TreeType = openvdb::FloatTree;
+    explicit FoldedReader(const openvdb::FloatGrid& folded) : mAcc(folded.tree()), mBg(folded.background()) {}
+    bool probeValue(const openvdb::Coord& c, float& v) const
+    {
+        const openvdb::FloatTree::LeafNodeType* leaf = chunkLeaf(c);
+        if (!leaf) {
+            v = mBg;
+            return false;
+        }
+        const openvdb::Index n = offset(c);
+        v = leaf->getValue(n);
+        return leaf->isValueOn(n);
+    }
+    float getValue(const openvdb::Coord& c) const
+    {
+        float v;
+        probeValue(c, v);
+        return v;
+    }
+    bool isValueOn(const openvdb::Coord& c) const
+    {
+        const openvdb::FloatTree::LeafNodeType* leaf = chunkLeaf(c);
+        return leaf && leaf->isValueOn(offset(c));
+    }
+
+private:
+    static openvdb::Index offset(const openvdb::Coord& c) { return openvdb::Index(((c.y() & 7) << 6) | (c.x() & 63)); }
+    const openvdb::FloatTree::LeafNodeType* chunkLeaf(const openvdb::Coord& c) const
+    {
+        if (c.z() != 0) return nullptr;
+        const auto* leaf = mAcc.probeConstLeaf(plane::fold(c));
+        if (!leaf) return nullptr;
+        const int g = (c.x() >> 3) & 7;
+        const auto& m = leaf->getValueMask();
+        uint64_t any = 0;
+        for (openvdb::Index w = 0; w < 8; ++w) any |= m.template getWord<uint64_t>(w);
+        return ((any >> (g * 8)) & 0xffu) ? leaf : nullptr;
+    }
+    mutable openvdb::tree::ValueAccessor<const openvdb::FloatTree> mAcc;
+    float mBg;
+};
+
+/// resampleSparse of plane::unfoldGrid(@a folded) (its metadata and background from @a like),
+/// reading the folded leaves in place: the boxes are the unfolded leaves' (one per 8 x 8 chunk
+/// with an active voxel), the values FoldedReader's.
+openvdb::FloatGrid::Ptr resampleFolded(const openvdb::FloatGrid& folded, const openvdb::FloatGrid& like,
+                                       const openvdb::math::Transform& target)
+{
+    openvdb::tree::LeafManager<const openvdb::FloatTree> leaves(folded.tree());
+    std::vector<openvdb::CoordBBox> boxes(leaves.leafCount() * 8);
+    tbb::parallel_for(size_t(0), leaves.leafCount(), [&](size_t i) {
+        const auto& leaf = leaves.leaf(i);
+        const openvdb::Coord fo = leaf.origin();
+        const auto& m = leaf.getValueMask();
+        for (int g = 0; g < 8; ++g) {
+            uint64_t cols = 0; // bit dx: column dx has an active voxel
+            int y0 = 8, y1 = -1;
+            for (int dy = 0; dy < 8; ++dy) {
+                const uint64_t row = (m.template getWord<uint64_t>(openvdb::Index(dy)) >> (g * 8)) & 0xffu;
+                cols |= row;
+                if (row) { y0 = std::min(y0, dy); y1 = dy; }
+            }
+            if (!cols) continue;
+            // the plane leaf's tight active box widened by one voxel within its node box, as
+            // resampleSparse takes it from the unfolded leaf
+            const openvdb::Coord lo((fo.y() + g) * 8, fo.x(), 0);
+            openvdb::CoordBBox bb(lo.offsetBy(__builtin_ctzll(cols), y0, 0), lo.offsetBy(63 - __builtin_clzll(cols), y1, 0));
+            bb.expand(1);
+            bb.intersect(openvdb::CoordBBox::createCube(lo, 8));
+            boxes[i * 8 + size_t(g)] = bb;
+        }
+    });
+    return resampleBoxes<openvdb::FloatGrid, openvdb::tools::BoxSampler, false>(
+        boxes, [&] { return FoldedReader(folded); }, like, target);
+}
 template <typename GridT, typename Sampler>
 openvdb::GridBase::Ptr resampleAs(const openvdb::GridBase& base, const openvdb::math::Transform& target)
 {
@@ -241,6 +344,25 @@ void clipSparse(openvdb::GridBase& grid, const openvdb::CoordBBox& box)
 
 } // namespace
 
+namespace {
+
+/// exportGrid's last stage for a grid resampled from a hexagonal domain.
+openvdb::GridBase::Ptr finishResampled(openvdb::GridBase::Ptr r, const Domain& dom)
+{
+    // A flat domain stays one voxel thick: the shear's rounding leaves near-background
+    // values in the layers above and below, and nothing lies outside the raster.
+    if (dom.flat()) {
+        const SquareRaster sr = squareRaster(dom);
+        const int z = dom.bbox().min().z();
+        clipSparse(*r, openvdb::CoordBBox(openvdb::Coord(sr.a0, sr.b0, z), openvdb::Coord(sr.a1, sr.b1, z)));
+    }
+    r->insertMeta("frostvdb_lattice", openvdb::StringMetadata(
+        "square, resampled (trilinear) from the hexagonal lattice of the simulation"));
+    return r;
+}
+
+} // namespace
+
 openvdb::GridBase::Ptr exportGrid(const openvdb::GridBase::Ptr& g, const Domain& dom, bool keepLattice)
 {
     const bool hex = dom.lattice().kind() == LatticeKind::Hexagonal;
@@ -252,17 +374,48 @@ openvdb::GridBase::Ptr exportGrid(const openvdb::GridBase::Ptr& g, const Domain&
             "hexagonal axial (i, j), sheared transform: world = h (i + j/2, j sqrt(3)/2)"));
         return c;
     }
-    auto r = resampleGrid(*g, *squareTransform(dom));
-    // A flat domain stays one voxel thick: the shear's rounding leaves near-background
-    // values in the layers above and below, and nothing lies outside the raster.
-    if (dom.flat()) {
-        const SquareRaster sr = squareRaster(dom);
-        const int z = dom.bbox().min().z();
-        clipSparse(*r, openvdb::CoordBBox(openvdb::Coord(sr.a0, sr.b0, z), openvdb::Coord(sr.a1, sr.b1, z)));
+    return finishResampled(resampleGrid(*g, *squareTransform(dom)), dom);
+}
+
+namespace {
+thread_local const ExportScope* tExportScope = nullptr;
+} // namespace
+
+ExportScope::ExportScope(const Domain& domain, bool keepLattice)
+    : mDomain(domain), mKeepLattice(keepLattice), mPrevious(tExportScope)
+{
+    tExportScope = this;
+}
+
+ExportScope::~ExportScope() { tExportScope = mPrevious; }
+
+const ExportScope* ExportScope::current() { return tExportScope; }
+
+bool exportsFoldedInPlace(const openvdb::FloatGrid& folded)
+{
+    const ExportScope* s = ExportScope::current();
+    return s && !s->keepLattice() && plane::isFolded(folded) && s->domain().lattice().kind() == LatticeKind::Hexagonal &&
+           folded.transform() == *s->domain().transform();
+}
+
+openvdb::GridBase::Ptr exportFolded(const openvdb::FloatGrid& folded, const Domain& dom, bool keepLattice,
+                                    const std::function<void(openvdb::FloatGrid&)>& dress)
+{
+    // the plane-layout grid a frame holds: unfoldGrid's copy, dressed; only its shell (metadata,
+    // transform, background) is made when the resampling can read the folded leaves in place
+    auto like = openvdb::gridPtrCast<openvdb::FloatGrid>(folded.copyGridWithNewTree());
+    like->removeMeta(plane::kFoldMeta);
+    if (dress) dress(*like);
+    const auto target = squareTransform(dom);
+    const bool direct = plane::isFolded(folded) && dom.lattice().kind() == LatticeKind::Hexagonal && !keepLattice &&
+                        like->transform() == *dom.transform() && like->getGridClass() != openvdb::GRID_LEVEL_SET &&
+                        like->transform().isLinear() && target->isLinear() && !folded.tree().hasActiveTiles();
+    if (!direct) {
+        auto g = plane::unfoldGrid(folded);
+        if (dress) dress(*g);
+        return exportGrid(g, dom, keepLattice);
     }
-    r->insertMeta("frostvdb_lattice", openvdb::StringMetadata(
-        "square, resampled (trilinear) from the hexagonal lattice of the simulation"));
-    return r;
+    return finishResampled(resampleFolded(folded, *like, *target), dom);
 }
 
 openvdb::GridPtrVec exportGrids(const openvdb::GridPtrVec& grids, const Domain& dom, bool keepLattice)

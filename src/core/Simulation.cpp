@@ -489,6 +489,8 @@ std::string Simulation::writeFrame(Frame&& frame, const std::string& dir)
     if (mWorld.progress && voxels >= kProgressFrameVoxels)
         progress = std::make_unique<Progress>("frame " + std::to_string(frame.frame) + " write",
                                               int64_t(frame.grids.size()), "grids");
+    // grids the frame makes again now may be made exported already (folded plane fields, in place)
+    const ExportScope exporting(mWorld.domain, mOutput.keepLattice);
     writeVdbStreamed(path, frame.grids.size(), [&](size_t i) {
         if (progress) progress->update(int64_t(i)); // the grids before this one are written
         openvdb::GridBase::Ptr g = exportGrid(frame.grid(i), mWorld.domain, mOutput.keepLattice);

@@ -776,9 +776,8 @@ openvdb::MaskGrid::Ptr PhaseFieldSolver::rebuildRegion(const openvdb::FloatGrid&
 {
     if (!plane::isFolded(p))
         return buildActiveRegion({&p, &T}, mRegion, kHalo, mDomain, steps, mRegionMask);
-    // folded p and T: the region is built from their plane-layout topology
-    const auto tp = plane::unfoldTopology(p), tt = plane::unfoldTopology(T);
-    return buildActiveRegionOfTopology({tp.get(), tt.get()}, mRegion, kHalo, mDomain, steps, mRegionMask);
+    // folded p and T: the same plane-layout region, read from their folded leaves chunk by chunk
+    return buildActiveRegionOfFolded({&p, &T}, mRegion, kHalo, mDomain, steps, mRegionMask);
 }
 
 PhaseFieldSolver::PhaseFieldSolver(const KobayashiParams& params, const Domain& domain, const RegionSettings& region)

@@ -1,5 +1,6 @@
 #include <frostvdb/icephysics/IceState.h>
 
+#include <frostvdb/core/Export.h>
 #include <frostvdb/core/PlaneFold.h>
 
 #include <openvdb/tools/Count.h>
@@ -60,11 +61,17 @@ void recordPhaseChange(openvdb::FloatGrid::Accessor& growth, openvdb::FloatGrid:
 
 namespace {
 
-/// The frame's `ice`: p as a fog volume (values in [0,1], background 0, nothing stored where
-/// there is no ice).
-openvdb::GridBase::Ptr iceFog(const openvdb::FloatGrid& p)
+/// exportFolded in the current ExportScope (exportsFoldedInPlace holds).
+openvdb::GridBase::Ptr exportFoldedNow(const openvdb::FloatGrid& folded, const std::function<void(openvdb::FloatGrid&)>& dress)
 {
-    auto ice = plane::isFolded(p) ? plane::unfoldGrid(p) : p.deepCopy(); // frames hold the plane layout
+    const ExportScope* s = ExportScope::current();
+    return exportFolded(folded, s->domain(), s->keepLattice(), dress);
+}
+
+/// p as a fog volume (values in [0,1], background 0, nothing stored where there is no ice), in
+/// place on @a ice (a copy of p, in either layout).
+openvdb::FloatGrid::Ptr toFog(openvdb::FloatGrid::Ptr ice)
+{
     // Per leaf: switching voxels off writes the leaf's mask words, which a voxel-parallel
     // foreach raced on (the frame's topology then varied from run to run).
     auto clampToFog = [](auto& it) {
@@ -83,6 +90,12 @@ openvdb::GridBase::Ptr iceFog(const openvdb::FloatGrid& p)
     ice->setName(out::kIce.name);
     ice->setGridClass(openvdb::GRID_FOG_VOLUME);
     return ice;
+}
+
+/// The frame's `ice`: p as a fog volume, in the plane layout.
+openvdb::GridBase::Ptr iceFog(const openvdb::FloatGrid& p)
+{
+    return toFog(plane::isFolded(p) ? plane::unfoldGrid(p) : p.deepCopy()); // frames hold the plane layout
 }
 
 /// The frame's `growth`: growth_acc normalised to [0,1] (the paper's displacement map), in the
@@ -114,7 +127,13 @@ void addIceOutputs(World& world, Frame& frame)
     if (!p) return;
     // Copies of live fields: the writer may drop them and make them again when it writes them
     // (the fields do not change in between), so a frame being written holds one at a time.
-    frame.addCopy(iceFog(*p), [p] { return iceFog(*p); });
+    frame.addCopy(iceFog(*p), [p]() -> openvdb::GridBase::Ptr {
+        // made again for the VDB writer: exported from a folded fog copy, in place (the clamp and
+        // the pruning commute with the fold: a plane leaf is pruned when its chunk has no active
+        // voxel left)
+        if (exportsFoldedInPlace(*p)) return exportFoldedNow(*toFog(p->deepCopy()), nullptr);
+        return iceFog(*p);
+    });
     addIceFieldOutputs(world, frame);
 }
 
@@ -123,9 +142,15 @@ void addIceFieldOutputs(World& world, Frame& frame)
     if (auto T = world.fields.get<openvdb::FloatGrid>(kTemperature); T && plane::isFolded(*T)) {
         // folded T (core/PlaneFold.h): its plane-layout copy (36 bytes per voxel, the frame's
         // largest grid) is made only when the writer reaches it, and dropped once written
+        // (for the VDB writer: exported in place, without that copy)
         frame.addDeferred(out::kIceTemperature, [T]() -> openvdb::GridBase::Ptr {
+            auto dress = [](openvdb::FloatGrid& g) {
+                g.setGridClass(openvdb::GRID_UNKNOWN);
+                g.setName(out::kIceTemperature.name);
+            };
+            if (exportsFoldedInPlace(*T)) return exportFoldedNow(*T, dress);
             auto temperature = plane::unfoldGrid(*T);
-            temperature->setGridClass(openvdb::GRID_UNKNOWN);
+            dress(*temperature);
             return temperature;
         });
     } else if (T) {
@@ -138,16 +163,25 @@ void addIceFieldOutputs(World& world, Frame& frame)
     }
     // growth_acc and freeze_time may be folded (core/PlaneFold.h): frames hold the plane layout.
     if (auto acc = world.fields.get<openvdb::FloatGrid>(kGrowth)) {
-        frame.addCopy(normalisedGrowth(*acc), [acc] { return normalisedGrowth(*acc); });
+        frame.addCopy(normalisedGrowth(*acc), [acc]() -> openvdb::GridBase::Ptr {
+            if (exportsFoldedInPlace(*acc)) { // normalised folded (the same active values), exported in place
+                auto growth = acc->deepCopy();
+                normaliseGrowth(*growth);
+                return exportFoldedNow(*growth, nullptr);
+            }
+            return normalisedGrowth(*acc);
+        });
     }
     if (auto f = world.fields.get<openvdb::FloatGrid>(kFreezeTime)) {
         if (plane::isFolded(*f)) {
-            auto make = [f]() -> openvdb::GridBase::Ptr {
+            // made when something reads it (the VDB writer: exported in place)
+            frame.addDeferred(out::kFreezeTime, [f]() -> openvdb::GridBase::Ptr {
+                auto dress = [](openvdb::FloatGrid& g) { g.setName(out::kFreezeTime.name); };
+                if (exportsFoldedInPlace(*f)) return exportFoldedNow(*f, dress);
                 auto freeze = plane::unfoldGrid(*f);
-                freeze->setName(out::kFreezeTime.name);
+                dress(*freeze);
                 return freeze;
-            };
-            frame.addCopy(make(), make);
+            });
         } else {
             // Shares the field's tree, as T does: its writers copy a shared tree first (ownTree).
             auto freeze = openvdb::gridPtrCast<openvdb::FloatGrid>(f->copyGrid());

@@ -14,6 +14,7 @@
 
 #include <openvdb/openvdb.h>
 
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -45,6 +46,40 @@ openvdb::GridPtrVec exportGrids(const openvdb::GridPtrVec& grids, const Domain& 
 /// One grid as exportGrids writes it (a caller that drops each source after its export keeps
 /// only one resampled copy more than the sources at a time).
 openvdb::GridBase::Ptr exportGrid(const openvdb::GridBase::Ptr& grid, const Domain& domain, bool keepLattice);
+
+/// The frame export in progress on this thread (Simulation::writeFrame holds one while it writes
+/// a frame's VDB): a grid a frame makes again for the writer (Frame::addCopy, addDeferred) may
+/// then be made already exported, which exportGrid passes through (it is on the square
+/// transform). So a folded plane field is resampled in place (exportFolded) instead of through
+/// its plane-layout copy.
+class ExportScope {
+public:
+    ExportScope(const Domain& domain, bool keepLattice);
+    ~ExportScope();
+    ExportScope(const ExportScope&) = delete;
+    ExportScope& operator=(const ExportScope&) = delete;
+    const Domain& domain() const { return mDomain; }
+    bool keepLattice() const { return mKeepLattice; }
+    /// The innermost scope on this thread, or null.
+    static const ExportScope* current();
+
+private:
+    const Domain& mDomain;
+    bool mKeepLattice;
+    const ExportScope* mPrevious;
+};
+
+/// True when a frame's copy of the folded plane field @a folded, made now, is best made exported
+/// (exportFolded, in place): inside an ExportScope of its domain (same transform), hexagonal,
+/// lattice not kept. Elsewhere the frame holds the plane-layout copy.
+bool exportsFoldedInPlace(const openvdb::FloatGrid& folded);
+
+/// exportGrid(plane::unfoldGrid(@a folded) dressed by @a dress (name, class)) bit for bit, for a
+/// folded plane field (core/PlaneFold.h): on a hexagonal domain the resampling reads the folded
+/// leaves in place, so the plane-layout copy (about 36 bytes per voxel) is never made; otherwise
+/// (a square domain, keepLattice) the copy is the export and is made as before.
+openvdb::GridBase::Ptr exportFolded(const openvdb::FloatGrid& folded, const Domain& domain, bool keepLattice,
+                                    const std::function<void(openvdb::FloatGrid&)>& dress);
 
 /// Writes @a growth (values in [0,1]) as a 16-bit greyscale PNG on squareRaster(domain), sampled
 /// in world space (so it works for sheared and resampled grids alike). Flat domains only.
