@@ -547,12 +547,14 @@ MemoryEstimate DlaEffect::memoryEstimate(const World& world) const
     // ice, the walkers' distance bricks and block pyramid, the frame's copies).
     constexpr double kPerFrozenCell = 350.0;
     // However many walkers, the ice fills at most the domain: then the fields are the dense
-    // phase field's (112 bytes per plane cell, measured on a dense 1024^2 plane: p and T in 8^3
-    // leaves holding one 8 x 8 layer, the folded accumulators, the frame's copies; a box's
-    // leaves hold 8 layers, 1/8 of that per cell).
+    // phase field's, 80 bytes per plane cell (a box's leaves hold 8 layers, 1/8 of that per
+    // cell). Measured on the 512^2 plane 200,000 walkers fill in one step: 16.2 MiB above the
+    // program's own on the square and the hexagonal lattice, 65 bytes per cell, since frames
+    // export the folded fields in place and make freeze_time only when written (session 14;
+    // 112 bytes before, the plane-layout copies included).
     const Domain& dom = world.domain;
     const double cells = double(dom.bbox().volume());
-    const double perCell = 112.0 / std::clamp(double(dom.bbox().dim().z()), 1.0, 8.0);
+    const double perCell = 80.0 / std::clamp(double(dom.bbox().dim().z()), 1.0, 8.0);
     const bool filled = cells * perCell < frozen * kPerFrozenCell;
     char what[240];
     if (filled)
