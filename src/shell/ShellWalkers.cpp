@@ -25,6 +25,14 @@ uint64_t packBucket(const Coord& b)
     return uint64_t(i & kMask) | (uint64_t(j & kMask) << 21) | (uint64_t(k & kMask) << 42);
 }
 
+/// The bucket packBucket() packed.
+Coord unpackBucket(uint64_t key)
+{
+    constexpr int64_t kOff = int64_t(1) << 20, kMask = (int64_t(1) << 21) - 1;
+    return Coord(int(int64_t(key & kMask) - kOff), int(int64_t((key >> 21) & kMask) - kOff),
+                 int(int64_t((key >> 42) & kMask) - kOff));
+}
+
 using IndexAccessor = openvdb::Int32Grid::ConstAccessor;
 
 /// One trilinear pass of the band's closest points at @a y.
@@ -215,13 +223,12 @@ Coord bucketOf(const Vec3d& q, int level)
 }
 
 
-/// Squared distance from @a q to fine bucket @a b's box.
-double boxDistance2(const Coord& b, const Vec3d& q)
+/// Squared distance from @a q to the box of bucket @a b of edge @a size (voxels).
+double boxDistance2(const Coord& b, const Vec3d& q, double size = SurfacePointIndex::kBucket)
 {
-    const double k = SurfacePointIndex::kBucket;
     double d2 = 0;
     for (int a = 0; a < 3; ++a) {
-        const double lo = k * double(b[a]), gap = std::max({lo - q[a], 0.0, q[a] - (lo + k)});
+        const double lo = size * double(b[a]), gap = std::max({lo - q[a], 0.0, q[a] - (lo + size)});
         d2 += gap * gap;
     }
     return d2;
@@ -239,14 +246,9 @@ void SurfacePointIndex::enableClearance(size_t count, const std::function<Vec3d(
     });
     tbb::parallel_sort(fine.begin(), fine.end());
     fine.erase(std::unique(fine.begin(), fine.end()), fine.end());
-    auto unpack = [](uint64_t key) {
-        constexpr int64_t kOff = int64_t(1) << 20, kMask = (int64_t(1) << 21) - 1;
-        return Coord(int(int64_t(key & kMask) - kOff), int(int64_t((key >> 21) & kMask) - kOff),
-                     int(int64_t((key >> 42) & kMask) - kOff));
-    };
     auto blockOf = [](const Coord& b) { return Coord(b.x() >> 2, b.y() >> 2, b.z() >> 2); };
     std::vector<std::pair<uint64_t, uint64_t>> keys(fine.size()); // (block key, bucket key)
-    for (size_t k = 0; k < fine.size(); ++k) keys[k] = {packBucket(blockOf(unpack(fine[k]))), fine[k]};
+    for (size_t k = 0; k < fine.size(); ++k) keys[k] = {packBucket(blockOf(unpackBucket(fine[k]))), fine[k]};
     std::vector<uint64_t>().swap(fine);
     std::sort(keys.begin(), keys.end());
     mClearSlots = std::make_shared<CountTree>(0);
@@ -255,7 +257,7 @@ void SurfacePointIndex::enableClearance(size_t count, const std::function<Vec3d(
     mClearBlockRanges.clear();
     openvdb::tree::ValueAccessor<CountTree, false> slots(*mClearSlots), blocks(*mClearBlocks);
     for (size_t k = 0; k < keys.size(); ++k) {
-        const Coord b = unpack(keys[k].second);
+        const Coord b = unpackBucket(keys[k].second);
         const int32_t s = int32_t(mClearBucket.size());
         mClearBucket.push_back(b);
         slots.setValue(b, s + 1);
@@ -280,13 +282,8 @@ template<typename F> void SurfacePointIndex::forEachClearanceNear(const Vec3d& q
             for (int x = lo.x(); x <= hi.x(); ++x) {
                 const int32_t at = blocks.getValue(Coord(x, y, z)) - 1;
                 if (at < 0) continue;
-                double gap2 = 0; // the block's box: none of its buckets is nearer
-                for (int a = 0; a < 3; ++a) {
-                    const double l = blockSize * double(Coord(x, y, z)[a]);
-                    const double g = std::max({l - q[a], 0.0, q[a] - (l + blockSize)});
-                    gap2 += g * g;
-                }
-                if (gap2 >= cap2) continue;
+                // the block's box: none of its buckets is nearer
+                if (boxDistance2(Coord(x, y, z), q, blockSize) >= cap2) continue;
                 const auto [begin, end] = mClearBlockRanges[size_t(at)];
                 for (int32_t s = begin; s < end; ++s) {
                     const float v = mClear[size_t(s)].load(std::memory_order_relaxed);
