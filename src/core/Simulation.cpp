@@ -50,7 +50,8 @@ uint64_t peakRss()
 }
 
 /// FROSTVDB_MEMORY_TRACE=1: resident and peak memory (MiB) on stderr after each effect's
-/// initialisation, step (first steps, then every 100) and output, to see where a peak comes from
+/// initialisation, step (first steps, then every 100) and output, after a frame's PNGs and as
+/// each of its grids is made for the VDB, to see where a peak comes from
 /// (docs/performance.md "Where a shell's memory goes").
 void traceMemory(const char* what, const std::string& effect, int64_t step)
 {
@@ -495,6 +496,7 @@ std::string Simulation::writeFrame(Frame&& frame, const std::string& dir)
         if (progress) progress->update(int64_t(i)); // the grids before this one are written
         openvdb::GridBase::Ptr g = exportGrid(frame.grid(i), mWorld.domain, mOutput.keepLattice);
         frame.grids[i].reset();
+        traceMemory("made", g->getName(), mStep);
         if (worldScale != 1.0) { // a shallow copy: the frame's own grid keeps its transform
             auto x = g->transform().copy();
             x->postScale(worldScale);
@@ -811,6 +813,7 @@ void Simulation::writeFrameOutputs(int64_t f, int64_t last, const std::string& d
     const std::vector<std::string> displacement = writeDisplacement(frame, dir);
     std::string preview;
     if (mOutput.preview && (mOutput.previewEvery || f == last)) preview = writeFramePreview(frame, f, dir);
+    traceMemory("previewed", "", mStep);
     frame.dropCopies(); // made again one at a time as the VDB is written
     if (mOutput.vdb) sum.files.push_back(writeFrame(std::move(frame), dir));
     for (const auto& png : displacement) sum.files.push_back(png);

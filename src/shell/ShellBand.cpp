@@ -89,7 +89,7 @@ struct ShellBand::LeafData {
     std::vector<Vec3d> cp;
     std::vector<uint32_t> tri;
     std::vector<float> dist, normalOffset, lateral, luminance;
-    std::vector<VoxelFrame> frames;
+    std::vector<FrameFloats> frames;
 };
 
 void ShellBand::init(const TriangleMesh& mesh, const BandSettings& settings)
@@ -187,7 +187,7 @@ void ShellBand::computeLeaf(const Coord& origin, LeafData& out) const
                 out.cp.push_back(cp);
                 out.tri.push_back(t);
                 out.dist.push_back(float(d));
-                out.frames.push_back(fr);
+                out.frames.push_back(FrameFloats(fr));
                 if (!mVColour.empty()) {
                     double l = 0;
                     for (int v = 0; v < 3; ++v) {
@@ -362,7 +362,7 @@ void ShellBand::surfaceStencil(size_t i, const openvdb::Int32Grid::ConstAccessor
     // plane's 5-point stencil, measured in docs/shells.md), the gradient r^-6 (Sobel-like).
     const Coord c = mCoords[i];
     const Vec3d& q = mCp[i];
-    const VoxelFrame& f = mFrames[i];
+    const VoxelFrame f = frame(i);
     struct Cand { int32_t id; double s, t, r2; };
     std::vector<Cand> cand;
     const double minD = kMinTapDistance, pLap = kLaplacianWeightPower, pGrad = kGradientWeightPower;
@@ -566,12 +566,12 @@ bool ShellBand::contains(const Coord& c) const
 VoxelFrame ShellBand::frameAt(const Coord& c) const
 {
     const int32_t i = indexOf(c);
-    if (i >= 0) return mFrames[size_t(i)];
+    if (i >= 0) return frame(size_t(i));
     if (leafSlot(leafOrigin(c)) >= 0) return VoxelFrame{};
     Vec3d cp;
     uint32_t t;
     double d;
-    return voxelGeometry(c, cp, t, d) ? frameOn(t, cp) : VoxelFrame{};
+    return voxelGeometry(c, cp, t, d) ? FrameFloats(frameOn(t, cp)).widened() : VoxelFrame{}; // as stored
 }
 
 std::vector<size_t> ShellBand::nearBorder(double width) const
@@ -695,7 +695,7 @@ size_t ShellBand::memoryBytes() const
     const size_t n = size();
     const size_t stencil = mSurface ? sizeof(SurfaceTap*) + sizeof(uint8_t) : 64 * sizeof(int32_t) + sizeof(std::array<float, 12>);
     const size_t neighbours = mSurface ? 0 : 6 * sizeof(int32_t);
-    return n * (sizeof(Coord) + sizeof(Vec3d) + 3 * sizeof(float) + sizeof(VoxelFrame) + sizeof(uint32_t) +
+    return n * (sizeof(Coord) + sizeof(Vec3d) + 3 * sizeof(float) + sizeof(FrameFloats) + sizeof(uint32_t) +
                 neighbours + stencil) + mTapTotal * sizeof(SurfaceTap) + mLeafTaps.size() * sizeof(mLeafTaps[0]) +
            mLuminance.size() * sizeof(float) + mIndex->memUsage() + mMask->memUsage() +
            mLeaves.size() * (sizeof(Leaf) + 32) + mBvh.memoryBytes() +

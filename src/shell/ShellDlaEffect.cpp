@@ -202,7 +202,7 @@ private:
             auto acc = density->getConstAccessor();
             for (size_t k = r.begin(); k < r.end(); ++k) {
                 const openvdb::Vec3d p = xf.indexToWorld(b.closestPoint(sites[k]));
-                const openvdb::Vec3d up = b.frame(sites[k]).normal;
+                const openvdb::Vec3d up = b.normal(sites[k]);
                 float best = 0.f;
                 for (int s = 0; s <= samples; ++s) {
                     const double h = s * dz;

@@ -87,7 +87,7 @@ openvdb::FloatGrid::Ptr frostFogOnNodes(const ShellBand& band, const std::vector
                 if (pi <= 0.0 || band.lateralOffset(i) > 0.5f) continue;
                 const double th = band.frostThickness() * std::min(1.0, double(std::max({0.f, growth[i], p[i]})));
                 const openvdb::Vec3d& cp = band.closestPoint(i);
-                const openvdb::Vec3d& n = band.frame(i).normal;
+                const openvdb::Vec3d n = band.normal(i);
                 openvdb::BBoxd seg(cp - n * 0.5, cp - n * 0.5);
                 seg.expand(cp + n * (th + 0.5));
                 const openvdb::CoordBBox box(openvdb::Coord::floor(seg.min() - openvdb::Vec3d(0.75)),
@@ -164,7 +164,7 @@ openvdb::FloatGrid::Ptr frostLevelSetOnNodes(const ShellBand& band, const std::v
                 for (auto* t = band.tapsBegin(i); t != band.tapsEnd(i) && !edge; ++t) edge = !(p[size_t(t->node)] > 0.5f);
                 const double side = edge ? hw + 0.5 : 0.75;
                 const openvdb::Vec3d& cp = band.closestPoint(i);
-                const openvdb::Vec3d& n = band.frame(i).normal;
+                const openvdb::Vec3d n = band.normal(i);
                 openvdb::BBoxd seg(cp - n * hw, cp - n * hw);
                 seg.expand(cp + n * (th + hw));
                 const openvdb::CoordBBox box(openvdb::Coord::floor(seg.min() - openvdb::Vec3d(side)),

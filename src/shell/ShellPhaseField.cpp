@@ -2,6 +2,7 @@
 /// @brief Closest-point heat and phase-field steps on a shell band (see ShellPhaseField.h).
 #include <frostvdb/shell/ShellPhaseField.h>
 
+#include <frostvdb/base/Atan.h>
 #include <frostvdb/core/Error.h>
 #include <frostvdb/core/Lattice.h>
 #include <frostvdb/core/Random.h>
@@ -57,18 +58,22 @@ inline double tapSum(const ShellBand& b, const float* u, size_t i)
     for (const SurfaceTap* t = b.tapsBegin(i); t != b.tapsEnd(i); ++t) s += double(t->*W) * (double(u[t->node]) - u0);
     return s;
 }
+/// The noise draw chi in [-1/2, 1/2) at band voxel @a i: the plane's hash, keyed by the voxel's
+/// coordinate (0 without noise).
+inline double noiseChi(const KobayashiParams& k, const ShellBand& b, size_t i, uint64_t seed, int64_t stepIndex)
+{
+    if (k.noise == 0) return 0.0;
+    const openvdb::Coord& c = b.coord(i);
+    return toUnit(hashCounters(seed, uint64_t(stepIndex), coordKey(c.x(), c.y(), c.z()))) - 0.5;
+}
 /// Kobayashi's reaction p (1 - p) (p - 1/2 + m(T) + a chi) at band voxel @a i: m from the local
-/// melt temperature, chi the plane's noise draw (same hash, keyed by the voxel's coordinate).
+/// melt temperature (atan as the surface nodes' vector update takes it: base/Atan.h).
 inline double reactionAt(const KobayashiParams& k, const ShellBand& b, const std::vector<float>& melt, size_t i,
                          double p0, double t0v, uint64_t seed, int64_t stepIndex)
 {
     const double Te = k.localMeltTemperature(melt.empty() ? 1.0 : double(melt[i]));
-    const double m = k.alpha / M_PI * std::atan(k.gamma * (Te - t0v));
-    double chi = 0;
-    if (k.noise != 0) {
-        const openvdb::Coord& c = b.coord(i);
-        chi = toUnit(hashCounters(seed, uint64_t(stepIndex), coordKey(c.x(), c.y(), c.z()))) - 0.5;
-    }
+    const double m = k.alpha / M_PI * atanCephes(k.gamma * (Te - t0v));
+    const double chi = noiseChi(k, b, i, seed, stepIndex);
     return p0 * (1.0 - p0) * (p0 - 0.5 + m + k.noise * chi);
 }
 /// The accumulated growth (positive dp) and the time p first exceeded 1/2, after a step.
@@ -187,7 +192,7 @@ void ShellPhaseField::grow()
         const size_t from = mWind.size();
         mWind.resize(n);
         for (size_t i = from; i < n; ++i) {
-            const openvdb::Vec3d& nr = b.frame(i).normal;
+            const openvdb::Vec3d nr = b.normal(i);
             mWind[i] = openvdb::Vec3f(mWindWorld - nr * mWindWorld.dot(nr));
         }
     }
@@ -201,7 +206,7 @@ void ShellPhaseField::setWind(const openvdb::Vec3d& wind)
     if (wind.lengthSqr() == 0.0) return;
     mWind.resize(mBand->size());
     for (size_t i = 0; i < mBand->size(); ++i) {
-        const openvdb::Vec3d& n = mBand->frame(i).normal;
+        const openvdb::Vec3d n = mBand->normal(i);
         mWind[i] = openvdb::Vec3f(wind - n * wind.dot(n));
     }
 }
@@ -419,7 +424,7 @@ void ShellPhaseField::step(double time, int64_t stepIndex, uint64_t seed, ShellS
     // Pass 1: eps^2 and C = eps eps' (n x g) on the coefficient set, g the tangential gradient.
     b.forEachVoxel(&mStepped, [&](size_t i) {
         if (!b.inCoefficientSet(i)) return;
-        const VoxelFrame& f = b.frame(i);
+        const VoxelFrame f = b.frame(i);
         openvdb::Vec3d g(centralDiff(b, mP, i, 0), centralDiff(b, mP, i, 1), centralDiff(b, mP, i, 2));
         g *= invH;
         g -= f.normal * g.dot(f.normal);
@@ -499,10 +504,16 @@ void ShellPhaseField::stepSurface(double time, int64_t stepIndex, uint64_t seed,
     const float tNext = float(time);
     const float tInf = float(k.farTemperature);
     // stage 2, pass 2: node i's update from its tap sums (shell/SurfaceTapSums.h: four nodes at a time)
+    const SurfaceUpdateInputs inputs{P, T, C, mGx.data(), mGy.data(), mMelt.empty() ? nullptr : mMelt.data(), &k, invH,
+                                     invH2};
     auto update = [&](size_t i, const TapSums& s) {
         if (b.ghost(i)) { // beyond an open border: the background, as outside a plane
             mPn[i] = 0.f;
             mTn[i] = tInf;
+            return;
+        }
+        if (mWind.empty()) {
+            surfaceUpdate(inputs, i, s, noiseChi(k, b, i, seed, stepIndex), mPn[i], mTn[i]);
             return;
         }
         const double p0 = P[i], t0v = T[i], a0 = C[i].a;
@@ -513,20 +524,33 @@ void ShellPhaseField::stepSurface(double time, int64_t stepIndex, uint64_t seed,
         mPn[i] = pNew;
         double heat = s.lapT * invH2;
         if (!mWind.empty()) {
-            const VoxelFrame& f = b.frame(i);
+            const VoxelFrame f = b.frame(i);
             const double wu = f.tangent.dot(mWind[i]), wv = f.bitangent.dot(mWind[i]);
             heat += -(wu * s.dtu + wv * s.dtv) * invH + 0.5 * std::sqrt(wu * wu + wv * wv) * s.lapT * invH;
         }
         mTn[i] = float(t0v + k.dt * heat + k.latentHeat * dp);
     };
     const TapSums4 sums4 = fastestTapSums4();
+    const SurfaceUpdate4 update4 = fastestSurfaceUpdate4();
     auto updateOf = [&](uint32_t slot) {
         const ShellBand::Leaf& l = leaves[slot];
         TapSums s[4];
         size_t i = l.begin;
         for (; i + 4 <= l.end; i += 4) {
             sums4(b, P, T, C, i, s);
-            for (size_t n = 0; n < 4; ++n) update(i + n, s[n]);
+            if (!mWind.empty()) {
+                for (size_t n = 0; n < 4; ++n) update(i + n, s[n]);
+                continue;
+            }
+            double chi[4];
+            float pNew[4], tNew[4];
+            for (size_t n = 0; n < 4; ++n) chi[n] = noiseChi(k, b, i + n, seed, stepIndex);
+            update4(inputs, i, s, chi, pNew, tNew);
+            for (size_t n = 0; n < 4; ++n) {
+                const bool ghost = b.ghost(i + n); // beyond an open border: the background
+                mPn[i + n] = ghost ? 0.f : pNew[n];
+                mTn[i + n] = ghost ? tInf : tNew[n];
+            }
         }
         for (; i < l.end; ++i) update(i, tapSums(b, P, T, C, i));
     };
@@ -576,7 +600,7 @@ namespace {
 inline double shellEpsSquared(const ShellBand& b, const std::vector<float>& pe, size_t i, double invH,
                               const Anisotropy& an, double flat2)
 {
-    const VoxelFrame& f = b.frame(i);
+    const VoxelFrame f = b.frame(i);
     openvdb::Vec3d g(centralDiff(b, pe, i, 0), centralDiff(b, pe, i, 1), centralDiff(b, pe, i, 2));
     g *= invH;
     const double sx = g.dot(f.tangent), sy = g.dot(f.bitangent);

@@ -7,6 +7,7 @@
 #include <tbb/parallel_sort.h>
 
 #include <algorithm>
+#include <optional>
 #include <limits>
 #include <cmath>
 
@@ -99,7 +100,7 @@ bool projectOnNodes(const ShellBand& b, IndexAccessor& acc, const Vec3d& y, Vec3
     const int32_t k = nodeNear(b, acc, y);
     if (k < 0) return false;
     const Vec3d& cp = b.closestPoint(size_t(k));
-    const Vec3d& n = b.frame(size_t(k)).normal;
+    const Vec3d n = b.normal(size_t(k));
     out = y - n * (y - cp).dot(n);
     if (lateral) *lateral = std::max(0.0, (out - cp).length() - 0.7);
     if (node) *node = k;
@@ -116,10 +117,11 @@ bool projectWith(const ShellBand& b, IndexAccessor& acc, const Vec3d& y, Vec3d& 
     return true;
 }
 
-const VoxelFrame* frameWith(const ShellBand& b, IndexAccessor& acc, const Vec3d& x)
+std::optional<VoxelFrame> frameWith(const ShellBand& b, IndexAccessor& acc, const Vec3d& x)
 {
     const int32_t id = b.surfaceNodes() ? nodeNear(b, acc, x) : acc.getValue(Coord::round(x));
-    return id < 0 ? nullptr : &b.frame(size_t(id));
+    if (id < 0) return std::nullopt;
+    return b.frame(size_t(id));
 }
 
 /// Surface nodes: the node a stick point at @a x flags (nearest, closest point within half a
@@ -142,7 +144,7 @@ constexpr double kShootStep = 3.0, kShootStepMax = 32.0;
 bool shootWith(const ShellBand& b, IndexAccessor& acc, Vec3d& x, Vec3d dir, double length, bool open)
 {
     double left = length, next = kShootStep;
-    const VoxelFrame* last = frameWith(b, acc, x);
+    std::optional<VoxelFrame> last = frameWith(b, acc, x);
     while (left > 1e-12) {
         double s = std::min(next, left);
         Vec3d q;
@@ -158,7 +160,7 @@ bool shootWith(const ShellBand& b, IndexAccessor& acc, Vec3d& x, Vec3d dir, doub
             if (!project()) return false;
         }
         if (open && lat > 0.5) return false;
-        const VoxelFrame* f = node >= 0 ? &b.frame(size_t(node)) : frameWith(b, acc, q);
+        const std::optional<VoxelFrame> f = node >= 0 ? b.frame(size_t(node)) : frameWith(b, acc, q);
         if (!f) return false;
         Vec3d nd = q - x;
         nd -= f->normal * nd.dot(f->normal);
@@ -713,7 +715,7 @@ std::vector<size_t> ShellWalkers::markDisc(const Vec3d& x) const
         if (id >= 0) out.push_back(size_t(id));
         return out;
     }
-    const VoxelFrame* f = frameWith(*mBand, acc, x);
+    const std::optional<VoxelFrame> f = frameWith(*mBand, acc, x);
     const Vec3d n = f ? f->normal : Vec3d(0, 0, 1);
     // the disc's voxels lie along the normal through x, within the band's half-width
     const double reach = mBand->halfWidth() + 1.0;
@@ -762,9 +764,11 @@ struct ShellWalkers::Walk {
     double steps = 0; ///< lattice steps so far
     ShellWalkEnd end;
 
-    const VoxelFrame* frame()
+    std::optional<VoxelFrame> frame()
     {
-        return onNodes ? (node < 0 ? nullptr : &b.frame(size_t(node))) : frameWith(b, acc, x);
+        if (!onNodes) return frameWith(b, acc, x);
+        if (node < 0) return std::nullopt;
+        return b.frame(size_t(node));
     }
     Vec3d driftAt(const Vec3d& p)
     {
@@ -813,7 +817,7 @@ ShellWalkEnd ShellWalkers::walk(int64_t step, uint64_t walker, uint64_t salt, co
         if ((mParams.maxSteps > 0 && w.steps >= double(mParams.maxSteps)) || w.end.moves >= kMaxMoves)
             return w.finish(ShellWalkEnd::Exhausted);
         ++w.end.moves;
-        const VoxelFrame* f = w.frame();
+        const std::optional<VoxelFrame> f = w.frame();
         if (!f) break;
         const Vec3d v = w.driftAt(w.x);
         Move m = jump(w, *f, v);

@@ -43,7 +43,7 @@ std::vector<Vec3f> uniformWind(const ShellBand& band, const Vec3d& wind)
     if (wind.lengthSqr() == 0.0) return out;
     out.resize(band.size());
     for (size_t i = 0; i < band.size(); ++i) {
-        const Vec3d& n = band.frame(i).normal;
+        const Vec3d n = band.normal(i);
         out[i] = Vec3f(wind - n * wind.dot(n));
     }
     return out;
@@ -111,7 +111,7 @@ std::vector<Vec3f> potentialFlowWind(const ShellBand& band, const Vec3d& freeStr
         auto acc = potential->getConstAccessor();
         vt::GridSampler<openvdb::FloatGrid::ConstAccessor, vt::BoxSampler> s(acc, potential->transform());
         for (size_t i = r.begin(); i < r.end(); ++i) {
-            const Vec3d x = band.closestPoint(i) + band.frame(i).normal * off;
+            const Vec3d x = band.closestPoint(i) + band.normal(i) * off;
             Phi[i] = float(freeStream.dot(x) - double(s.wsSample(x)));
         }
     });
@@ -126,7 +126,7 @@ std::vector<Vec3f> potentialFlowWind(const ShellBand& band, const Vec3d& freeStr
             Vec3d g;
             for (int a = 0; a < 3; ++a)
                 g[a] = 0.5 * (double(Phi[size_t(band.neighbour(i, 2 * a + 1))]) - double(Phi[size_t(band.neighbour(i, 2 * a))]));
-            const Vec3d& nn = band.frame(i).normal;
+            const Vec3d nn = band.normal(i);
             g -= nn * g.dot(nn);
             for (int a = 0; a < 3; ++a) comp[a][i] = float(g[a]);
         }
@@ -135,7 +135,7 @@ std::vector<Vec3f> potentialFlowWind(const ShellBand& band, const Vec3d& freeStr
     std::vector<float> ext[3];
     for (int a = 0; a < 3; ++a) band.extend(comp[a], ext[a], false);
     for (size_t i = 0; i < n; ++i) {
-        const Vec3d& nn = band.frame(i).normal;
+        const Vec3d nn = band.normal(i);
         Vec3d v(ext[0][i], ext[1][i], ext[2][i]);
         v -= nn * v.dot(nn);
         out[i] = Vec3f(v);
@@ -145,7 +145,7 @@ std::vector<Vec3f> potentialFlowWind(const ShellBand& band, const Vec3d& freeStr
         vt::GridSampler<openvdb::FloatGrid::ConstAccessor, vt::BoxSampler> s(acc, potential->transform());
         auto total = [&](const Vec3d& x) { return freeStream.dot(x) - double(s.wsSample(x)); };
         for (size_t i = 0; i < n; ++i) {
-            const Vec3d x = band.closestPoint(i) + band.frame(i).normal * (1.5 * off);
+            const Vec3d x = band.closestPoint(i) + band.normal(i) * (1.5 * off);
             Vec3d g;
             for (int a = 0; a < 3; ++a) {
                 Vec3d e(0.0);

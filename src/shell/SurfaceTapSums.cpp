@@ -1,5 +1,7 @@
 #include <frostvdb/shell/SurfaceTapSums.h>
 
+#include <frostvdb/base/Atan.h>
+
 #include <algorithm>
 #include <cstdlib>
 #include <cstring>
@@ -14,7 +16,7 @@ namespace frostvdb::shell {
 void surfaceCoefficients(const ShellBand& b, const float* P, const Anisotropy& an, double invH, std::size_t i,
                          SurfaceCoefficients* C, float* gx, float* gy)
 {
-    const VoxelFrame& f = b.frame(i);
+    const VoxelFrame f = b.frame(i);
     // both derivatives in one pass over the taps (each sum in the taps' order)
     const double p0 = P[i];
     double su = 0, sv = 0;
@@ -35,7 +37,7 @@ void surfaceCoefficients(const ShellBand& b, const float* P, const Anisotropy& a
 
 TapSums tapSums(const ShellBand& b, const float* P, const float* T, const SurfaceCoefficients* C, std::size_t i)
 {
-    const VoxelFrame& f = b.frame(i);
+    const VoxelFrame f = b.frame(i);
     const double p0 = P[i], t0v = T[i], a0 = C[i].a;
     const openvdb::Vec3d c0(C[i].cx, C[i].cy, C[i].cz);
     const double ct0 = c0.dot(f.tangent), cb0 = c0.dot(f.bitangent);
@@ -55,6 +57,26 @@ TapSums tapSums(const ShellBand& b, const float* P, const float* T, const Surfac
     return s;
 }
 
+void surfaceUpdate(const SurfaceUpdateInputs& in, std::size_t i, const TapSums& s, double chi, float& pNew,
+                   float& tNew)
+{
+    const KobayashiParams& k = *in.k;
+    const double p0 = in.P[i], t0v = in.T[i], a0 = in.C[i].a;
+    const double div = (a0 * s.lapP) * in.invH2 + (s.dau * in.gu[i] + s.dav * in.gv[i]) * in.invH + s.divC * in.invH;
+    const double Te = k.localMeltTemperature(in.melt ? double(in.melt[i]) : 1.0);
+    const double m = k.alpha / M_PI * atanCephes(k.gamma * (Te - t0v));
+    const double reaction = p0 * (1.0 - p0) * (p0 - 0.5 + m + k.noise * chi);
+    const double dp = k.dt / k.tau * (div + reaction);
+    pNew = float(p0 + dp);
+    tNew = float(t0v + k.dt * (s.lapT * in.invH2) + k.latentHeat * dp);
+}
+
+void surfaceUpdate4Plain(const SurfaceUpdateInputs& in, std::size_t i, const TapSums s[4], const double chi[4],
+                         float pNew[4], float tNew[4])
+{
+    for (std::size_t n = 0; n < 4; ++n) surfaceUpdate(in, i + n, s[n], chi[n], pNew[n], tNew[n]);
+}
+
 namespace {
 
 #ifdef FROSTVDB_HAVE_AVX2_TAPS
@@ -65,10 +87,11 @@ FV_AVX2 inline __m256d dot(__m256d x0, __m256d x1, __m256d x2, const __m256d v[3
 {
     return add(add(mul(x0, v[0]), mul(x1, v[1])), mul(x2, v[2]));
 }
-/// One component of four frames' vectors, lane k from node k.
-FV_AVX2 inline __m256d lanes(const VoxelFrame* const f[4], openvdb::Vec3d VoxelFrame::*v, int axis)
+/// One component of four frames' vectors, lane k from node k (the band's floats, widened
+/// exactly as ShellBand::frame does).
+FV_AVX2 inline __m256d lanes(const FrameFloats* const f[4], openvdb::Vec3s FrameFloats::*v, int axis)
 {
-    return _mm256_set_pd((f[3]->*v)[axis], (f[2]->*v)[axis], (f[1]->*v)[axis], (f[0]->*v)[axis]);
+    return _mm256_cvtps_pd(_mm_set_ps((f[3]->*v)[axis], (f[2]->*v)[axis], (f[1]->*v)[axis], (f[0]->*v)[axis]));
 }
 
 /// The taps of nodes i .. i + 3 slot by slot: tap(k, q) is node k's q-th, or a padding tap
@@ -94,11 +117,11 @@ FV_AVX2 void tapSums4Avx2(const ShellBand& b, const float* P, const float* T, co
                           std::size_t i, TapSums out[4])
 {
     static_assert(sizeof(SurfaceTap) == 16 && sizeof(SurfaceCoefficients) == 16, "four floats each");
-    const VoxelFrame* f[4] = {&b.frame(i), &b.frame(i + 1), &b.frame(i + 2), &b.frame(i + 3)};
-    const __m256d t[3] = {lanes(f, &VoxelFrame::tangent, 0), lanes(f, &VoxelFrame::tangent, 1),
-                          lanes(f, &VoxelFrame::tangent, 2)};
-    const __m256d bt[3] = {lanes(f, &VoxelFrame::bitangent, 0), lanes(f, &VoxelFrame::bitangent, 1),
-                           lanes(f, &VoxelFrame::bitangent, 2)};
+    const FrameFloats* f[4] = {&b.frameFloats(i), &b.frameFloats(i + 1), &b.frameFloats(i + 2), &b.frameFloats(i + 3)};
+    const __m256d t[3] = {lanes(f, &FrameFloats::tangent, 0), lanes(f, &FrameFloats::tangent, 1),
+                          lanes(f, &FrameFloats::tangent, 2)};
+    const __m256d bt[3] = {lanes(f, &FrameFloats::bitangent, 0), lanes(f, &FrameFloats::bitangent, 1),
+                           lanes(f, &FrameFloats::bitangent, 2)};
     const __m256d p0 = _mm256_cvtps_pd(_mm_loadu_ps(P + i)), t0 = _mm256_cvtps_pd(_mm_loadu_ps(T + i));
     // the four nodes' coefficients, transposed: a, cx, cy, cz across the lanes
     __m128 c0 = _mm_loadu_ps(&C[i].a), c1 = _mm_loadu_ps(&C[i + 1].a), c2 = _mm_loadu_ps(&C[i + 2].a),
@@ -180,16 +203,46 @@ FV_AVX2 void surfaceCoefficients4Avx2(const ShellBand& b, const float* P, const 
     const __m256d eps = mul(_mm256_set1_pd(an.epsBar), add(one, mul(_mm256_set1_pd(an.delta), c)));
     const __m256d epsPrime = mul(_mm256_set1_pd(an.epsBar * an.delta * an.j), s); // ((eps_bar delta) j) s
     const __m256d ee = mul(eps, epsPrime);
-    const VoxelFrame* f[4] = {&b.frame(i), &b.frame(i + 1), &b.frame(i + 2), &b.frame(i + 3)};
+    const FrameFloats* f[4] = {&b.frameFloats(i), &b.frameFloats(i + 1), &b.frameFloats(i + 2), &b.frameFloats(i + 3)};
     __m128 out[4] = {_mm256_cvtpd_ps(mul(eps, eps)), {}, {}, {}};
     for (int axis = 0; axis < 3; ++axis) // (b gu - t gv) (eps eps'), per component
-        out[1 + axis] = _mm256_cvtpd_ps(mul(sub(mul(lanes(f, &VoxelFrame::bitangent, axis), gu),
-                                                mul(lanes(f, &VoxelFrame::tangent, axis), gv)),
+        out[1 + axis] = _mm256_cvtpd_ps(mul(sub(mul(lanes(f, &FrameFloats::bitangent, axis), gu),
+                                                mul(lanes(f, &FrameFloats::tangent, axis), gv)),
                                             ee));
     _MM_TRANSPOSE4_PS(out[0], out[1], out[2], out[3]); // a, cx, cy, cz per node
     for (int k = 0; k < 4; ++k) _mm_storeu_ps(&C[i + std::size_t(k)].a, out[k]);
     _mm_storeu_ps(gx + i, _mm256_cvtpd_ps(gu));
     _mm_storeu_ps(gy + i, _mm256_cvtpd_ps(gv));
+}
+
+/// One member of four TapSums, lane k from s[k].
+FV_AVX2 inline __m256d lanes(const TapSums s[4], double TapSums::*m)
+{
+    return _mm256_set_pd(s[3].*m, s[2].*m, s[1].*m, s[0].*m);
+}
+
+FV_AVX2 void surfaceUpdate4Avx2(const SurfaceUpdateInputs& in, std::size_t i, const TapSums s[4], const double chi[4],
+                                float pNew[4], float tNew[4])
+{
+    // surfaceUpdate's operations, in its order, on four lanes
+    const KobayashiParams& k = *in.k;
+    const __m256d p0 = load4(in.P + i), t0 = load4(in.T + i);
+    const __m256d a0 = _mm256_set_pd(in.C[i + 3].a, in.C[i + 2].a, in.C[i + 1].a, in.C[i].a);
+    const __m256d invH = splat(in.invH), invH2 = splat(in.invH2);
+    const __m256d div =
+        add(add(mul(mul(a0, lanes(s, &TapSums::lapP)), invH2),
+                mul(add(mul(lanes(s, &TapSums::dau), load4(in.gu + i)), mul(lanes(s, &TapSums::dav), load4(in.gv + i))),
+                    invH)),
+            mul(lanes(s, &TapSums::divC), invH));
+    const __m256d melt = in.melt ? load4(in.melt + i) : splat(1.0);
+    const __m256d Te = add(splat(k.farTemperature), mul(melt, splat(k.meltTemperature - k.farTemperature)));
+    const __m256d m = mul(splat(k.alpha / M_PI), atanCephes4(mul(splat(k.gamma), sub(Te, t0))));
+    const __m256d one = splat(1.0);
+    const __m256d reaction = mul(mul(p0, sub(one, p0)), add(add(sub(p0, splat(0.5)), m),
+                                                            mul(splat(k.noise), _mm256_loadu_pd(chi))));
+    const __m256d dp = mul(splat(k.dt / k.tau), add(div, reaction));
+    store4(pNew, add(p0, dp));
+    store4(tNew, add(add(t0, mul(splat(k.dt), mul(lanes(s, &TapSums::lapT), invH2))), mul(splat(k.latentHeat), dp)));
 }
 
 #endif
@@ -227,6 +280,14 @@ void tapSums4Plain(const ShellBand& b, const float* P, const float* T, const Sur
                    TapSums out[4])
 {
     for (int k = 0; k < 4; ++k) out[k] = tapSums(b, P, T, C, i + std::size_t(k));
+}
+
+SurfaceUpdate4 fastestSurfaceUpdate4()
+{
+#ifdef FROSTVDB_HAVE_AVX2_TAPS
+    if (vectorsAllowed()) return &surfaceUpdate4Avx2;
+#endif
+    return &surfaceUpdate4Plain;
 }
 
 TapSums4 fastestTapSums4()

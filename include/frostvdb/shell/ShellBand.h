@@ -100,6 +100,23 @@ struct SurfaceTap {
 
 using geometry::TriangleBvh;
 
+/// A node's frame as the band stores it: floats (36 bytes against VoxelFrame's 72; the kernel
+/// reads it twice a step). frameFloats() rounds a frame once, where it is computed, so every
+/// reader sees the same frame.
+struct FrameFloats {
+    openvdb::Vec3s tangent{1, 0, 0}, bitangent{0, 1, 0}, normal{0, 0, 1};
+    FrameFloats() = default;
+    explicit FrameFloats(const VoxelFrame& f) : tangent(f.tangent), bitangent(f.bitangent), normal(f.normal) {}
+    VoxelFrame widened() const
+    {
+        VoxelFrame f;
+        f.tangent = openvdb::Vec3d(tangent);
+        f.bitangent = openvdb::Vec3d(bitangent);
+        f.normal = openvdb::Vec3d(normal);
+        return f;
+    }
+};
+
 class ShellBand {
 public:
     /// The whole band around @a mesh (world metres): every leaf the mesh reaches, prepared.
@@ -121,7 +138,11 @@ public:
     /// Distance from x to the normal line through cp, in voxels: 0 where x projects onto the
     /// surface's interior, > 0 beyond an open mesh's border (x's closest point is on the border).
     float lateralOffset(size_t i) const { return mLateral[i]; }
-    const VoxelFrame& frame(size_t i) const { return mFrames[i]; }
+    /// Voxel @a i's tangent frame (stored as floats: FrameFloats).
+    VoxelFrame frame(size_t i) const { return mFrames[i].widened(); }
+    const FrameFloats& frameFloats(size_t i) const { return mFrames[i]; }
+    /// frame(i).normal alone (the walkers' projections read only it).
+    openvdb::Vec3d normal(size_t i) const { return openvdb::Vec3d(mFrames[i].normal); }
     /// Band index of face neighbour k (0: -x, 1: +x, 2: -y, 3: +y, 4: -z, 5: +z), or -1 (valid once
     /// the voxel's leaf is prepared). Closest-point band only: surface nodes have their stencils.
     int32_t neighbour(size_t i, int k) const { return mNeighbours[6 * i + size_t(k)]; }
@@ -293,7 +314,7 @@ private:
     mutable std::vector<openvdb::Coord> mCoords;
     mutable std::vector<openvdb::Vec3d> mCp;
     mutable std::vector<float> mDistance, mNormalOffset, mLateral;
-    mutable std::vector<VoxelFrame> mFrames;
+    mutable std::vector<FrameFloats> mFrames;
     mutable std::vector<uint32_t> mTriangle;
     mutable std::vector<int32_t> mNeighbours;             ///< 6 per voxel
     bool mSurface = false;                                ///< surface nodes (else closest point)

@@ -3,7 +3,7 @@
 /// @brief The surface-node Euler step's two passes over a node's stencil taps
 /// (ShellPhaseField::stepSurface): pass 1's tangential gradient and anisotropic coefficients,
 /// pass 2's seven sums of differences to the neighbours that the node's update reads (40 double
-/// operations per tap). One node at a time, or four consecutive nodes at once on AVX2, which
+/// operations per tap) and the update itself. One node at a time, or four consecutive nodes at once on AVX2, which
 /// gives the same bits: each lane does the scalar code's IEEE operations on the same operands in
 /// the same order (no FMA in the target); a node with fewer taps than its group's largest reads
 /// extra taps of weight 0 on itself, whose products are zeros added to sums that started at +0
@@ -53,5 +53,30 @@ void tapSums4Plain(const ShellBand& band, const float* p, const float* T, const 
 /// The AVX2 version when the CPU has it and FROSTVDB_NO_VECTOR_ROWS is not set (read at every
 /// call, once per step, so a test compares both in one process), else tapSums4Plain.
 TapSums4 fastestTapSums4();
+
+/// What pass 2's update of a node reads besides its sums.
+struct SurfaceUpdateInputs {
+    const float* P = nullptr;
+    const float* T = nullptr;
+    const SurfaceCoefficients* C = nullptr;
+    const float* gu = nullptr; ///< pass 1's tangential gradient
+    const float* gv = nullptr;
+    const float* melt = nullptr; ///< the melt map per node, or null (1 everywhere)
+    const KobayashiParams* k = nullptr;
+    double invH = 1, invH2 = 1;
+};
+
+/// Node @a i's Euler update without wind (the plane's kobayashiEuler with the surface sums):
+/// tau dp/dt = eps^2 lap p + grad eps^2 . g + div C + p (1 - p) (p - 1/2 + m(T) + a chi), m by
+/// atanCephes; T' = T + dt lap T + K dp. @a chi is the node's noise draw (0 without noise).
+void surfaceUpdate(const SurfaceUpdateInputs& in, std::size_t i, const TapSums& s, double chi, float& pNew,
+                   float& tNew);
+/// Nodes i .. i + 3, bit for bit surfaceUpdate of each.
+using SurfaceUpdate4 = void (*)(const SurfaceUpdateInputs& in, std::size_t i, const TapSums s[4],
+                                const double chi[4], float pNew[4], float tNew[4]);
+void surfaceUpdate4Plain(const SurfaceUpdateInputs& in, std::size_t i, const TapSums s[4], const double chi[4],
+                         float pNew[4], float tNew[4]);
+/// The AVX2 version (as fastestTapSums4), else the plain one.
+SurfaceUpdate4 fastestSurfaceUpdate4();
 
 } // namespace frostvdb::shell
