@@ -2,6 +2,7 @@
 // surface operators.
 #include "test_util.h"
 
+#include <frostvdb/geometry/TriangleBvh.h>
 #include <frostvdb/icephysics/IceState.h>
 #include <frostvdb/shell/ShellDomain.h>
 #include <frostvdb/shell/ShellGrids.h>
@@ -971,6 +972,34 @@ TEST_CASE("Surface tap sums: four nodes at a time (AVX2) give the scalar passes 
             CHECK(coefDiffer == 0);
         }
     }
+}
+
+TEST_CASE("Triangle BVH: the closest point among a leaf's candidates is the whole tree's", "[fast][shell]")
+{
+    // An icosphere of 1280 small triangles (ties between neighbours at shared edges and
+    // vertices): for points around it, the search among the triangles whose boxes meet a box
+    // within reach gives the tree's point, triangle (lowest index on ties) and distance exactly.
+    const TriangleMesh mesh = makeIcosphere(6.0, 3);
+    const std::vector<Vec3d> points(mesh.points.begin(), mesh.points.end());
+    const geometry::TriangleBvh bvh(points, mesh.triangles);
+    std::mt19937 rng(3);
+    std::uniform_real_distribution<double> u(-8.0, 8.0);
+    const double reach = 2.5;
+    size_t found = 0, differ = 0;
+    std::vector<uint32_t> cand;
+    for (int k = 0; k < 20000; ++k) {
+        const Vec3d p(std::round(u(rng)), std::round(u(rng)), u(rng)); // on lattice lines: exact ties
+        bvh.query(openvdb::BBoxd(p - Vec3d(reach + 1e-6), p + Vec3d(reach + 1e-6)), cand);
+        Vec3d q1(0.0), q2(0.0);
+        uint32_t t1 = 0, t2 = 0;
+        double d1 = 0, d2 = 0;
+        const bool f1 = bvh.closestPointWithin(p, reach * reach, q1, t1, d1);
+        const bool f2 = bvh.closestPointAmong(cand, p, reach * reach, q2, t2, d2);
+        found += f1;
+        differ += f1 != f2 || (f1 && (q1 != q2 || t1 != t2 || d1 != d2));
+    }
+    CHECK(found > 1000);
+    CHECK(differ == 0);
 }
 
 TEST_CASE("Surface update: four nodes at a time (AVX2) give the scalar update bit for bit", "[fast][shell]")

@@ -134,6 +134,24 @@ bool TriangleBvh::closestPointWithin(const Vec3d& p, double maxDistSqr, Vec3d& o
     return found;
 }
 
+bool TriangleBvh::closestPointAmong(const std::vector<uint32_t>& candidates, const Vec3d& p, double maxDistSqr,
+                                    Vec3d& out, uint32_t& tri, double& distSqr) const
+{
+    // closestPointWithin's leaf loop over the candidates: its answer is the least (distance,
+    // index) within reach, whatever the order the triangles are tried in
+    double best = maxDistSqr;
+    bool found = false;
+    for (const uint32_t t : candidates) {
+        if (boxDistanceSqr(p, mBoxes[t]) > best) continue;
+        const auto& f = (*mTriangles)[t];
+        const Vec3d q = geometry::closestPointOnTriangle(p, (*mPoints)[f[0]], (*mPoints)[f[1]], (*mPoints)[f[2]]);
+        const double d = (q - p).lengthSqr();
+        if (d < best || (d == best && (!found || t < tri))) { best = d; tri = t; out = q; found = true; }
+    }
+    distSqr = best;
+    return found;
+}
+
 Vec3d TriangleBvh::closestPoint(const Vec3d& p, uint32_t* tri) const
 {
     Vec3d out = p;

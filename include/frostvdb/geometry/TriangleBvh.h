@@ -23,6 +23,12 @@ public:
     /// The same among the points within sqrt(@a maxDistSqr) of @a p: false when there is none.
     bool closestPointWithin(const openvdb::Vec3d& p, double maxDistSqr, openvdb::Vec3d& out, uint32_t& tri,
                             double& distSqr) const;
+    /// closestPointWithin searching only @a candidates (triangle indices): the same answer when
+    /// they hold every triangle within reach of @a p (a query() around it), found without the
+    /// tree's descent (the shell band asks this for the 512 voxels of a leaf, a handful of
+    /// triangles each).
+    bool closestPointAmong(const std::vector<uint32_t>& candidates, const openvdb::Vec3d& p, double maxDistSqr,
+                           openvdb::Vec3d& out, uint32_t& tri, double& distSqr) const;
     size_t memoryBytes() const;
     const openvdb::BBoxd& box(uint32_t t) const { return mBoxes[t]; }
 
