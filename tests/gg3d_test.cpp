@@ -623,3 +623,42 @@ TEST_CASE("gg3d: the memory estimate follows the crystal a run grows (issue 25)"
     CHECK(estimate >= gridBytes / 1.5);
     CHECK(estimate <= gridBytes * 1.5 + 20e6);
 }
+
+TEST_CASE("gg3d: the solver box's estimate replays the box a run grows (issue 25)", "[gg3d][fast][memory]")
+{
+    // gg3dSolverBytes replays the solver's growth schedule on the disturbance's modelled reach;
+    // the box it ends with, and the largest moment (a growth's old and new arrays), against a run.
+    // The 60-step run of the [slow] ratio test was charged the domain's box twice (48.9 MiB
+    // against 20.0 MiB of box and 29.0 at its last growth: 1.53x the peak with its grids).
+    struct Case {
+        const char* preset;
+        int radius, layers, steps;
+        bool wedge;
+        double upper; // model / run at most (the crystal pushes the reach at its kinetic bound)
+    };
+    for (const Case& c : {Case{"", 40, 120, 60, false, 1.05}, Case{"", 40, 120, 60, true, 1.05},
+                          Case{"fig04_plate_ridges", 60, 31, 100, true, 1.05},
+                          Case{"fig14_classic_dendrite", 30, 15, 200, true, 1.05},
+                          Case{"fig32_capped_column", 60, 401, 150, true, 1.5}}) {
+        GG3DConfig cfg = *c.preset ? presetConfig(c.preset, c.radius, c.layers) : GG3DConfig();
+        cfg.domainRadius = c.radius;
+        cfg.layers = c.layers;
+        cfg.wedge = c.wedge;
+        const GG3DSolverBytes model = gg3dSolverBytes(cfg, c.steps);
+        GG3D a(cfg);
+        double prev = double(a.bytes()), peak = prev;
+        for (int s = 0; s < c.steps && !a.stopped(); ++s) {
+            a.step();
+            if (double(a.bytes()) != prev) peak = std::max(peak, prev + double(a.bytes()));
+            prev = double(a.bytes());
+        }
+        INFO((*c.preset ? c.preset : "defaults") << " wedge " << c.wedge << ": model " << model.grown << " bytes (radius "
+                                                  << model.radius << ", " << model.layers << " layers), " << model.peak
+                                                  << " growing; run " << prev << " (radius " << a.activeRadius() << ", "
+                                                  << a.activeZHi() - a.activeZLo() + 1 << " layers), " << peak);
+        CHECK(model.grown >= 0.97 * prev);
+        CHECK(model.grown <= c.upper * prev);
+        CHECK(model.peak >= 0.97 * peak);
+        CHECK(model.peak <= c.upper * peak);
+    }
+}

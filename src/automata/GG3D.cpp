@@ -41,6 +41,13 @@ inline int cfgOf(uint8_t cnt)
     const int nh = cnt & 15, nv = cnt >> 4;
     return ggConfigIndex(std::min(3, nh), std::min(1, nv));
 }
+/// Bytes per cell of the solver's box: d, t, b (doubles), flags and counts, the attach step, and
+/// the noise hold.
+double boxCellBytes(const GG3DConfig& cfg)
+{
+    return 3.0 * sizeof(double) + 2.0 + sizeof(int32_t) + (cfg.p.noise > 0 ? sizeof(double) : 0.0);
+}
+
 } // namespace
 
 const char* ggConfigName(int k)
@@ -55,24 +62,116 @@ uint64_t gg3dMemoryEstimate(const GG3DConfig& cfg)
     const bool halfZ = cfg.wedge && cfg.p.phi == 0.0;
     const uint64_t plane = cfg.wedge ? (R + 3) * (R / 2 + 3) : (2 * R + 3) * (2 * R + 3);
     const uint64_t layers = (halfZ ? L / 2 : L) + 3;
-    const uint64_t perCell = 3 * sizeof(double) + 2 + sizeof(int32_t) + (cfg.p.noise > 0 ? sizeof(double) : 0);
     // The box grows by reallocation: old and new arrays coexist for a moment.
-    return plane * layers * perCell * 2;
+    return uint64_t(double(plane * layers) * boxCellBytes(cfg)) * 2;
 }
 
-uint64_t gg3dMemoryEstimate(const GG3DConfig& cfg, int64_t steps)
+namespace {
+/// Cramer's rate function of a lazy walk that steps +1 and -1 with probability @a p each:
+/// P(displacement >= x n after n steps) ~ exp(-n I(x)).
+double lazyWalkRate(double x, double p)
 {
-    GG3DConfig c = cfg;
-    const double n = double(std::max<int64_t>(0, steps));
-    auto grown = [&](double start) { // the disturbance's reach, then the box's last growth beyond it
-        const double reach = start + n + 2.0;
-        return reach + std::max(4.0, reach / 4.0);
+    if (x <= 0.0) return 0.0;
+    if (x >= 1.0) return x > 1.0 ? HUGE_VAL : -std::log(p);
+    const double a = 1.0 - 2.0 * p;
+    const double u = (x * a + std::sqrt(x * x * a * a + 4.0 * p * p * (1.0 - x * x))) / (2.0 * p * (1.0 - x));
+    return x * std::log(u) - std::log(a + p * (u + 1.0 / u));
+}
+
+/// The fastest the crystal's radius and half height can move a step (see gg3dCrystalCellsEstimate),
+/// over the parameters the run will see; and the largest drift.
+void kineticSpeeds(const GG3DConfig& cfg, double& vr, double& vz, double& usable, double& phi)
+{
+    std::vector<GG3DParams> sets{cfg.p};
+    for (const auto& s : cfg.switches) {
+        GG3DParams q = sets.back();
+        applySwitch(q, s);
+        sets.push_back(q);
+    }
+    vr = vz = usable = phi = 0.0;
+    for (const GG3DParams& q : sets) {
+        // growth stalls where the vapour falls to mu beta / (1 - kappa) (the guard rail's
+        // inequality) in the easiest direction (01 up, 10 and 20 out): that much stays vapour
+        double stall = q.rho;
+        for (size_t k : {0, 1, 2}) stall = std::min(stall, q.mu[k] * q.beta[k] / std::max(1e-9, 1.0 - q.kappa[k]));
+        usable = std::max(usable, std::max(0.05, 1.0 - stall / q.rho));
+        const double betaMax = *std::max_element(q.beta.begin(), q.beta.end());
+        const double muMax = *std::max_element(q.mu.begin(), q.mu.end());
+        const double dMax = q.rho + muMax * betaMax; // vapour a boundary site can hold (melting adds to it)
+        const double gain = std::max(1.0 - q.kappa[1], 1.0 - q.kappa[2]) * dMax;
+        vr = std::max(vr, std::min(1.0, gain / std::max(1e-9, std::min(q.beta[1], q.beta[2]))));
+        vz = std::max(vz, std::min(1.0, (1.0 - q.kappa[0]) * dMax / std::max(1e-9, q.beta[0])));
+        phi = std::max(phi, q.phi);
+    }
+}
+} // namespace
+
+GG3DSolverBytes gg3dSolverBytes(const GG3DConfig& cfg, int64_t steps)
+{
+    // The solver's own layout (GG3D::GG3D, boxFor, growActiveBox), replayed step by step with the
+    // disturbance's reach in place of the lattice.
+    const int R = std::max(4, cfg.domainRadius);
+    const int m = (cfg.seedHeight % 2 == 0) ? 1 : 0;
+    int zDomLo, zDomHi, slo, shi;
+    prismLayers(std::max(3, cfg.layers), m, zDomLo, zDomHi);
+    prismLayers(cfg.seedHeight, m, slo, shi);
+    if (cfg.seedRadius2 >= 0) {
+        int lo2, hi2;
+        prismLayers(cfg.seedHeight2, m, lo2, hi2);
+        slo = std::min(slo, lo2);
+        shi = std::max(shi, hi2);
+    }
+    double vr, vz, usable, phi;
+    kineticSpeeds(cfg, vr, vz, usable, phi);
+    const bool halfZ = cfg.wedge && phi == 0.0;
+    auto cells = [&](int ra, int zlo, int zhi) {
+        const double W = cfg.wedge ? ra + 3 : 2 * ra + 3, H = cfg.wedge ? ra / 2 + 3 : 2 * ra + 3;
+        return W * H * double(zhi - (halfZ ? m : zlo) + 3);
     };
-    const double seedR = std::max(cfg.seedRadius, cfg.seedRadius2) + 3.0;
-    const double seedH = std::max(cfg.seedHeight, cfg.seedRadius2 >= 0 ? cfg.seedHeight2 : 1) + 6.0;
-    if (grown(seedR) < double(c.domainRadius)) c.domainRadius = int(std::ceil(grown(seedR)));
-    if (2.0 * grown(seedH / 2.0) < double(c.layers)) c.layers = int(std::ceil(2.0 * grown(seedH / 2.0)));
-    return gg3dMemoryEstimate(c);
+    const double seedR = std::max(cfg.seedRadius, cfg.seedRadius2);
+    const int stop = cfg.stopRadius > 0 ? cfg.stopRadius : int(0.8 * cfg.domainRadius);
+    const double stopR = std::min(stop, R - 2);
+    int ra = std::min(R, int(seedR) + 3), zlo = halfZ ? m : std::max(zDomLo, slo - 3), zhi = std::min(zDomHi, shi + 3);
+    double now = cells(ra, zlo, zhi), peak = now;
+    // A cell leaves the background (d differs from rho in a bit) once the diffusion has carried
+    // the crystal's pull to it in more than rho's last bit (2^-53; or the sparse tolerance): the
+    // chance that a lazy walk (out along a hex axis 2/7 a step each way; 3/14 a layer, plus the
+    // drift) got that far, exp(-n I(k / n)) by Cramer's bound. One cell a step at first, then
+    // slower (the 60-step run of radius 40, 120 layers: its box's rings and layers within a cell).
+    double T = 53.0 * std::log(2.0);
+    if (cfg.sparseTolerance > 0.0) T = std::min(T, std::log(cfg.p.rho / cfg.sparseTolerance));
+    const double pr = 2.0 / 7.0, pz = std::min(0.49, kVertical + phi);
+    int64_t kr = 0, kz = 0;
+    const int64_t last = std::min<int64_t>(steps, 20000000);
+    for (int64_t s = 1; s <= last; ++s) {
+        const double n = double(s);
+        while (kr < s && n * lazyWalkRate(double(kr + 1) / n, pr) <= T) ++kr;
+        while (kz < s && n * lazyWalkRate(double(kz + 1) / n, pz) <= T) ++kz;
+        // from the crystal as fast as it can grow
+        const double reachR = std::min(stopR, seedR + vr * n) + double(kr);
+        const double reachZ = vz * n + double(kz);
+        const bool disturbed = (ra < R && reachR >= ra - 1) || (zhi < zDomHi && shi + reachZ >= zhi - 1) ||
+                               (!halfZ && zlo > zDomLo && slo - reachZ <= zlo + 1);
+        if (disturbed) {
+            const int nra = std::min(R, ra + std::max(4, ra / 4));
+            const int span = std::max(2, (zhi - zlo) / 4);
+            const int nzhi = std::min(zDomHi, zhi + span), nzlo = halfZ ? m : std::max(zDomLo, zlo - span);
+            const double grown = cells(nra, nzlo, nzhi);
+            peak = std::max(peak, now + grown); // old and new arrays side by side (GG3D::resize)
+            ra = nra;
+            zlo = nzlo;
+            zhi = nzhi;
+            now = grown;
+        }
+        if (ra == R && zhi == zDomHi && (halfZ || zlo == zDomLo)) break;
+    }
+    if (steps > last) { // not replayed that far: the whole domain after its last growth
+        const double whole = cells(R, zDomLo, zDomHi);
+        peak = std::max(peak, now + whole);
+        now = whole;
+    }
+    const double perCell = boxCellBytes(cfg);
+    return {now * perCell, peak * perCell, ra, halfZ ? 2 * zhi - m + 1 : zhi - zlo + 1};
 }
 
 namespace {
@@ -92,26 +191,8 @@ double gg3dCrystalCellsEstimate(const GG3DConfig& cfg, int64_t steps, std::strin
 {
     const double R = std::max(1, cfg.domainRadius), L = std::max(3, cfg.layers);
     // the fastest the tip and the basal face can move, over the parameters the run will see
-    std::vector<GG3DParams> sets{cfg.p};
-    for (const auto& s : cfg.switches) {
-        GG3DParams q = sets.back();
-        applySwitch(q, s);
-        sets.push_back(q);
-    }
-    double vr = 0.0, vz = 0.0, usable = 0.0;
-    for (const GG3DParams& q : sets) {
-        // growth stalls where the vapour falls to mu beta / (1 - kappa) (the guard rail's
-        // inequality) in the easiest direction (01 up, 10 and 20 out): that much stays vapour
-        double stall = q.rho;
-        for (size_t k : {0, 1, 2}) stall = std::min(stall, q.mu[k] * q.beta[k] / std::max(1e-9, 1.0 - q.kappa[k]));
-        usable = std::max(usable, std::max(0.05, 1.0 - stall / q.rho));
-        const double betaMax = *std::max_element(q.beta.begin(), q.beta.end());
-        const double muMax = *std::max_element(q.mu.begin(), q.mu.end());
-        const double dMax = q.rho + muMax * betaMax; // vapour a boundary site can hold (melting adds to it)
-        const double gain = std::max(1.0 - q.kappa[1], 1.0 - q.kappa[2]) * dMax;
-        vr = std::max(vr, std::min(1.0, gain / std::max(1e-9, std::min(q.beta[1], q.beta[2]))));
-        vz = std::max(vz, std::min(1.0, (1.0 - q.kappa[0]) * dMax / std::max(1e-9, q.beta[0])));
-    }
+    double vr, vz, usable, phi;
+    kineticSpeeds(cfg, vr, vz, usable, phi);
     const double n = double(std::max<int64_t>(0, steps));
     const int stop = cfg.stopRadius > 0 ? cfg.stopRadius : int(0.8 * cfg.domainRadius);
     const double stopR = std::min(stop, cfg.domainRadius - 2);

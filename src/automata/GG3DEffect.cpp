@@ -393,23 +393,26 @@ constexpr double kGridBytesPerCellVoxel = 44.0;
 
 MemoryEstimate GG3DEffect::memoryEstimate(const World& world) const
 {
-    // the box a run of this many steps can reach (issue 25: a one-step run was charged the
-    // whole domain, 5x its peak); the box doubles while it grows (old and new arrays), the
-    // frame's grids come on top of the grown box (a one-step run's 13 MiB of grids were missed),
+    // the box a run of this many steps grows (issue 25: a one-step run was charged the whole
+    // domain, 5x its peak; then a 60-step run the box its steps could reach, twice: 1.53x), and
+    // its largest moment, a growth's old and new arrays (gg3dSolverBytes); the frame's grids
+    // come on top of the grown box (a one-step run's 13 MiB of grids were missed),
     // and they follow the crystal the run may grow (the shipped scenes were charged 0.15-0.40 of
     // their peaks): its attached cells from the growth model (gg3dCrystalCellsEstimate)
     const int64_t steps = world.frames * world.stepsPerFrame;
-    const double solver = double(gg3dMemoryEstimate(mCfg, steps));
+    const GG3DSolverBytes solver = gg3dSolverBytes(mCfg, steps);
     std::string cellsDetail;
     const double cells = gg3dCrystalCellsEstimate(mCfg, steps, &cellsDetail);
     const double perCell = kGridBytesPerCellVoxel * std::pow(double(mOut.voxelsPerCell), 3.0) * mOut.prismHeight;
     const double grids = kOutputTrees * originTreeBytes() + cells * perCell;
     const double flakes = double(mOut.batch) + (mOut.batch > 1 ? 1.0 : 0.0); // and the combined grids
-    char what[400];
+    char what[600];
     std::snprintf(what, sizeof what,
-                  "%d flakes x %.3g bytes of solver arrays at domain_radius %d, layers %d, and their frame grids: %s",
-                  mOut.batch, solver, mCfg.domainRadius, mCfg.layers, cellsDetail.c_str());
-    return {std::max(solver * mOut.batch, 0.5 * solver * mOut.batch + grids * flakes),
+                  "%d flakes x %.3g bytes of solver arrays (a box of radius %d, %d layers, of domain_radius %d, layers "
+                  "%d; %.3g while it grows), and their frame grids: %s",
+                  mOut.batch, solver.grown, solver.radius, solver.layers, mCfg.domainRadius, mCfg.layers, solver.peak,
+                  cellsDetail.c_str());
+    return {std::max(solver.peak * mOut.batch, solver.grown * mOut.batch + grids * flakes),
             std::string(name()) + (mOut.batch > 1 ? ".batch" : ".domain_radius"), what};
 }
 

@@ -79,10 +79,21 @@ struct GG3DConfig {
 
 /// Bytes the solver may need at most for @a cfg (its whole domain allocated), for budget checks.
 uint64_t gg3dMemoryEstimate(const GG3DConfig& cfg);
-/// The same for a run of @a steps steps: the solver's box starts at the seed (+3 cells) and grows
-/// (by a quarter, at least 4 cells) only when the disturbance, which spreads one cell per step,
-/// reaches its edge; so a short run's box is bounded by its steps, not only by the domain.
-uint64_t gg3dMemoryEstimate(const GG3DConfig& cfg, int64_t steps);
+/// The solver's box after a run of @a steps steps, and its largest moment. The box starts at the
+/// seed (+3 cells) and grows (a quarter of its radius, at least 4 rings, and a quarter of its
+/// layers) when the disturbance reaches its last two rings or layers; growing, the old and the
+/// new arrays are held side by side. The disturbance is where the vapour differs from rho in a
+/// bit: one cell a step at first, then slower (the diffusion's kernel falls below rho's last bit
+/// beyond Cramer's bound of its lazy walk), pushed on by the crystal as fast as it can grow.
+/// The solver's own schedule is replayed on that reach (issue 25: the whole domain twice was
+/// charged, 1.53x a 60-step run's peak).
+struct GG3DSolverBytes {
+    double grown = 0; ///< the box's arrays at the end
+    double peak = 0;  ///< the largest moment: a growth's old and new arrays
+    int radius = 0;   ///< the box at the end: hex radius ...
+    int layers = 0;   ///< ... and layers
+};
+GG3DSolverBytes gg3dSolverBytes(const GG3DConfig& cfg, int64_t steps);
 
 /// Attached cells a run of @a steps steps may end with, before anything grows (issue 25: the
 /// frame's grids follow the crystal, 1,000-1,300 bytes per attached cell). The smaller of
