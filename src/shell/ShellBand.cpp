@@ -265,7 +265,7 @@ size_t ShellBand::materialiseLocked(std::vector<Coord> origins) const
             ml->setValueOn(d.coords[j]);
         }
         mCoords.insert(mCoords.end(), d.coords.begin(), d.coords.end());
-        mCp.insert(mCp.end(), d.cp.begin(), d.cp.end());
+        for (const Vec3d& q : d.cp) mCp.emplace_back(q); // rounded to floats once, here
         mTriangle.insert(mTriangle.end(), d.tri.begin(), d.tri.end());
         mDistance.insert(mDistance.end(), d.dist.begin(), d.dist.end());
         mFrames.insert(mFrames.end(), d.frames.begin(), d.frames.end());
@@ -328,7 +328,7 @@ void ShellBand::prepareLocked(std::vector<Coord> origins) const
             for (size_t i = l.begin; i < l.end; ++i) {
                 const Coord& c = mCoords[i];
                 for (int n = 0; n < 6; ++n) mNeighbours[6 * i + size_t(n)] = acc.getValue(c + nb[n]);
-                const Vec3d& q = mCp[i];
+                const Vec3d q = closestPoint(i);
                 const Coord base(int(std::floor(q.x())), int(std::floor(q.y())), int(std::floor(q.z())));
                 double w[3][4];
                 for (int a = 0; a < 3; ++a) cubicWeights(q[a] - base[a], w[a]);
@@ -374,7 +374,7 @@ void ShellBand::surfaceStencil(size_t i, const openvdb::Int32Grid::ConstAccessor
     // Laplacian (edge 2/3, corner 1/6); the Laplacian uses r^-8 (edge 0.8, corner 0.1: nearer the
     // plane's 5-point stencil, measured in docs/shells.md), the gradient r^-6 (Sobel-like).
     const Coord c = mCoords[i];
-    const Vec3d& q = mCp[i];
+    const Vec3d q = closestPoint(i);
     const VoxelFrame f = frame(i);
     struct Cand { int32_t id; double s, t, r2; };
     std::vector<Cand> cand;
@@ -416,7 +416,7 @@ void ShellBand::surfaceStencil(size_t i, const openvdb::Int32Grid::ConstAccessor
                     if (dx == 0 && dy == 0 && dz == 0) continue;
                     const int32_t id = acc.getValue(c + Coord(dx, dy, dz));
                     if (id < 0) continue;
-                    const Vec3d d = mCp[size_t(id)] - q;
+                    const Vec3d d = closestPoint(size_t(id)) - q;
                     const double s = d.dot(f.tangent), t = d.dot(f.bitangent), r2 = s * s + t * t;
                     // nearly the same surface point (two voxels of a steep slab): it adds no
                     // information, and a weight ~ 1/r^2 that explicit steps could not afford
@@ -620,7 +620,7 @@ std::vector<size_t> ShellBand::nearBorder(double width) const
             const Leaf& l = mLeaves[size_t(work[w].first)];
             for (size_t i = l.begin; i < l.end; ++i)
                 for (const uint32_t e : *work[w].second)
-                    if (!ghost(i) && pointSegmentDistance(mCp[i], mBorderA[e], mBorderB[e]) <= width) {
+                    if (!ghost(i) && pointSegmentDistance(closestPoint(i), mBorderA[e], mBorderB[e]) <= width) {
                         hit[i] = 1;
                         break;
                     }
@@ -640,7 +640,7 @@ std::vector<size_t> ShellBand::nearSurfacePoint(const Vec3d& centre, double radi
     }
     std::vector<size_t> out;
     for (size_t i = 0; i < size(); ++i)
-        if ((mCp[i] - centre).length() <= radius) out.push_back(i);
+        if ((closestPoint(i) - centre).length() <= radius) out.push_back(i);
     return out;
 }
 
@@ -726,7 +726,7 @@ size_t ShellBand::memoryBytes() const
     const size_t n = size();
     const size_t stencil = mSurface ? sizeof(SurfaceTap*) + sizeof(uint8_t) : 64 * sizeof(int32_t) + sizeof(std::array<float, 12>);
     const size_t neighbours = mSurface ? 0 : 6 * sizeof(int32_t);
-    return n * (sizeof(Coord) + sizeof(Vec3d) + 3 * sizeof(float) + sizeof(FrameFloats) + sizeof(uint32_t) +
+    return n * (sizeof(Coord) + sizeof(openvdb::Vec3s) + 3 * sizeof(float) + sizeof(FrameFloats) + sizeof(uint32_t) +
                 neighbours + stencil) + mTapTotal * sizeof(SurfaceTap) + mLeafTaps.size() * sizeof(mLeafTaps[0]) +
            mLuminance.size() * sizeof(float) + mIndex->memUsage() + mMask->memUsage() +
            mLeaves.size() * (sizeof(Leaf) + 32) + mBvh.memoryBytes() +

@@ -130,7 +130,8 @@ public:
     const openvdb::Coord& coord(size_t i) const { return mCoords[i]; }
     const std::vector<openvdb::Coord>& coords() const { return mCoords; }
     /// Closest point on the surface, in index space (index = world / voxelSize).
-    const openvdb::Vec3d& closestPoint(size_t i) const { return mCp[i]; }
+    /// (Stored as floats: 12 bytes a voxel, 1e-4 voxels at 2,800 voxels from the origin.)
+    openvdb::Vec3d closestPoint(size_t i) const { return openvdb::Vec3d(mCp[i]); }
     /// Unsigned distance to the surface, in voxels.
     float distance(size_t i) const { return mDistance[i]; }
     /// Signed offset along the normal at cp, in voxels: (x - cp) . n.
@@ -246,10 +247,11 @@ public:
     /// Surface nodes: the bytes a run holds per surface cell (band, stencils, the phase field's
     /// arrays, a frame's grids), for memory estimates; measured in docs/shells.md. Session 12
     /// (frames no longer publish World's grids): 600 on the pane's 0.29 M cells, 540-580 on the
-    /// heroes, 770 on a 0.3 m test plate at 1 mm (peak above the program's own 54 MiB).
-    static double surfaceBytesPerCell() { return 700.0; }
-    /// The same for this band's discretisation (closest point: 11.5 band voxels of about 660 bytes).
-    double bytesPerSurfaceCell() const { return mSurface ? surfaceBytesPerCell() : 11.5 * 660.0; }
+    /// heroes, 770 on a 0.3 m test plate at 1 mm (peak above the program's own 54 MiB); session
+    /// 15 stores frames and closest points as floats, 48 bytes a voxel less.
+    static double surfaceBytesPerCell() { return 652.0; }
+    /// The same for this band's discretisation (closest point: 11.5 band voxels of about 612 bytes).
+    double bytesPerSurfaceCell() const { return mSurface ? surfaceBytesPerCell() : 11.5 * 612.0; }
     /// Bytes held by the band (the per-voxel arrays, the index grid, the mesh and its hierarchy).
     size_t memoryBytes() const;
 
@@ -312,7 +314,7 @@ private:
     // per voxel (mutable: leaves are built on demand)
     mutable std::vector<float> mLuminance;
     mutable std::vector<openvdb::Coord> mCoords;
-    mutable std::vector<openvdb::Vec3d> mCp;
+    mutable std::vector<openvdb::Vec3s> mCp;
     mutable std::vector<float> mDistance, mNormalOffset, mLateral;
     mutable std::vector<FrameFloats> mFrames;
     mutable std::vector<uint32_t> mTriangle;
