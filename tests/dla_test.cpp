@@ -13,6 +13,7 @@
 
 #include <cmath>
 #include <complex>
+#include <ctime>
 
 using namespace frostvdb;
 using namespace frostvdb::test;
@@ -436,6 +437,134 @@ TEST_CASE("Melted ice repairs the walker distances to those of a rebuild from th
         }
         CHECK(eng.rebuildCount() == 0);
     }
+}
+
+namespace {
+
+/// A random growth history of the ice in @a p, one round at a time, as a run makes it: new seeds,
+/// fronts that advance (Eden growth next to random ice cells: the phase field's crossings), the
+/// walkers' own freezes (told to the engine, not listed), melts (p back to 0.3, listed).
+struct GrowthHistory {
+    const Domain& dom;
+    openvdb::FloatGrid& p;
+    ice::DlaEngine& eng;
+    Draw draw;
+    std::vector<openvdb::Coord> nbr, ice, crossed;
+
+    GrowthHistory(const Domain& d, openvdb::FloatGrid& g, ice::DlaEngine& e, uint64_t seed)
+        : dom(d), p(g), eng(e), draw{seed}, nbr(ice::walkerNeighbours(d)) {}
+    openvdb::Coord randomCell()
+    {
+        const auto& b = dom.bbox();
+        return b.min() + openvdb::Coord(draw(b.dim().x()), draw(b.dim().y()), draw(b.dim().z()));
+    }
+    openvdb::Coord besideIce() { return ice[size_t(draw(int(ice.size())))] + nbr[size_t(draw(int(nbr.size())))]; }
+    bool isIce(const openvdb::Coord& c) const { return p.tree().getValue(c) > 0.5f; }
+    void crossUp(const openvdb::Coord& c)
+    {
+        if (!dom.bbox().isInside(c) || isIce(c)) return;
+        p.tree().setValue(c, 1.f);
+        ice.push_back(c);
+        crossed.push_back(c);
+    }
+    /// One round: @a seeds new seeds, @a front cells of growth, @a walkers freezes, @a melts melts.
+    void round(int seeds, int front, int walkers, int melts)
+    {
+        for (int a = 0; a < seeds; ++a) crossUp(randomCell());
+        for (int a = 0; a < front && !ice.empty(); ++a) crossUp(besideIce());
+        for (int a = 0; a < walkers && !ice.empty(); ++a) {
+            const openvdb::Coord c = besideIce();
+            if (!dom.bbox().isInside(c) || isIce(c)) continue;
+            p.tree().setValue(c, 1.f);
+            ice.push_back(c);
+            eng.freezeDeferred(eng.index(c));
+            if (a % 7 == 6) eng.flushDistances(); // a resumed walk reads them mid-batch
+        }
+        eng.flushDistances();
+        for (int a = 0; a < melts && !ice.empty(); ++a) {
+            const openvdb::Coord c = ice[size_t(draw(int(ice.size())))];
+            if (!isIce(c)) continue;
+            p.tree().setValue(c, 0.3f);
+            crossed.push_back(c);
+        }
+    }
+};
+
+/// Cells (and planes' blocks) whose distance differs between @a a and @a b.
+int64_t distanceDifferences(const Domain& dom, const ice::DlaEngine& a, const ice::DlaEngine& b)
+{
+    int64_t differ = 0;
+    for (auto it = dom.bbox().begin(); it; ++it)
+        differ += (a.iceDistance(*it) != b.iceDistance(*it)) + (a.blockDistance(*it) != b.blockDistance(*it));
+    return differ;
+}
+
+} // namespace
+
+TEST_CASE("The walkers' distance map kept up to date equals a rebuild from the ice after random growth histories",
+          "[fast][dla]")
+{
+    // The map follows the ice: each sync relaxes the distances around the ice frozen since the
+    // last one (listed crossings, all of p, the walkers' own freezes) and repairs them around
+    // melts. After every round of a random history, every cell's distance (exact below the cap,
+    // the bound above it) and every block distance equal those of an engine built afresh from
+    // the same ice, and no round needed a full rebuild.
+    struct Case { LatticeKind kind; bool box; int n; uint64_t seed; };
+    for (const Case cs : {Case{LatticeKind::Hexagonal, false, 160, 101}, Case{LatticeKind::Square, false, 160, 202},
+                          Case{LatticeKind::Hexagonal, false, 96, 303}, Case{LatticeKind::Square, true, 32, 404}}) {
+        const openvdb::Coord size(cs.n, cs.n, cs.box ? cs.n : 1);
+        Domain dom = cs.box ? makeBoxDomain(Lattice(cs.kind), size, 1e-4) : makePlaneDomain(Lattice(cs.kind), size, 1e-4);
+        auto p = openvdb::FloatGrid::create(0.f);
+        ice::DlaParams prm;
+        ice::DlaEngine eng(dom, prm, 5);
+        GrowthHistory h(dom, *p, eng, cs.seed);
+        int64_t compared = 0;
+        for (int round = 0; round < 12; ++round) {
+            h.round(round < 2 ? 4 : 1, cs.box ? 60 : 150, 25, round >= 4 && round % 3 == 2 ? 3 : 0);
+            if (round % 4 == 3) eng.sync(*p); // all of p read
+            else eng.syncCells(*p, h.crossed); // the listed crossings alone
+            h.crossed.clear();
+            ice::DlaEngine fresh(dom, prm, 5);
+            fresh.sync(*p);
+            INFO(Lattice::kindName(cs.kind) << (cs.box ? " box" : " plane") << " " << cs.n << ", round " << round);
+            REQUIRE(eng.iceCount() == fresh.iceCount());
+            CHECK(distanceDifferences(dom, eng, fresh) == 0);
+            CHECK(eng.rebuildCount() == 0); // every round was an update, never a rebuild
+            compared += dom.bbox().volume();
+        }
+        CHECK(eng.work().fresh > 400);
+        CHECK(eng.work().melted > 0);
+        CHECK(eng.work().relaxed > 5000);
+        CHECK(compared > 0);
+    }
+}
+
+TEST_CASE("Walker distance map: CPU time of a large random growth history", "[.][dla][bench]")
+{
+    // Not a check: the distance work of a 4096^2 hexagonal plane growing 300 seeds by fronts
+    // (Eden growth, listed crossings) and a few melts in 200 syncs: the syncs' process CPU time.
+    const int n = 4096;
+    Domain dom = makePlaneDomain(Lattice(LatticeKind::Hexagonal), openvdb::Coord(n, n, 1), 1e-4);
+    auto p = openvdb::FloatGrid::create(0.f);
+    ice::DlaParams prm;
+    ice::DlaEngine eng(dom, prm, 5);
+    GrowthHistory h(dom, *p, eng, 99);
+    h.round(300, 0, 0, 0);
+    eng.syncCells(*p, h.crossed);
+    h.crossed.clear();
+    double cpu = 0; // process CPU seconds of the syncs (the walkers' flushes are in round())
+    for (int round = 0; round < 200; ++round) {
+        h.round(0, 4000, 0, 10);
+        const std::clock_t c0 = std::clock();
+        eng.syncCells(*p, h.crossed);
+        cpu += double(std::clock() - c0) / CLOCKS_PER_SEC;
+        h.crossed.clear();
+    }
+    const auto& w = eng.work();
+    WARN("ice " << eng.iceCount() << ", syncs' CPU " << cpu << " s; distance work (wall): scan " << w.scanSeconds
+                << " s, cell BFS " << w.relaxSeconds << " s, block BFS " << w.coarseSeconds << " s, repair "
+                << w.repairSeconds << " s; cells frozen " << w.fresh << ", lowered " << w.relaxed << ", melted "
+                << w.melted << ", bricks " << eng.brickCount());
 }
 
 TEST_CASE("Walker distances beyond the cap are lower bounds within two blocks of the lattice distance", "[fast][dla][jumps]")

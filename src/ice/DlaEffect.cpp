@@ -613,12 +613,23 @@ std::vector<std::pair<std::string, double>> DlaEffect::timings() const
             {"apply", mStats.applySeconds},
             {"distance", mStats.syncSeconds},
             {"steam", mStats.steamSeconds},
-            {"tables", mStats.tableSeconds}};
+            {"tables", mStats.tableSeconds},
+            // the distance work by part (walkers' freezes included: their passes run in "apply")
+            {"distance_scan", mEngine ? mEngine->work().scanSeconds : 0.0},
+            {"distance_relax", mEngine ? mEngine->work().relaxSeconds : 0.0},
+            {"distance_blocks", mEngine ? mEngine->work().coarseSeconds : 0.0},
+            {"distance_repair", mEngine ? mEngine->work().repairSeconds : 0.0},
+            {"distance_rebuild", mEngine ? mEngine->work().rebuildSeconds : 0.0}};
 }
 
 std::vector<std::pair<std::string, double>> DlaEffect::counters() const
 {
-    return {{"distance_rebuilds", mEngine ? double(mEngine->rebuildCount()) : 0.0}};
+    if (!mEngine) return {{"distance_rebuilds", 0.0}};
+    const DlaEngine::Work& w = mEngine->work();
+    return {{"distance_rebuilds", double(mEngine->rebuildCount())},
+            {"distance_fresh", double(w.fresh)},
+            {"distance_melted", double(w.melted)},
+            {"distance_relaxed", double(w.relaxed)}};
 }
 
 } // namespace ice

@@ -16,8 +16,10 @@
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
+#include <tbb/parallel_invoke.h>
 
 #include <algorithm>
+#include <chrono>
 #include <unordered_map>
 #include <cmath>
 #include <cstdlib>
@@ -44,6 +46,8 @@ namespace {
 constexpr int kB = 1 << DlaEngine::kBrickLog2; // brick side
 constexpr int kBMask = kB - 1;
 constexpr int kNoBound = 1 << 30;
+using Clock = std::chrono::steady_clock;
+double since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
 
 inline uint64_t packKey(int64_t x, int64_t y, int64_t z) { return uint64_t(x) | uint64_t(y) << 21 | uint64_t(z) << 42; }
 inline int cellInBrick(int x, int y, int z) { return (x & kBMask) | (y & kBMask) << 3 | (z & kBMask) << 6; }
@@ -203,7 +207,9 @@ struct DlaEngine::Sparse : ByteBricks {
     }
 };
 
-/// Cached brick access for a sequence of nearby cells (one hash probe per brick change).
+namespace {
+/// Cached brick access for a sequence of nearby cells (one hash probe per brick change). In the
+/// anonymous namespace: its calls are inlined, not calls through the library's PLT.
 struct BrickCursor {
     ByteBricks& S;
     int bx = -1, by = -1, bz = -1;
@@ -231,6 +237,7 @@ struct BrickCursor {
         }
     }
 };
+} // namespace
 
 /// Which voxels of each leaf of p were above 1/2 at the last sync (leaves with none are
 /// absent): a leaf whose set is unchanged holds no new ice, so sync looks up the ice flags only
@@ -348,23 +355,59 @@ int DlaEngine::iceDistance(const openvdb::Coord& c) const
     return std::max(pyramid, kCoarse * d - mSparse->coarseSlack);
 }
 
+int DlaEngine::blockDistance(const openvdb::Coord& c) const
+{
+    if (!mSparse->coarseOn) return -1;
+    const openvdb::Coord r = c - mOrigin;
+    return mSparse->coarse.fine(r.x() >> kCoarseLog2, r.y() >> kCoarseLog2, r.z() >> kCoarseLog2);
+}
+
 namespace {
 /// Multi-source breadth-first relaxation of capped lattice distances from the cells in @a queue
 /// (already set; first in, first out is breadth-first while they share one distance).
+/// A neighbour in the dequeued cell's own brick (most of them: 8x8 bricks, 4 or 6 neighbours) is
+/// read and written through that brick's pointer, kept while consecutive cells share a brick;
+/// only a neighbour across a brick face goes through the cursor (a hash probe when its brick
+/// changes). The same cells are lowered in the same order as with one cursor per side.
 void relaxFrom(ByteBricks& S, std::vector<int64_t>& queue, int cap, const std::vector<openvdb::Coord>& nbr, int64_t nx,
                int64_t ny, int64_t nz)
 {
-    BrickCursor here(S), there(S);
+    BrickCursor there(S);
     const int64_t m = (int64_t(1) << 21) - 1;
+    int hx = -1, hy = -1, hz = -1;
+    uint8_t* here = nullptr; // the brick of the dequeued cell (it holds a value below the cap: it exists)
+    const size_t deg = nbr.size();
+    int ox[8], oy[8], oz[8];
+    for (size_t n = 0; n < deg && n < 8; ++n) {
+        ox[n] = nbr[n].x();
+        oy[n] = nbr[n].y();
+        oz[n] = nbr[n].z();
+    }
+    if (deg > 8) throw std::logic_error("relaxFrom: at most 8 neighbours");
     for (size_t q = 0; q < queue.size(); ++q) {
         const int64_t u = queue[q];
         const int x = int(u & m), y = int((u >> 21) & m), z = int(u >> 42);
-        const int d = here.get(x, y, z) + 1;
+        const int bx = x >> DlaEngine::kBrickLog2, by = y >> DlaEngine::kBrickLog2, bz = z >> DlaEngine::kBrickLog2;
+        if (bx != hx || by != hy || bz != hz) {
+            hx = bx;
+            hy = by;
+            hz = bz;
+            here = const_cast<uint8_t*>(S.brick(bx, by, bz));
+            if (!here) here = S.brickForWrite(bx, by, bz); // (never: a queued cell holds a value below the cap)
+        }
+        const int d = here[cellInBrick(x, y, z)] + 1;
         if (d >= cap) continue;
-        for (const auto& o : nbr) {
-            const int i = x + o.x(), j = y + o.y(), k = z + o.z();
+        for (size_t n = 0; n < deg; ++n) {
+            const int i = x + ox[n], j = y + oy[n], k = z + oz[n];
             if (i < 0 || j < 0 || k < 0 || i >= nx || j >= ny || k >= nz) continue;
-            if (there.get(i, j, k) > d) {
+            if ((i >> DlaEngine::kBrickLog2) == bx && (j >> DlaEngine::kBrickLog2) == by &&
+                (k >> DlaEngine::kBrickLog2) == bz) {
+                uint8_t& v = here[cellInBrick(i, j, k)];
+                if (v > d) {
+                    v = uint8_t(d);
+                    queue.push_back(int64_t(packKey(i, j, k)));
+                }
+            } else if (there.get(i, j, k) > d) {
                 there.set(i, j, k, d);
                 queue.push_back(int64_t(packKey(i, j, k)));
             }
@@ -502,6 +545,7 @@ void DlaEngine::freezeDeferred(int64_t cell)
     mSparse->setFine(r.x(), r.y(), r.z(), 0);
     mSparse->addIce(r.x(), r.y(), r.z());
     ++mIceCount;
+    ++mWork.fresh;
     mQueue.push_back(cell);
 }
 
@@ -510,11 +554,29 @@ void DlaEngine::flushDistances()
     // One multi-source BFS from every cell frozen since the last flush (all at distance 0, so
     // first-in first-out is breadth-first): each cell is lowered once, not once per new ice
     // cell near it, and the capped distances are the same unique minimum as one-by-one relaxing.
-    if (!mQueue.empty()) {
+    // The cell and the block distances are separate maps (their own bricks, hash maps and
+    // queues): their two passes run side by side when both have work and a second thread is free.
+    auto cells = [this] {
+        if (mQueue.empty()) return;
+        const auto t0 = Clock::now();
+        const size_t sources = mQueue.size();
         relaxQueue();
+        mWork.relaxed += mQueue.size() - sources;
         mQueue.clear();
+        mWork.relaxSeconds += since(t0);
+    };
+    auto blocks = [this] {
+        const auto t1 = Clock::now();
+        flushCoarse();
+        mWork.coarseSeconds += since(t1);
+    };
+    const Sparse& S = *mSparse;
+    if (!mQueue.empty() && S.coarseOn && (!S.coarseGained.empty() || !S.coarseLost.empty()))
+        tbb::parallel_invoke(cells, blocks);
+    else {
+        cells();
+        blocks();
     }
-    flushCoarse();
 }
 
 bool DlaEngine::distancesPending() const
@@ -524,6 +586,7 @@ bool DlaEngine::distancesPending() const
 
 void DlaEngine::rebuild(const openvdb::FloatGrid& p)
 {
+    const auto t0 = Clock::now();
     mSparse->clear();
     mIceCount = 0;
     mQueue.clear();
@@ -546,6 +609,7 @@ void DlaEngine::rebuild(const openvdb::FloatGrid& p)
     relaxQueue(); // multi-source BFS
     mQueue.clear();
     flushCoarse();
+    mWork.rebuildSeconds += since(t0);
 }
 
 void DlaEngine::sync(const openvdb::FloatGrid& p)
@@ -554,6 +618,7 @@ void DlaEngine::sync(const openvdb::FloatGrid& p)
     // the last sync) collected (the order of freezing does not matter: the capped distances are
     // the unique BFS minimum).
     using Mask = openvdb::util::NodeMask<3>;
+    const auto t0 = Clock::now();
     if (!mSyncCache || mSyncCache->folded != plane::isFolded(p)) {
         mSyncCache = std::make_unique<SyncCache>();
         mSyncCache->folded = plane::isFolded(p);
@@ -639,6 +704,7 @@ void DlaEngine::sync(const openvdb::FloatGrid& p)
         std::vector<int64_t> melted;
         for (const auto& v : lost) melted.insert(melted.end(), v.begin(), v.end());
         if (count + melted.size() != mIceCount + nfresh || melted.size() * 16 > mIceCount) {
+            mWork.scanSeconds += since(t0);
             ++mRebuilds;
             rebuild(p);
             store.clear();
@@ -646,7 +712,10 @@ void DlaEngine::sync(const openvdb::FloatGrid& p)
                 if (!above[l].isOff()) store[leaves.leaf(l).origin()] = above[l];
             return;
         }
+        mWork.scanSeconds += since(t0);
         repairMelted(melted);
+    } else {
+        mWork.scanSeconds += since(t0);
     }
     for (size_t l = 0; l < nl; ++l) {
         if (!changed[l]) continue;
@@ -661,6 +730,7 @@ void DlaEngine::sync(const openvdb::FloatGrid& p)
 
 void DlaEngine::syncCells(const openvdb::FloatGrid& p, const std::vector<openvdb::Coord>& cells)
 {
+    const auto t0 = Clock::now();
     const openvdb::CoordBBox dom = mDomain.bbox();
     std::vector<int64_t> ids;
     ids.reserve(cells.size());
@@ -680,6 +750,7 @@ void DlaEngine::syncCells(const openvdb::FloatGrid& p, const std::vector<openvdb
             else if (!above && ice) melted.push_back(id);
         }
     }
+    mWork.scanSeconds += since(t0);
     if (!melted.empty()) {
         if (melted.size() * 16 > mIceCount) { // as sync(): a rebuild is cheaper
             ++mRebuilds;
@@ -696,6 +767,8 @@ void DlaEngine::syncCells(const openvdb::FloatGrid& p, const std::vector<openvdb
 
 void DlaEngine::repairMelted(const std::vector<int64_t>& melted)
 {
+    const auto t0 = Clock::now();
+    mWork.melted += melted.size();
     Sparse& S = *mSparse;
     const int64_t m = (int64_t(1) << 21) - 1;
     for (int64_t cell : melted) {
@@ -705,6 +778,7 @@ void DlaEngine::repairMelted(const std::vector<int64_t>& melted)
         --mIceCount;
     }
     repairAround(S, melted, mCap, mDim, mNbr, mNx, mNy, mNz);
+    mWork.repairSeconds += since(t0);
 }
 
 double DlaEngine::stickingProbability(const Inputs& in, int64_t cell) const

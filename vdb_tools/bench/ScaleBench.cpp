@@ -88,6 +88,13 @@ int runOne(int n, int rebuildEvery, const BenchArgs& args, const std::string& re
     std::printf("| walkers (DLA) | %.2f |\n", eff["dla"]);
     std::printf("| - walks / sticking / distance map / tables | %.2f / %.2f / %.2f / %.2f |\n", detail["dla.walkers"],
                 detail["dla.apply"], detail["dla.distance"], detail["dla.tables"]);
+    std::printf("| - distance work: scan / cell BFS / block BFS / melt repair / rebuild (freezes included) "
+                "| %.2f / %.2f / %.2f / %.2f / %.2f |\n",
+                detail["dla.distance_scan"], detail["dla.distance_relax"], detail["dla.distance_blocks"],
+                detail["dla.distance_repair"], detail["dla.distance_rebuild"]);
+    std::printf("| - distance cells: frozen / melted / lowered by the BFS; rebuilds (counts) | %.0f / %.0f / %.0f; %.0f |\n",
+                detail["dla.distance_fresh"], detail["dla.distance_melted"], detail["dla.distance_relaxed"],
+                detail["dla.distance_rebuilds"]);
     std::printf("| phase field (incl. heat) | %.2f |\n", eff["phase_field"]);
     std::printf("| - region / kernel / truncation | %.2f / %.2f / %.2f |\n", detail["phase_field.region"],
                 detail["phase_field.kernel"], detail["phase_field.truncate"]);

@@ -180,9 +180,20 @@ public:
     /// Lattice distance to the nearest ice: exact below distanceCap(), a lower bound above.
     int iceDistance(const openvdb::Coord& c) const;
     int distanceCap() const { return mCap; }
+    /// Planes: the block distance (block steps, below its cap of 48) of the 4x4 block holding @a c;
+    /// -1 in a box (no block distances). For tests: the incremental map against a rebuilt one.
+    int blockDistance(const openvdb::Coord& c) const;
     uint64_t iceCount() const { return mIceCount; }
     /// Full rebuilds of the distances (sync found ice that melted), and cells melted in them.
     uint64_t rebuildCount() const { return mRebuilds; }
+    /// Where the distance work goes (seconds and cells since construction): reading p in sync()
+    /// and syncCells(), the cell and block breadth-first passes after new ice (walkers' freezes
+    /// included), the repairs after melts, the full rebuilds.
+    struct Work {
+        double scanSeconds = 0, relaxSeconds = 0, coarseSeconds = 0, repairSeconds = 0, rebuildSeconds = 0;
+        uint64_t fresh = 0, melted = 0, relaxed = 0; ///< cells frozen, melted, lowered by the passes
+    };
+    const Work& work() const { return mWork; }
 
     int64_t index(const openvdb::Coord& c) const
     {
@@ -254,6 +265,7 @@ private:
     double mGraphScale = 1.0;   ///< lattice (graph) distance reach of a unit plane displacement
     uint64_t mIceCount = 0;
     uint64_t mRebuilds = 0;
+    Work mWork;
     std::unique_ptr<Sparse> mSparse;
     std::unique_ptr<SyncCache> mSyncCache;
     std::vector<int64_t> mQueue;
