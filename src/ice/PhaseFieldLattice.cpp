@@ -135,7 +135,8 @@ public:
     std::vector<std::pair<std::string, double>> counters() const override
     {
         std::vector<std::pair<std::string, double>> t{{"region_rebuilds", double(mStats.rebuilds)},
-                                                      {"region_growths", double(mStats.regionGrowths)}};
+                                                      {"region_growths", double(mStats.regionGrowths)},
+                                                      {"voxel_updates", double(mStats.voxelUpdates)}};
         if (secondOrder()) {
             const double n = double(std::max<int64_t>(1, mStats.solves));
             t.push_back({"mean_iterations_p", mStats.solverIterationsP / n});

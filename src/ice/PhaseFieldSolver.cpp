@@ -1005,6 +1005,7 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
     bindAccumulators(acc, growth, freezeTime);
     if (stats) {
         stats->regionVoxels = mRegionVoxels;
+        stats->voxelUpdates += mRegionVoxels;
         stats->regionSeconds += since(t0);
     }
 

@@ -28,7 +28,8 @@
 namespace frostvdb {
 
 struct PhaseFieldStepStats {
-    uint64_t regionVoxels = 0;
+    uint64_t regionVoxels = 0; ///< the last step's region
+    uint64_t voxelUpdates = 0; ///< region voxels summed over steps (the shell's voxel_updates)
     double regionSeconds = 0, kernelSeconds = 0, truncateSeconds = 0;
     // Second-order scheme: implicit solves (time is part of kernelSeconds).
     double solveSeconds = 0;
