@@ -512,23 +512,16 @@ void ShellPhaseField::stepSurface(double time, int64_t stepIndex, uint64_t seed,
             mTn[i] = tInf;
             return;
         }
+        const double chi = noiseChi(k, b, i, seed, stepIndex);
         if (mWind.empty()) {
-            surfaceUpdate(inputs, i, s, noiseChi(k, b, i, seed, stepIndex), mPn[i], mTn[i]);
+            surfaceUpdate(inputs, i, s, chi, mPn[i], mTn[i]);
             return;
         }
-        const double p0 = P[i], t0v = T[i], a0 = C[i].a;
-        const double div = (a0 * s.lapP) * invH2 + (s.dau * mGx[i] + s.dav * mGy[i]) * invH + s.divC * invH;
-        const double reaction = reactionAt(k, b, mMelt, i, p0, t0v, seed, stepIndex);
-        const double dp = k.dt / k.tau * (div + reaction);
-        const float pNew = float(p0 + dp);
-        mPn[i] = pNew;
-        double heat = s.lapT * invH2;
-        if (!mWind.empty()) {
-            const VoxelFrame f = b.frame(i);
-            const double wu = f.tangent.dot(mWind[i]), wv = f.bitangent.dot(mWind[i]);
-            heat += -(wu * s.dtu + wv * s.dtv) * invH + 0.5 * std::sqrt(wu * wu + wv * wv) * s.lapT * invH;
-        }
-        mTn[i] = float(t0v + k.dt * heat + k.latentHeat * dp);
+        // the wind's advection of T, centred, with the upwind scheme's diffusion |w| h / 2
+        const VoxelFrame f = b.frame(i);
+        const double wu = f.tangent.dot(mWind[i]), wv = f.bitangent.dot(mWind[i]);
+        const double windHeat = -(wu * s.dtu + wv * s.dtv) * invH + 0.5 * std::sqrt(wu * wu + wv * wv) * s.lapT * invH;
+        surfaceUpdate(inputs, i, s, chi, mPn[i], mTn[i], &windHeat);
     };
     const TapSums4 sums4 = fastestTapSums4();
     const SurfaceUpdate4 update4 = fastestSurfaceUpdate4();

@@ -58,7 +58,7 @@ TapSums tapSums(const ShellBand& b, const float* P, const float* T, const Surfac
 }
 
 void surfaceUpdate(const SurfaceUpdateInputs& in, std::size_t i, const TapSums& s, double chi, float& pNew,
-                   float& tNew)
+                   float& tNew, const double* windHeat)
 {
     const KobayashiParams& k = *in.k;
     const double p0 = in.P[i], t0v = in.T[i], a0 = in.C[i].a;
@@ -68,7 +68,8 @@ void surfaceUpdate(const SurfaceUpdateInputs& in, std::size_t i, const TapSums& 
     const double reaction = p0 * (1.0 - p0) * (p0 - 0.5 + m + k.noise * chi);
     const double dp = k.dt / k.tau * (div + reaction);
     pNew = float(p0 + dp);
-    tNew = float(t0v + k.dt * (s.lapT * in.invH2) + k.latentHeat * dp);
+    const double heat = windHeat ? s.lapT * in.invH2 + *windHeat : s.lapT * in.invH2;
+    tNew = float(t0v + k.dt * heat + k.latentHeat * dp);
 }
 
 void surfaceUpdate4Plain(const SurfaceUpdateInputs& in, std::size_t i, const TapSums s[4], const double chi[4],

@@ -66,11 +66,13 @@ struct SurfaceUpdateInputs {
     double invH = 1, invH2 = 1;
 };
 
-/// Node @a i's Euler update without wind (the plane's kobayashiEuler with the surface sums):
+/// Node @a i's Euler update (the plane's kobayashiEuler with the surface sums):
 /// tau dp/dt = eps^2 lap p + grad eps^2 . g + div C + p (1 - p) (p - 1/2 + m(T) + a chi), m by
 /// atanCephes; T' = T + dt lap T + K dp. @a chi is the node's noise draw (0 without noise).
+/// @a windHeat, where a wind blows: its terms of dT/dt (advection and the upwind diffusion),
+/// added to lap T / h^2; null without wind (nothing is added, so no zero changes its sign).
 void surfaceUpdate(const SurfaceUpdateInputs& in, std::size_t i, const TapSums& s, double chi, float& pNew,
-                   float& tNew);
+                   float& tNew, const double* windHeat = nullptr);
 /// Nodes i .. i + 3, bit for bit surfaceUpdate of each.
 using SurfaceUpdate4 = void (*)(const SurfaceUpdateInputs& in, std::size_t i, const TapSums s[4],
                                 const double chi[4], float pNew[4], float tNew[4]);
