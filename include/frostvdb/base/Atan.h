@@ -8,7 +8,6 @@
 /// a shell step's CPU (docs/shells.md "Kernel").
 #include <cmath>
 #include <cstdint>
-#include <cstring>
 
 namespace frostvdb {
 
@@ -27,9 +26,7 @@ constexpr double kMoreBits = 6.123233995736765886130E-17; ///< pi/2 - kPiO2
 inline double atanCephes(double x)
 {
     using namespace atan_detail;
-    uint64_t bits;
-    std::memcpy(&bits, &x, 8);
-    const bool negative = bits >> 63;
+    const bool negative = std::signbit(x);
     const double a = std::fabs(x);
     double r, base, extra;
     if (a > kTan3Pi8) r = -1.0 / a, base = kPiO2, extra = kMoreBits;
