@@ -283,3 +283,26 @@ anisotropy_mode = 6
     const auto [p6, t6, c6] = run({"region.tolerance=1e-6"});
     CHECK(c6.at("region_rebuilds") == 15); // automatic k = 2 over 30 steps
 }
+
+TEST_CASE("Region cadence: voxel_updates sums each step's region (the shell's counter, for the pane pair)",
+          "[fast][phase_field][region]")
+{
+    // Dense: every step updates the whole 48 x 48 domain. Sparse: the sum of the regions the
+    // steps report, which stays below the dense count while the region is smaller than the domain.
+    Disc a, b;
+    RegionSettings sparse, dense;
+    sparse.tolerance = 0;
+    dense.dense = true;
+    PhaseFieldSolver sa(a.k, a.dom, sparse), sb(b.k, b.dom, dense);
+    PhaseFieldStepStats sparseStats, denseStats;
+    uint64_t regions = 0;
+    for (int s = 0; s < 20; ++s) {
+        sa.step(a.p, a.T, nullptr, nullptr, s, s * a.k.dt, 1, &sparseStats);
+        regions += sparseStats.regionVoxels;
+        sb.step(b.p, b.T, nullptr, nullptr, s, s * b.k.dt, 1, &denseStats);
+    }
+    CHECK(denseStats.voxelUpdates == 20u * 48u * 48u);
+    CHECK(sparseStats.voxelUpdates == regions);
+    CHECK(sparseStats.voxelUpdates > 0u);
+    CHECK(sparseStats.voxelUpdates < denseStats.voxelUpdates);
+}
