@@ -630,7 +630,7 @@ TEST_CASE("gg3d: a reservoir crystal's estimate follows the inflow that feeds it
     // that vapour charged the capped column 1.9x its cells and the sandwich plate 0.39x. The
     // inflow model (quasi-steady diffusion from the reservoir into the crystal's growing hull,
     // gg3dReservoirInflow) against the cells small reservoir runs attach until they stop. The
-    // old share read 0.36 (sandwich) and 0.52 (ridges) here.
+    // old share read 0.41 (sandwich) and 0.51 (ridges) here.
     struct Case {
         const char* preset;
         int radius, layers;

@@ -247,7 +247,8 @@ GG3DReservoirInflow gg3dReservoirInflow(const GG3DConfig& cfg, int64_t steps)
         const double dz = (vr >= vz ? kSideShare : kLeadShare) * vz;
         if (dr <= 0.0 && dz <= 0.0) break;
         // chunks in which the hull moves a quarter cell, evaluated at their middle
-        const int64_t k = std::max<int64_t>(1, std::min<int64_t>(until - t, int64_t(0.25 / std::max(dr, dz))));
+        const double quarter = std::floor(0.25 / std::max(dr, dz));
+        const int64_t k = std::max<int64_t>(1, int64_t(std::min(double(until - t), quarter)));
         const double am = a + 0.5 * double(k) * dr, zm = z + 0.5 * double(k) * dz;
         const double faces = 2.0 * hexCells(am) * kVertical / std::max(1.0, faceToReservoir - kFaceHeight * zm);
         const double sides = (2.0 * zm + 1.0) * (12.0 / 7.0) / ringSum[size_t(std::min(R, int(am)))];
