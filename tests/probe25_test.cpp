@@ -935,6 +935,13 @@ TEST_CASE("Probe 25.2: the estimates of the larger scenes (gases, GG 3D, a 1024^
     // cells; the grids follow them: the scene's estimate from the growth model, session 14: 0.99)
     checkRatios(dir, {{"gg3d_grown", kPlane + "[domain]\nsize = [121, 121]\nvoxel_size = 0.0001\n[gravner_griffeath_3d]\n"
                                               "preset = \"fig04_plate_ridges\"\ndomain_radius = 60\nlayers = 31\n"}}, 6000);
+    // a crystal a vapour reservoir feeds: the sandwich plate at radius 100, 41 layers (stops at
+    // step 20,656 with 179,000 cells; the domain's vapour share read 0.64, the inflow model 1.08,
+    // session 16)
+    checkRatios(dir, {{"gg3d_reservoir", kPlane + "[domain]\nsize = [201, 201]\nvoxel_size = 0.0001\n"
+                                                  "[gravner_griffeath_3d]\npreset = \"fig20_sandwich_plate\"\n"
+                                                  "domain_radius = 100\nlayers = 41\nwalls = \"reservoir\"\n"}},
+                100000);
 }
 
 TEST_CASE("Probe 25.2: the share of a gas's candidate leaves that hold gas is sampled without aliasing",
@@ -992,4 +999,27 @@ TEST_CASE("Probe 25.2: a shell's whole band is held to run.memory_limit, once, a
     }
     // [dla] and a dense region build one band: counted once (twice would be 121 MiB, over 102)
     CHECK(refusalOf(scene(0.1, dense + "[dla]\n")) == "");
+}
+
+TEST_CASE("Probe 25 re-run (session 16): a [dla3d] constraint mesh that is missing is refused in one line, not a crash",
+          "[fast][probe][dla3d]")
+{
+    // scripts/probe_scenes.py --seed 16: dla3d_roots_vessel.toml run from another folder (its
+    // relative meshes/vessel.stl missing) ended in a segmentation fault: the run's summary asked
+    // the effect for its timings after the failed initialisation, with no aggregate yet.
+    const std::string dir = tempDir("p25_missing_constraint");
+    const std::string scene = dir + "/vessel.toml";
+    {
+        std::ofstream f(scene);
+        f << "[scene]\nname = \"v\"\nframes = 1\n[output]\npreview = \"none\"\n[dla3d]\nparticles = 50\n"
+             "constraint_mesh = \"meshes/missing_vessel.stl\"\n";
+    }
+    const std::string log = dir + "/log.txt";
+    const int rc = runCommand(std::string(FROSTVDB_BINARY) + " run " + scene + " --out " + dir + "/out -q", log);
+    const std::string text = readFile(log);
+    INFO(text);
+    CHECK(rc == 2);
+    CHECK(text.find("dla3d.constraint_mesh") != std::string::npos);
+    CHECK(text.find("missing_vessel.stl") != std::string::npos);
+    CHECK(lines(text) == 1);
 }

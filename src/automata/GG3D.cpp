@@ -78,6 +78,18 @@ double lazyWalkRate(double x, double p)
     return x * std::log(u) - std::log(a + p * (u + 1.0 / u));
 }
 
+/// The fastest the crystal's radius and half height can move a step under one parameter set (see
+/// gg3dCrystalCellsEstimate).
+void setSpeeds(const GG3DParams& q, double& vr, double& vz)
+{
+    const double betaMax = *std::max_element(q.beta.begin(), q.beta.end());
+    const double muMax = *std::max_element(q.mu.begin(), q.mu.end());
+    const double dMax = q.rho + muMax * betaMax; // vapour a boundary site can hold (melting adds to it)
+    const double gain = std::max(1.0 - q.kappa[1], 1.0 - q.kappa[2]) * dMax;
+    vr = std::min(1.0, gain / std::max(1e-9, std::min(q.beta[1], q.beta[2])));
+    vz = std::min(1.0, (1.0 - q.kappa[0]) * dMax / std::max(1e-9, q.beta[0]));
+}
+
 /// The fastest the crystal's radius and half height can move a step (see gg3dCrystalCellsEstimate),
 /// over the parameters the run will see; and the largest drift.
 void kineticSpeeds(const GG3DConfig& cfg, double& vr, double& vz, double& usable, double& phi)
@@ -95,12 +107,10 @@ void kineticSpeeds(const GG3DConfig& cfg, double& vr, double& vz, double& usable
         double stall = q.rho;
         for (size_t k : {0, 1, 2}) stall = std::min(stall, q.mu[k] * q.beta[k] / std::max(1e-9, 1.0 - q.kappa[k]));
         usable = std::max(usable, std::max(0.05, 1.0 - stall / q.rho));
-        const double betaMax = *std::max_element(q.beta.begin(), q.beta.end());
-        const double muMax = *std::max_element(q.mu.begin(), q.mu.end());
-        const double dMax = q.rho + muMax * betaMax; // vapour a boundary site can hold (melting adds to it)
-        const double gain = std::max(1.0 - q.kappa[1], 1.0 - q.kappa[2]) * dMax;
-        vr = std::max(vr, std::min(1.0, gain / std::max(1e-9, std::min(q.beta[1], q.beta[2]))));
-        vz = std::max(vz, std::min(1.0, (1.0 - q.kappa[0]) * dMax / std::max(1e-9, q.beta[0])));
+        double r, z;
+        setSpeeds(q, r, z);
+        vr = std::max(vr, r);
+        vz = std::max(vz, z);
         phi = std::max(phi, q.phi);
     }
 }
@@ -177,15 +187,82 @@ GG3DSolverBytes gg3dSolverBytes(const GG3DConfig& cfg, int64_t steps)
 namespace {
 /// Share of the domain's usable vapour (rho x cells, less what stays below the stall density)
 /// that the crystal holds at the end of a run (see gg3dCrystalCellsEstimate): with reflecting
-/// walls 0.19-0.55 at the end of the shipped scenes (stopped or at their step counts); with a
-/// reservoir 0.37 (the capped column) and more (the sandwich plate). Chosen so that the shipped
-/// scenes' estimates read 0.7-1.5 of their measured peaks (docs/guide.md, the estimate table):
-/// thin crystals (needles) hold fewer cells than charged but take more bytes per cell.
+/// walls 0.19-0.55 at the end of the shipped scenes (stopped or at their step counts). Chosen so
+/// that the shipped scenes' estimates read 0.7-1.5 of their measured peaks (docs/guide.md, the
+/// estimate table): thin crystals (needles) hold fewer cells than charged but take more bytes per
+/// cell.
 constexpr double kMassShare = 0.45;
-constexpr double kReservoirMassShare = 0.71;
+/// The reservoir inflow model (gg3dReservoirInflow). Measured on seven reservoir runs of five
+/// presets (radius 30-60, 31-201 layers; docs/guide.md, issue 25): the direction that reaches its
+/// stop first moves at 0.11-0.19 of its kinetic speed (the vapour at the tip is depleted to that
+/// share of rho), the other at 0.04-0.10 of its own; ...
+constexpr double kLeadShare = 0.15, kSideShare = 0.05;
+/// ... the crystal's faces stand on average halfway between the seed and the hull's face (ridged
+/// and domed plates; the hull's face alone over-charged the thin-domain plates 1.5x) ...
+constexpr double kFaceHeight = 0.5;
+/// ... and an attached cell holds its boundary mass at attachment, beta (1-6), while the faces'
+/// unattached boundary cells hold mass too: 0.28-0.66 attached cells per unit of mass the crystal
+/// took, with its real hull and step count.
+constexpr double kCellsPerMass = 0.5;
 
 double hexCells(double r) { return 3.0 * r * (r + 1.0) + 1.0; }
 } // namespace
+
+GG3DReservoirInflow gg3dReservoirInflow(const GG3DConfig& cfg, int64_t steps)
+{
+    // Quasi-steady diffusion from the reservoir (rho beyond the domain's walls) into the crystal's
+    // hull, a hex prism of radius a and half height z, held near empty (vapour freezes on at
+    // 1 - kappa of it a step): through the layers above and below (3/14 per vertical neighbour,
+    // the face's area over its distance to the reservoir's layer) and through the rings around it
+    // (1/7 per horizontal neighbour: (12 r + 6) / 7 between rings r and r + 1, in series out to
+    // the reservoir's ring R + 1), in parallel. The hull grows from the seed, the leading
+    // direction (the faster kinetic speed under the parameters of the moment) at kLeadShare of its
+    // kinetic speed, the other at kSideShare, until one reaches its stop or the steps run out.
+    GG3DReservoirInflow out;
+    const int R = std::max(4, cfg.domainRadius);
+    const int m = (cfg.seedHeight % 2 == 0) ? 1 : 0;
+    int zlo, zhi;
+    prismLayers(std::max(3, cfg.layers), m, zlo, zhi);
+    const double faceToReservoir = double(zhi + 1 - m);
+    const double stopZ = std::max(1, int(0.8 * (zhi - m)));
+    const int stop = cfg.stopRadius > 0 ? cfg.stopRadius : int(0.8 * cfg.domainRadius);
+    const double stopR = std::min(stop, R - 2);
+    std::vector<double> ringSum(size_t(R) + 2, 0.0); // sum over rings r >= a of 1 / (r + 1/2)
+    for (int r = R; r >= 0; --r) ringSum[size_t(r)] = ringSum[size_t(r) + 1] + 1.0 / (double(r) + 0.5);
+    std::vector<GG3DSwitch> switches = cfg.switches;
+    std::sort(switches.begin(), switches.end(),
+              [](const GG3DSwitch& x, const GG3DSwitch& y) { return x.step < y.step; });
+    GG3DParams q = cfg.p;
+    size_t next = 0;
+    double a = std::max(cfg.seedRadius, cfg.seedRadius2);
+    double z = 0.5 * std::max(cfg.seedHeight, cfg.seedRadius2 >= 0 ? cfg.seedHeight2 : 1);
+    int64_t t = 0;
+    double mass = 0.0;
+    while (t < steps && a < stopR && z < stopZ) {
+        while (next < switches.size() && switches[next].step <= t) applySwitch(q, switches[next++]);
+        const int64_t until = next < switches.size() ? std::min(steps, switches[next].step) : steps;
+        double vr, vz;
+        setSpeeds(q, vr, vz);
+        const double dr = (vr >= vz ? kLeadShare : kSideShare) * vr;
+        const double dz = (vr >= vz ? kSideShare : kLeadShare) * vz;
+        if (dr <= 0.0 && dz <= 0.0) break;
+        // chunks in which the hull moves a quarter cell, evaluated at their middle
+        const double quarter = std::floor(0.25 / std::max(dr, dz));
+        const int64_t k = std::max<int64_t>(1, int64_t(std::min(double(until - t), quarter)));
+        const double am = a + 0.5 * double(k) * dr, zm = z + 0.5 * double(k) * dz;
+        const double faces = 2.0 * hexCells(am) * kVertical / std::max(1.0, faceToReservoir - kFaceHeight * zm);
+        const double sides = (2.0 * zm + 1.0) * (12.0 / 7.0) / ringSum[size_t(std::min(R, int(am)))];
+        mass += q.rho * (faces + sides) * double(k);
+        a += double(k) * dr;
+        z += double(k) * dz;
+        t += k;
+    }
+    out.mass = mass;
+    out.steps = t;
+    out.radius = std::min(a, stopR);
+    out.halfHeight = std::min(z, stopZ);
+    return out;
+}
 
 double gg3dCrystalCellsEstimate(const GG3DConfig& cfg, int64_t steps, std::string* detail)
 {
@@ -202,14 +279,25 @@ double gg3dCrystalCellsEstimate(const GG3DConfig& cfg, int64_t steps, std::strin
     const double r = std::min(std::max(seedR, stopR), seedR + std::ceil(vr * n));
     const double z = std::min(std::max(seedZ, std::max(1.0, 0.8 * halfH)), seedZ + std::ceil(vz * n));
     const double kinetic = hexCells(r) * (2.0 * z + 1.0);
+    // what a closed domain's vapour gives; a reservoir feeds the crystal on, at least that much
+    const double closed = kMassShare * usable * cfg.p.rho * hexCells(R) * L;
     const bool reservoir = cfg.walls == GG3DWalls::Reservoir;
-    const double vapour = (reservoir ? kReservoirMassShare : kMassShare) * usable * cfg.p.rho * hexCells(R) * L;
+    GG3DReservoirInflow inflow;
+    if (reservoir) inflow = gg3dReservoirInflow(cfg, steps);
+    const double vapour = std::max(closed, kCellsPerMass * inflow.mass);
     const double seed = hexCells(seedR) * (2.0 * seedZ);
     const double cells = std::max(seed, std::min(kinetic, vapour));
     if (detail) {
-        char buf[200];
-        std::snprintf(buf, sizeof buf, "%.3g attached cells (kinetic bound %.3g: radius %.0f, half height %.0f; %s %.3g)",
-                      cells, kinetic, r, z, reservoir ? "reservoir share" : "vapour share", vapour);
+        char buf[300];
+        if (reservoir)
+            std::snprintf(buf, sizeof buf,
+                          "%.3g attached cells (kinetic bound %.3g: radius %.0f, half height %.0f; vapour share %.3g; "
+                          "reservoir inflow %.3g over %lld steps to radius %.0f, half height %.0f)",
+                          cells, kinetic, r, z, closed, kCellsPerMass * inflow.mass, (long long)inflow.steps,
+                          inflow.radius, inflow.halfHeight);
+        else
+            std::snprintf(buf, sizeof buf, "%.3g attached cells (kinetic bound %.3g: radius %.0f, half height %.0f; %s %.3g)",
+                          cells, kinetic, r, z, "vapour share", closed);
         *detail = buf;
     }
     return cells;
@@ -345,6 +433,7 @@ void GG3D::resize(int ra, int zlo, int zhi)
     std::vector<uint8_t> f(nb.size, 0), c(nb.size, 0);
     std::vector<int32_t> at(nb.size, -1);
     const bool had = !mD.empty();
+    const uint64_t oldBytes = had ? bytes() : 0; // held until the swap below
     const int oldZlo = mHalfZ ? mM : mZlo;
     tbb::parallel_for(nb.z0, nb.z1 + 1, [&](int z) {
         for (int r = nb.r0; r <= nb.r1; ++r)
@@ -369,7 +458,8 @@ void GG3D::resize(int ra, int zlo, int zhi)
     adoptBox(nb, ra, zlo, zhi);
     syncGhosts(mD);
     syncGhosts(mFlags);
-    mPeakBytes = std::max(mPeakBytes, bytes() + (had ? 0 : 0));
+    // the old arrays and the new ones were both held while copying (gg3dSolverBytes' peak)
+    mPeakBytes = std::max(mPeakBytes, bytes() + oldBytes);
 }
 
 std::vector<int64_t> GG3D::stateScalars() const

@@ -440,8 +440,11 @@ std::vector<std::pair<std::string, double>> Dla3dEffect::counters() const { retu
 
 std::vector<std::pair<std::string, double>> Dla3dEffect::timings() const
 {
-    const auto& st = mAggregate->stats();
-    return {{"grow", mGrowSeconds}, {"walk", st.walkSeconds}, {"commit", st.commitSeconds}, {"output", mOutputSeconds}};
+    // the run's summary asks after a failed initialisation too (a missing constraint mesh), when
+    // there is no aggregate yet
+    const double walk = mAggregate ? mAggregate->stats().walkSeconds : 0.0;
+    const double commit = mAggregate ? mAggregate->stats().commitSeconds : 0.0;
+    return {{"grow", mGrowSeconds}, {"walk", walk}, {"commit", commit}, {"output", mOutputSeconds}};
 }
 
 } // namespace frostvdb::dla3d

@@ -104,10 +104,26 @@ GG3DSolverBytes gg3dSolverBytes(const GG3DConfig& cfg, int64_t steps);
 ///    stop radius and 80 % of the half height. The whole prism they span is counted;
 ///  - the vapour: with reflecting walls the crystal holds at most the domain's mass rho x cells,
 ///    less what stays vapour because growth stalls below mu beta / (1 - kappa) (the guard rail);
-///    at the end of the shipped scenes it held 19-55 % of that (kMassShare, 45 %); a vapour
-///    reservoir at the walls feeds it on (kReservoirMassShare).
+///    at the end of the shipped scenes it held 19-55 % of that (kMassShare, 45 %). A vapour
+///    reservoir at the walls feeds it on: there the larger of that share and the cells the
+///    reservoir's inflow builds (gg3dReservoirInflow, half an attached cell per unit of mass).
 /// With @a detail: the model's terms, for messages.
 double gg3dCrystalCellsEstimate(const GG3DConfig& cfg, int64_t steps, std::string* detail = nullptr);
+
+/// The mass a vapour reservoir (rho beyond the walls) feeds into the crystal over a run of at
+/// most @a steps steps (issue 25: a share of the domain's vapour charged the capped column 1.9x
+/// its cells and the sandwich plate 0.39x). Quasi-steady diffusion from the reservoir into the
+/// crystal's hull held near empty, through the layers above and below and the rings around it;
+/// the hull grows from the seed, its leading direction at a measured share of its kinetic speed
+/// (the tip's vapour is depleted) and the other slower, until it reaches the stop radius or 80 %
+/// of the half height.
+struct GG3DReservoirInflow {
+    double mass = 0;       ///< vapour taken from the reservoir, in cells' mass
+    int64_t steps = 0;     ///< steps until the hull reaches its stop (or the run's steps)
+    double radius = 0;     ///< the hull at the end: hex radius ...
+    double halfHeight = 0; ///< ... and half height, cells
+};
+GG3DReservoirInflow gg3dReservoirInflow(const GG3DConfig& cfg, int64_t steps);
 
 class GG3D {
 public:
