@@ -147,6 +147,22 @@ TEST_CASE("Output options: a bad value is one line naming the key and the choice
           std::string::npos);
 }
 
+TEST_CASE("Output: a displacement raster wider than 10 UDIM tiles is refused at load, naming the key",
+          "[fast][io][output]")
+{
+    // 700 pixels in tiles of 64: 11 across. Refused before anything runs (it used to fail at the
+    // first frame with ice, after the whole simulation, naming a key that does not exist).
+    const std::string e = errorOf(kScene, {"domain.size=[700, 8]", "output.displacement_png=true",
+                                           "output.displacement_tile=64"});
+    CHECK(e.find("output.displacement_tile") != std::string::npos);
+    CHECK(e.find("11 UDIM tiles") != std::string::npos);
+    CHECK(e.find("at least 70") != std::string::npos);
+    CHECK(e.find('\n') == std::string::npos);
+    CHECK(errorOf(kScene, {"domain.size=[700, 8]", "output.displacement_png=true", "output.displacement_tile=70"})
+              .empty());
+    CHECK(errorOf(kScene, {"domain.size=[700, 8]", "output.displacement_tile=64"}).empty()); // no maps asked
+}
+
 TEST_CASE("run --progress json: one JSON object per line on stderr, frames and the end reported", "[fast][cli][output]")
 {
     const std::string dir = tempDir("progress_json");

@@ -504,7 +504,7 @@ std::vector<std::string> writeDisplacementMaps(const openvdb::FloatGrid& growth,
     const int nu = (W + tileSize - 1) / tileSize, nv = (H + tileSize - 1) / tileSize;
     if (nu > 10)
         throw std::invalid_argument("displacement map " + std::to_string(W) + " pixels wide needs " +
-                                    std::to_string(nu) + " UDIM tiles across (at most 10): raise output.tile_size");
+                                    std::to_string(nu) + " UDIM tiles across (at most 10): raise output.displacement_tile");
     std::vector<std::vector<std::pair<int, int>>> perTile(size_t(nu) * nv);
     const int bt = tileSize / 8; // blocks per tile side when the tile is a multiple of 8
     for (const auto& b : blocks) {

@@ -237,6 +237,7 @@ Simulation::Simulation(Scene scene) : mScene(std::move(scene))
     }
     readRegionSection(mScene.section("region"), mWorld.region);
     readOutputSection(mScene.section("output"), mOutput, &mWorld.worldScale);
+    refuseDisplacementTiling();
     mWorld.sceneLabel = mScene.label();
     mWorld.sceneText = mScene.text();
     try {
@@ -274,6 +275,21 @@ Simulation::Simulation(Scene scene) : mScene(std::move(scene))
             if (u.key->role == FieldRole::Field && (u.access & kWrites)) writers.count[u.key->name] += 1;
     mEffectSeconds.assign(mEffects.size(), 0.0);
     checkMemoryBudget();
+}
+
+/// A flat domain's displacement raster must fit 10 UDIM tiles across (tile numbers 1001 + u + 10 v):
+/// refused here, before anything runs, where the first frame with ice would have failed.
+void Simulation::refuseDisplacementTiling() const
+{
+    if (!mOutput.displacementPng || !mWorld.domain.flat()) return;
+    const int width = squareRaster(mWorld.domain).width(), tile = mOutput.displacementTile;
+    if (width <= tile) return;
+    const int across = (width + tile - 1) / tile;
+    if (across <= 10) return;
+    throw SceneError(mScene.label(), mScene.sectionLine("output"), "output.displacement_tile",
+                     "the displacement map is " + std::to_string(width) + " pixels wide: " + std::to_string(across) +
+                         " UDIM tiles of " + std::to_string(tile) + " across, at most 10 fit; set it to at least " +
+                         std::to_string((width + 9) / 10) + " (allowed 64-65536), or output.displacement_png = false");
 }
 
 /// Two effects that both put a grid of one name into every frame cannot be written (a frame file

@@ -47,7 +47,9 @@ std::string sceneText(int n, int rebuildEvery)
     std::ostringstream os;
     os << "[scene]\nname = \"scale\"\nframes = " << kFrames << "\nsteps_per_frame = " << kStepsPerFrame
        << "\nseed = 11\n[domain]\nkind = \"plane\"\nlattice = \"hexagonal\"\nsize = [" << n << ", " << n
-       << "]\nvoxel_size = 0.0001\n[output]\npreview = \"last\"\n";
+       << "]\nvoxel_size = 0.0001\n[output]\npreview = \"last\"\n"
+       // the square raster of a hexagonal n^2 domain is about 1.5 n wide: at most 10 UDIM tiles across
+       << "displacement_tile = " << std::max(4096, (3 * n / 2 + 9) / 10) << "\n";
     const int seeds = scaled(kFullSeeds, n);
     for (int s = 0; s < seeds; ++s) {
         const double x = 0.01 + 0.98 * toUnit(hashCounters(0x5CA1E, uint64_t(n), uint64_t(s), 0));

@@ -190,6 +190,7 @@ private:
     template <typename F>
     void atSection(const std::string& section, const char* phase, F&& call) const;
     void checkMemoryBudget() const;
+    void refuseDisplacementTiling() const;
     void refuseOutputClashes(const std::vector<DeclaredEffect>& declared) const;
     void refuseChangedInputs(const std::string& saved, const std::string& checkpoint);
     /// Keeps what SIGINT/SIGTERM/SIGHUP would write into run.json up to date (io/AtomicFile.h).
