@@ -30,6 +30,8 @@
 #include <string>
 #include <vector>
 
+#include <unistd.h>
+
 namespace frostvdb {
 namespace {
 
@@ -66,7 +68,9 @@ std::string sceneText(int n, int rebuildEvery)
 int runOne(int n, int rebuildEvery, const BenchArgs& args, const std::string& report)
 {
     Scene scene = Scene::fromString(sceneText(n, rebuildEvery), "bench-scale-" + std::to_string(n) + ".toml");
-    const auto out = std::filesystem::temp_directory_path() / ("frostvdb_bench_scale_" + std::to_string(n));
+    // one folder per process: two benches at once must not remove each other's frames
+    const auto out = std::filesystem::temp_directory_path() /
+                     ("frostvdb_bench_scale_" + std::to_string(n) + "_" + std::to_string(::getpid()));
     std::filesystem::remove_all(out);
     Simulation sim(std::move(scene));
     RunOptions ro;
