@@ -744,8 +744,8 @@ struct PhaseFieldSolver::FoldedLayout {
     {
         openvdb::tree::LeafManager<const openvdb::MaskTree> folded(region->tree()), planeLeaves(planeRegion.tree());
         foldedLeaves = folded.leafCount();
-        // A folded leaf's origin (y, x >> 3, 0) has y and x >> 9 as leaf units: a dense table of
-        // them over the folded leaves' box numbers the folded leaves, read by every plane leaf.
+        // A folded leaf's origin (y, (x >> 3) & ~7, 0) gives the key (y >> 3, x >> 6): a dense
+        // table of keys over the folded leaves' box numbers them, read by every plane leaf.
         openvdb::CoordBBox box;
         for (size_t i = 0; i < foldedLeaves; ++i) box.expand(tableKey(folded.leaf(i).origin()));
         const openvdb::Coord dim = box.empty() ? openvdb::Coord(0) : box.dim();
