@@ -22,6 +22,7 @@
 #include <frostvdb/core/Random.h>
 #include <frostvdb/core/RegionOfTopology.h>
 
+#include <array>
 #include <cstdlib>
 
 using namespace frostvdb;
@@ -259,6 +260,64 @@ TEST_CASE("The region of folded p and T is the region of the plane layout's, for
             CHECK(buildActiveRegionOfFolded({pf.get(), tf.get()}, rs, 2, dom, steps, got) == got);
         }
     }
+}
+
+namespace {
+/// Leaf origins and value masks of @a tree, in tree order, and its node counts per level.
+std::pair<std::vector<std::pair<openvdb::Coord, std::array<uint64_t, 8>>>, std::vector<openvdb::Index32>>
+leavesAndNodes(const openvdb::MaskTree& tree)
+{
+    std::vector<std::pair<openvdb::Coord, std::array<uint64_t, 8>>> leaves;
+    for (auto it = tree.cbeginLeaf(); it; ++it) {
+        std::array<uint64_t, 8> words{};
+        for (int w = 0; w < 8; ++w) words[size_t(w)] = it->getValueMask().template getWord<uint64_t>(openvdb::Index(w));
+        leaves.emplace_back(it->origin(), words);
+    }
+    return {leaves, tree.nodeCount()};
+}
+} // namespace
+
+TEST_CASE("A plane region edited in place, and its folded topology, equal the ones built afresh", "[fast][fold][region]")
+{
+    // sources that move across the domain round by round, so leaves are gained and lost, the
+    // support's edge clips some (a negative origin off the leaf grid), internal nodes empty out
+    for (auto kind : {LatticeKind::Square, LatticeKind::Hexagonal})
+        for (int steps : {1, 3}) {
+            const Lattice lat{kind, 3.0 / 64.0};
+            const Domain dom = makePlaneDomain(lat, openvdb::Coord(603, 350, 1), 1e-4, openvdb::Coord(-77, -13, 0));
+            RegionSettings rs;
+            openvdb::MaskGrid::Ptr standing, foldedStanding;
+            size_t removed = 0, added = 0;
+            for (int round = 0; round < 12; ++round) {
+                INFO("lattice " << int(kind) << ", steps " << steps << ", round " << round);
+                auto p = openvdb::FloatGrid::create(0.f), T = openvdb::FloatGrid::create(0.f);
+                const int shift = round == 6 ? 5 * 40 : round * 40; // round 6: the fields of round 5
+                for (uint64_t i = 0; i < 120; ++i) {
+                    const int x = -90 + shift + int(toUnit(hashCounters(9, i, 0, 0)) * 200);
+                    const int y = -20 + int(toUnit(hashCounters(9, i, 1, uint64_t(round == 6 ? 5 : round))) * 380);
+                    (i % 3 ? T : p)->tree().setValue(openvdb::Coord(x, y, 0), 0.25f);
+                }
+                const auto pf = plane::foldGrid(*p), tf = plane::foldGrid(*T);
+                const auto fresh = buildActiveRegionOfFolded({pf.get(), tf.get()}, rs, 2, dom, steps);
+                if (!standing) {
+                    standing = fresh->deepCopy();
+                    foldedStanding = plane::foldTopology(*standing);
+                    continue;
+                }
+                RegionEdit edit;
+                CHECK(buildActiveRegionOfFolded({pf.get(), tf.get()}, rs, 2, dom, steps, standing, &edit) == standing);
+                CHECK(edit.empty() == (round == 6)); // unchanged fields: nothing edited
+                removed += edit.removed.size();
+                added += edit.added.size();
+                CHECK(leavesAndNodes(standing->tree()) == leavesAndNodes(fresh->tree()));
+                CHECK(standing->tree().hasSameTopology(fresh->tree()));
+                plane::refoldTopology(*foldedStanding, *standing, edit.removed, edit.added);
+                const auto foldedFresh = plane::foldTopology(*fresh);
+                CHECK(leavesAndNodes(foldedStanding->tree()) == leavesAndNodes(foldedFresh->tree()));
+            }
+            CHECK(removed > 100); // the history did lose and gain leaves
+            CHECK(added > 100);
+        }
 }
 
 TEST_CASE("A folded field resampled in place exports the bits its unfolded copy exports", "[fast][fold][export]")

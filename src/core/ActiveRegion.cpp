@@ -1,6 +1,7 @@
 #include <frostvdb/core/ActiveRegion.h>
 #include <frostvdb/core/PlaneFold.h>
 #include <frostvdb/core/RegionOfTopology.h>
+#include <frostvdb/core/RemoveLeaves.h>
 
 #include <openvdb/tools/Morphology.h>
 #include <openvdb/tools/Prune.h>
@@ -150,6 +151,39 @@ bool anyActiveTile(const std::vector<const GridT*>& fields)
     return false;
 }
 
+/// Edits the plane region @a region into the leaves marked in @a table (leaf units, nx x ny from
+/// (lx0, ly0)): its leaves not marked are removed, marked leaves it lacks are added whole and
+/// clipped to the support, as a fresh build makes them (its leaves are whole already: every
+/// region path makes whole leaves). Lists both in @a edit.
+void editPlaneRegion(openvdb::MaskGrid& region, std::vector<uint8_t>& table, int lx0, int ly0, int nx, int ny,
+                     int zLeaf, const Domain& domain, RegionEdit& edit)
+{
+    auto floorDiv = [](int v) { return v >= 0 ? v / kLeafDim : -((-v + kLeafDim - 1) / kLeafDim); };
+    constexpr uint8_t kHeld = 2; // marked and already in the region
+    edit.removed.clear();
+    edit.added.clear();
+    for (auto it = region.tree().cbeginLeaf(); it; ++it) {
+        const int x = floorDiv(it->origin().x()) - lx0, y = floorDiv(it->origin().y()) - ly0;
+        uint8_t* t = it->origin().z() == zLeaf && x >= 0 && y >= 0 && x < nx && y < ny
+                         ? &table[size_t(y) * size_t(nx) + size_t(x)] : nullptr;
+        if (t && *t) *t = kHeld;
+        else edit.removed.push_back(it->origin());
+    }
+    removeLeaves(region.tree(), edit.removed);
+    openvdb::MaskTree added(false);
+    {
+        openvdb::tree::ValueAccessor<openvdb::MaskTree> acc(added);
+        for (int y = 0; y < ny; ++y)
+            for (int x = 0; x < nx; ++x)
+                if (table[size_t(y) * size_t(nx) + size_t(x)] == 1)
+                    acc.touchLeaf(openvdb::Coord((lx0 + x) * kLeafDim, (ly0 + y) * kLeafDim, zLeaf));
+    }
+    fillLeaves(added, domain);
+    domain.clipToSupport(added);
+    for (auto it = added.cbeginLeaf(); it; ++it) edit.added.push_back(it->origin());
+    if (!edit.added.empty()) region.tree().topologyUnion(added);
+}
+
 /// The plane region computed leaf by leaf, the same set of whole leaves the voxel dilation
 /// gives (a leaf is in when one of its cells lies within `iterations` of a source voxel: L1
 /// for the 4-neighbour dilation, Chebyshev for the hexagonal 3x3 one), without building or
@@ -215,7 +249,8 @@ struct PlaneLeafRows {
 template <typename GridT>
 openvdb::MaskGrid::Ptr planeRegionByLeaves(const std::vector<const GridT*>& fields, int iterations,
                                            bool chebyshev, const Domain& domain,
-                                           const openvdb::MaskGrid::Ptr& previous, bool folded = false)
+                                           const openvdb::MaskGrid::Ptr& previous, bool folded = false,
+                                           RegionEdit* edit = nullptr)
 {
     constexpr int kMaxLeaves = 3; // neighbour leaves reached along an axis
     const int R = (iterations + kLeafDim - 1) / kLeafDim;
@@ -281,6 +316,10 @@ openvdb::MaskGrid::Ptr planeRegionByLeaves(const std::vector<const GridT*>& fiel
                 if (x >= 0 && y >= 0 && x < nx && y < ny) table[size_t(y) * size_t(nx) + size_t(x)] = 1;
             }
         }
+    }
+    if (edit && previous) {
+        editPlaneRegion(*previous, table, lx0, ly0, nx, ny, zLeaf, domain, *edit);
+        return previous;
     }
     size_t marked = 0;
     for (uint8_t t : table) marked += t;
@@ -369,14 +408,15 @@ openvdb::MaskGrid::Ptr buildActiveRegionOfTopology(const std::vector<const openv
 
 openvdb::MaskGrid::Ptr buildActiveRegionOfFolded(const std::vector<const openvdb::FloatGrid*>& folded,
                                                  const RegionSettings& settings, int reach, const Domain& domain,
-                                                 int steps, const openvdb::MaskGrid::Ptr& previous)
+                                                 int steps, const openvdb::MaskGrid::Ptr& previous, RegionEdit* edit)
 {
+    if (edit) *edit = RegionEdit{};
     if (settings.dense) // the whole support: the fields are not read
         return regionOf(std::vector<const openvdb::MaskGrid*>{}, settings, reach, domain, steps, previous);
     if (domain.flat() && !anyActiveTile(folded)) {
         const int iterations = std::max(1, steps) * (reach + settings.frontTravel);
         const bool hex = domain.lattice().kind() == LatticeKind::Hexagonal;
-        if (auto r = planeRegionByLeaves(folded, iterations, hex, domain, previous, true)) return r;
+        if (auto r = planeRegionByLeaves(folded, iterations, hex, domain, previous, true, edit)) return r;
     }
     // a reach beyond the leaf-level path, or active tiles: through the plane-layout topology
     std::vector<openvdb::MaskGrid::Ptr> held;

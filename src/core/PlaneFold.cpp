@@ -3,7 +3,11 @@
 /// values, leaf by leaf, so values and active states keep their bits.
 #include <frostvdb/core/PlaneFold.h>
 
+#include <frostvdb/core/RemoveLeaves.h>
+
+#include <algorithm>
 #include <stdexcept>
+#include <string>
 
 namespace frostvdb {
 namespace plane {
@@ -90,31 +94,84 @@ typename GridT::Ptr foldGrid(const GridT& planeGrid)
     return out;
 }
 
+namespace {
+
+using MaskLeaf = openvdb::MaskTree::LeafNodeType;
+
+/// Sets the folded bits of plane leaf @a pl (layer 0) in its folded leaf's mask @a fm.
+void foldLeafInto(const MaskLeaf& pl, openvdb::util::NodeMask<3>& fm)
+{
+    // plane word dx holds bit (dy << 3) of (dx, dy); the folded row dy takes it at bit (lo.x & 63) | dx
+    const int g = pl.origin().x() & 63;
+    // a region's plane leaves are whole leaves (all 64 cells of layer 0) but at the support's
+    // edge: those fill their byte of every folded row at once
+    constexpr uint64_t kLayer0 = 0x0101010101010101ull;
+    bool whole = true;
+    for (int dx = 0; dx < 8 && whole; ++dx)
+        whole = (pl.getValueMask().template getWord<uint64_t>(openvdb::Index(dx)) & kLayer0) == kLayer0;
+    if (whole) {
+        for (int dy = 0; dy < 8; ++dy) fm.template getWord<uint64_t>(openvdb::Index(dy)) |= uint64_t(0xff) << g;
+        return;
+    }
+    for (int dx = 0; dx < 8; ++dx) {
+        const uint64_t w = pl.getValueMask().template getWord<uint64_t>(openvdb::Index(dx));
+        for (int dy = 0; dy < 8; ++dy)
+            if ((w >> (dy << 3)) & 1u) fm.template getWord<uint64_t>(openvdb::Index(dy)) |= uint64_t(1) << (g | dx);
+    }
+}
+
+void requireLayer0(const openvdb::Coord& lo, const char* who)
+{
+    if (lo.z() != 0) throw std::logic_error(std::string(who) + ": a plane region has a leaf off layer 0");
+}
+
+} // namespace
+
 openvdb::MaskGrid::Ptr foldTopology(const openvdb::MaskGrid& planeRegion)
 {
-    using MaskLeaf = openvdb::MaskTree::LeafNodeType;
     auto out = openvdb::MaskGrid::create(false);
     out->setTransform(planeRegion.transform().copy());
     markFolded(*out);
     openvdb::tree::ValueAccessor<openvdb::MaskTree> acc(out->tree());
     for (auto it = planeRegion.tree().cbeginLeaf(); it; ++it) {
-        const MaskLeaf& pl = *it;
-        const openvdb::Coord lo = pl.origin();
-        if (lo.z() != 0) throw std::logic_error("foldTopology: a plane region has a leaf off layer 0");
+        requireLayer0(it->origin(), "foldTopology");
         // every plane leaf has its folded leaf, even an empty one (the kernel looks it up)
-        auto& fm = acc.touchLeaf(foldedLeafOrigin(lo))->getValueMask();
-        // plane word dx holds bit (dy << 3) of (dx, dy); the folded row dy takes it at bit (lo.x & 63) | dx
-        const int g = lo.x() & 63;
-        for (int dx = 0; dx < 8; ++dx) {
-            const uint64_t w = pl.getValueMask().template getWord<uint64_t>(openvdb::Index(dx));
-            for (int dy = 0; dy < 8; ++dy)
-                if ((w >> (dy << 3)) & 1u) fm.template getWord<uint64_t>(openvdb::Index(dy)) |= uint64_t(1) << (g | dx);
-        }
+        foldLeafInto(*it, acc.touchLeaf(foldedLeafOrigin(it->origin()))->getValueMask());
     }
     auto tiles = planeRegion.tree().cbeginValueOn();
     tiles.setMaxDepth(openvdb::MaskTree::ValueOnCIter::LEAF_DEPTH - 1);
     if (tiles) throw std::logic_error("foldTopology: a plane region with active tiles");
     return out;
+}
+
+void refoldTopology(openvdb::MaskGrid& folded, const openvdb::MaskGrid& planeRegion,
+                    const std::vector<openvdb::Coord>& removed, const std::vector<openvdb::Coord>& added)
+{
+    auto& tree = folded.tree();
+    std::vector<openvdb::Coord> emptied; // folded leaves none of whose eight plane leaves is left
+    {
+        openvdb::tree::ValueAccessor<openvdb::MaskTree> acc(tree);
+        openvdb::tree::ValueAccessor<const openvdb::MaskTree> plane(planeRegion.tree());
+        for (const openvdb::Coord& lo : removed) {
+            const openvdb::Coord fo = foldedLeafOrigin(lo);
+            MaskLeaf* fl = acc.probeLeaf(fo);
+            if (!fl) continue; // its byte went with an earlier removal's leaf
+            const int g = lo.x() & 63;
+            for (int dy = 0; dy < 8; ++dy) fl->getValueMask().template getWord<uint64_t>(openvdb::Index(dy)) &= ~(uint64_t(0xff) << g);
+            bool left = false;
+            for (int c = 0; c < 8 && !left; ++c) left = plane.probeConstLeaf(openvdb::Coord((fo.y() + c) * 8, fo.x(), 0)) != nullptr;
+            if (!left) emptied.push_back(fo);
+        }
+        for (const openvdb::Coord& lo : added) {
+            requireLayer0(lo, "refoldTopology");
+            const MaskLeaf* pl = plane.probeConstLeaf(lo);
+            if (!pl) throw std::logic_error("refoldTopology: an added leaf is not in the plane region");
+            foldLeafInto(*pl, acc.touchLeaf(foldedLeafOrigin(lo))->getValueMask());
+        }
+    }
+    std::sort(emptied.begin(), emptied.end());
+    emptied.erase(std::unique(emptied.begin(), emptied.end()), emptied.end());
+    removeLeaves(tree, emptied);
 }
 
 template <typename GridT>

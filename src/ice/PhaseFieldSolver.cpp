@@ -730,18 +730,45 @@ struct PhaseFieldSolver::FoldedLayout {
     FoldedLayout(const openvdb::MaskGrid& planeRegion, uint64_t gen)
         : region(plane::foldTopology(planeRegion)), generation(gen)
     {
+        number(planeRegion);
+    }
+    /// The layout of the plane region edited in place by @a edit (this one's region when it was).
+    void refold(const openvdb::MaskGrid& planeRegion, const RegionEdit& edit, uint64_t gen)
+    {
+        plane::refoldTopology(*region, planeRegion, edit.removed, edit.added);
+        generation = gen;
+        number(planeRegion);
+    }
+    /// leafOf and foldedLeaves for the current folded region.
+    void number(const openvdb::MaskGrid& planeRegion)
+    {
         openvdb::tree::LeafManager<const openvdb::MaskTree> folded(region->tree()), planeLeaves(planeRegion.tree());
         foldedLeaves = folded.leafCount();
-        std::vector<std::pair<openvdb::Coord, uint32_t>> byOrigin(foldedLeaves);
-        for (size_t i = 0; i < foldedLeaves; ++i) byOrigin[i] = {folded.leaf(i).origin(), uint32_t(i)};
-        std::sort(byOrigin.begin(), byOrigin.end());
-        leafOf.resize(planeLeaves.leafCount());
-        for (size_t i = 0; i < leafOf.size(); ++i) {
-            const openvdb::Coord o = plane::foldedLeafOrigin(planeLeaves.leaf(i).origin());
-            const auto it = std::lower_bound(byOrigin.begin(), byOrigin.end(), std::make_pair(o, uint32_t(0)));
-            if (it == byOrigin.end() || it->first != o) throw std::logic_error("FoldedLayout: a region leaf has no folded leaf");
-            leafOf[i] = it->second;
-        }
+        // A folded leaf's origin (y, (x >> 3) & ~7, 0) gives the key (y >> 3, x >> 6): a dense
+        // table of keys over the folded leaves' box numbers them, read by every plane leaf.
+        openvdb::CoordBBox box;
+        for (size_t i = 0; i < foldedLeaves; ++i) box.expand(tableKey(folded.leaf(i).origin()));
+        const openvdb::Coord dim = box.empty() ? openvdb::Coord(0) : box.dim();
+        constexpr uint32_t kNone = ~uint32_t(0);
+        std::vector<uint32_t> indexAt(size_t(dim.x()) * size_t(dim.y()), kNone);
+        auto slot = [&](const openvdb::Coord& key) {
+            return size_t(key.y() - box.min().y()) * size_t(dim.x()) + size_t(key.x() - box.min().x());
+        };
+        for (size_t i = 0; i < foldedLeaves; ++i) indexAt[slot(tableKey(folded.leaf(i).origin()))] = uint32_t(i);
+        leafOf.assign(planeLeaves.leafCount(), kNone);
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, leafOf.size(), 1024), [&](const tbb::blocked_range<size_t>& r) {
+            for (size_t i = r.begin(); i != r.end(); ++i) {
+                const openvdb::Coord key = tableKey(plane::foldedLeafOrigin(planeLeaves.leaf(i).origin()));
+                if (box.isInside(key)) leafOf[i] = indexAt[slot(key)];
+            }
+        });
+        if (std::find(leafOf.begin(), leafOf.end(), kNone) != leafOf.end())
+            throw std::logic_error("FoldedLayout: a region leaf has no folded leaf");
+    }
+    /// A folded leaf origin in leaf units (z 0).
+    static openvdb::Coord tableKey(const openvdb::Coord& foldedOrigin)
+    {
+        return openvdb::Coord(foldedOrigin.x() >> 3, foldedOrigin.y() >> 3, 0);
     }
 };
 
@@ -761,23 +788,35 @@ void PhaseFieldSolver::rebuildRegionOf(openvdb::FloatGrid& p, openvdb::FloatGrid
         inputGeneration = 0;
     }
     const int k = mCadence.begin(mRegionMask && !ours);
-    auto region = rebuildRegion(p, T, k);
-    const bool full = regionFillsDomain(*region, mDomain);
-    if (full) mCadence.filledDomain();
-    if (!mRegionMask || (region != mRegionMask && !region->tree().hasSameTopology(mRegionMask->tree()))) {
+    // Folded fields: the standing region is edited into the new one when nobody else holds it
+    // (a checkpoint may), and its folded layout with it.
+    RegionEdit edit;
+    const bool editable = plane::isFolded(p) && mRegionMask && mRegionMask.use_count() == 1;
+    auto region = rebuildRegion(p, T, k, editable ? &edit : nullptr);
+    const bool edited = !edit.empty();
+    // the standing region's count when it is returned as it was (a walk over every leaf)
+    const uint64_t voxels = region == mRegionMask && !edited ? mRegionVoxels : region->tree().activeVoxelCount();
+    if (voxels == mDomain.voxelCount()) mCadence.filledDomain(); // regionFillsDomain
+    if (edited) {
+        const bool layoutCurrent = mFolded && mFolded->generation == mGeneration && mFolded->region.use_count() == 1;
+        ++mGeneration; // a new topology: cached groups and layouts are stale
+        mRegionVoxels = voxels;
+        if (layoutCurrent) mFolded->refold(*mRegionMask, edit, mGeneration);
+    } else if (!mRegionMask || (region != mRegionMask && !region->tree().hasSameTopology(mRegionMask->tree()))) {
         ++mGeneration; // a new topology: cached groups and layouts are stale
         mRegionMask = region;
-        mRegionVoxels = mRegionMask->tree().activeVoxelCount();
+        mRegionVoxels = voxels;
     }
     if (stats) stats->rebuilds += 1;
 }
 
-openvdb::MaskGrid::Ptr PhaseFieldSolver::rebuildRegion(const openvdb::FloatGrid& p, const openvdb::FloatGrid& T, int steps) const
+openvdb::MaskGrid::Ptr PhaseFieldSolver::rebuildRegion(const openvdb::FloatGrid& p, const openvdb::FloatGrid& T, int steps,
+                                                       RegionEdit* edit) const
 {
     if (!plane::isFolded(p))
         return buildActiveRegion({&p, &T}, mRegion, kHalo, mDomain, steps, mRegionMask);
     // folded p and T: the same plane-layout region, read from their folded leaves chunk by chunk
-    return buildActiveRegionOfFolded({&p, &T}, mRegion, kHalo, mDomain, steps, mRegionMask);
+    return buildActiveRegionOfFolded({&p, &T}, mRegion, kHalo, mDomain, steps, mRegionMask, edit);
 }
 
 PhaseFieldSolver::PhaseFieldSolver(const KobayashiParams& params, const Domain& domain, const RegionSettings& region)

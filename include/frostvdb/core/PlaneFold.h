@@ -27,6 +27,7 @@
 #include <cstdint>
 #include <cstdlib>
 #include <string>
+#include <vector>
 
 namespace frostvdb {
 namespace plane {
@@ -135,6 +136,11 @@ typename GridT::Ptr foldGrid(const GridT& planeGrid);
 /// The folded topology of a plane-layout mask @a planeRegion (active voxels only): what a
 /// folded field matched to that region has (matchTopology on the result gives it).
 openvdb::MaskGrid::Ptr foldTopology(const openvdb::MaskGrid& planeRegion);
+/// @a folded, foldTopology of a plane region that has since lost the plane leaves at @a removed
+/// and gained those at @a added (core/RegionOfTopology.h, RegionEdit), edited to be
+/// foldTopology(@a planeRegion) node for node: only the changed leaves' folded leaves are touched.
+void refoldTopology(openvdb::MaskGrid& folded, const openvdb::MaskGrid& planeRegion,
+                    const std::vector<openvdb::Coord>& removed, const std::vector<openvdb::Coord>& added);
 /// The plane-layout topology (active voxels only) of a folded grid: what the region rebuild
 /// reads of a folded p or T (core/ActiveRegion.h). Active tiles are expanded.
 template <typename GridT>

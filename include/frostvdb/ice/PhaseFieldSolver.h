@@ -44,6 +44,7 @@ struct PhaseFieldStepStats {
 };
 
 struct LeafGroups;
+struct RegionEdit;
 
 class PhaseFieldSolver {
 public:
@@ -153,8 +154,10 @@ private:
     /// generation (@a inputGeneration is reset when the inputs were truncated).
     void rebuildRegionOf(openvdb::FloatGrid& p, openvdb::FloatGrid& T, bool ours, uint64_t& inputGeneration,
                          PhaseFieldStepStats* stats);
-    /// The region built from @a p and @a T (their plane-layout topology when folded) for @a steps.
-    openvdb::MaskGrid::Ptr rebuildRegion(const openvdb::FloatGrid& p, const openvdb::FloatGrid& T, int steps) const;
+    /// The region built from @a p and @a T (their plane-layout topology when folded) for @a steps;
+    /// with @a edit (folded fields), the standing region edited in place (RegionOfTopology.h).
+    openvdb::MaskGrid::Ptr rebuildRegion(const openvdb::FloatGrid& p, const openvdb::FloatGrid& T, int steps,
+                                         RegionEdit* edit = nullptr) const;
     /// Folded p and T: the current region's folded layout (made once per region generation).
     const FoldedLayout& foldedLayout();
     /// An output grid with the region's topology, reusing @a spare when nobody else holds it.
