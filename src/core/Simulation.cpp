@@ -237,7 +237,6 @@ Simulation::Simulation(Scene scene) : mScene(std::move(scene))
     }
     readRegionSection(mScene.section("region"), mWorld.region);
     readOutputSection(mScene.section("output"), mOutput, &mWorld.worldScale);
-    refuseDisplacementTiling();
     mWorld.sceneLabel = mScene.label();
     mWorld.sceneText = mScene.text();
     try {
@@ -275,6 +274,7 @@ Simulation::Simulation(Scene scene) : mScene(std::move(scene))
             if (u.key->role == FieldRole::Field && (u.access & kWrites)) writers.count[u.key->name] += 1;
     mEffectSeconds.assign(mEffects.size(), 0.0);
     checkMemoryBudget();
+    refuseDisplacementTiling(); // after the budget: a domain too large to hold is named as such
 }
 
 /// A flat domain's displacement raster must fit 10 UDIM tiles across (tile numbers 1001 + u + 10 v):
