@@ -501,10 +501,11 @@ std::vector<std::string> writeDisplacementMaps(const openvdb::FloatGrid& growth,
     }
     // UDIM tiles: tile (u, v) holds raster offsets [u T, (u+1) T) x [v T, (v+1) T), u along +x
     // from the raster's left edge, v along +y from its bottom; number 1001 + u + 10 v
-    const int nu = (W + tileSize - 1) / tileSize, nv = (H + tileSize - 1) / tileSize;
-    if (nu > 10)
+    const int nu = udimTilesAcross(W, tileSize), nv = udimTilesAcross(H, tileSize);
+    if (nu > kUdimTilesAcross) // Simulation refuses such scenes at load; a direct caller gets this
         throw std::invalid_argument("displacement map " + std::to_string(W) + " pixels wide needs " +
-                                    std::to_string(nu) + " UDIM tiles across (at most 10): raise output.displacement_tile");
+                                    std::to_string(nu) + " UDIM tiles across (at most " +
+                                    std::to_string(kUdimTilesAcross) + "): raise output.displacement_tile");
     std::vector<std::vector<std::pair<int, int>>> perTile(size_t(nu) * nv);
     const int bt = tileSize / 8; // blocks per tile side when the tile is a multiple of 8
     for (const auto& b : blocks) {

@@ -283,13 +283,14 @@ void Simulation::refuseDisplacementTiling() const
 {
     if (!mOutput.displacementPng || !mWorld.domain.flat()) return;
     const int width = squareRaster(mWorld.domain).width(), tile = mOutput.displacementTile;
-    if (width <= tile) return;
-    const int across = (width + tile - 1) / tile;
-    if (across <= 10) return;
+    const int across = udimTilesAcross(width, tile);
+    if (across <= kUdimTilesAcross) return;
     throw SceneError(mScene.label(), mScene.sectionLine("output"), "output.displacement_tile",
                      "the displacement map is " + std::to_string(width) + " pixels wide: " + std::to_string(across) +
-                         " UDIM tiles of " + std::to_string(tile) + " across, at most 10 fit; set it to at least " +
-                         std::to_string((width + 9) / 10) + " (allowed 64-65536), or output.displacement_png = false");
+                         " UDIM tiles of " + std::to_string(tile) + " across, at most " +
+                         std::to_string(kUdimTilesAcross) + " fit; set it to at least " +
+                         std::to_string(udimTilesAcross(width, kUdimTilesAcross)) +
+                         " (allowed 64-65536), or output.displacement_png = false");
 }
 
 /// Two effects that both put a grid of one name into every frame cannot be written (a frame file

@@ -796,7 +796,7 @@ void PhaseFieldSolver::rebuildRegionOf(openvdb::FloatGrid& p, openvdb::FloatGrid
     const bool edited = !edit.empty();
     // the standing region's count when it is returned as it was (a walk over every leaf)
     const uint64_t voxels = region == mRegionMask && !edited ? mRegionVoxels : region->tree().activeVoxelCount();
-    if (voxels == mDomain.voxelCount()) mCadence.filledDomain(); // regionFillsDomain
+    if (voxels == mDomain.voxelCount()) mCadence.filledDomain(); // regionFillsDomain, from the count at hand
     if (edited) {
         const bool layoutCurrent = mFolded && mFolded->generation == mGeneration && mFolded->region.use_count() == 1;
         ++mGeneration; // a new topology: cached groups and layouts are stale

@@ -92,6 +92,10 @@ void writeDisplacementPng(const openvdb::FloatGrid& growth, const Domain& domain
 /// at the bottom-left corner of tile 1001, padding beyond the raster is background), and only
 /// tiles that hold active growth are written. Only pixels within reach of an active voxel are
 /// sampled. At most 10 tiles across (the UDIM convention). Returns the files written.
+/// The UDIM convention's tiles per row (udim = 1001 + u + 10 v), and the tiles of @a tileSize
+/// pixels a raster @a width pixels wide takes across.
+constexpr int kUdimTilesAcross = 10;
+inline int udimTilesAcross(int width, int tileSize) { return (width + tileSize - 1) / tileSize; }
 std::vector<std::string> writeDisplacementMaps(const openvdb::FloatGrid& growth, const Domain& domain,
                                                const std::string& stem, int tileSize);
 
