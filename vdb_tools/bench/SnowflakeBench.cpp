@@ -2,7 +2,8 @@
 /// @brief `frostvdb bench snowflake`: the ice paper's Figure 7 scene (scenes/snowflake.toml:
 /// 1024^2 hexagonal, H = 60000 walkers per step, 200 steps, DLA + phase field) run end to end
 /// with its frames written, timed per phase. The paper needed 2 hours on a 2.66 GHz Xeon; the
-/// target here (issue 10) is at most 15 s on the 2-core machine, output under 10 % of it.
+/// target here is issue 24's: at most 10 s wall on the 2-core machine (issue 10 asked 15 s),
+/// output under 10 % of it.
 #include <frostvdb/BuildPaths.h>
 #include <frostvdb/core/Bench.h>
 #include <frostvdb/core/Error.h>
@@ -62,9 +63,9 @@ int benchSnowflake(const BenchArgs& args)
                 detail["phase_field.region"], detail["phase_field.kernel"], detail["phase_field.solve"],
                 detail["phase_field.truncate"], detail["phase_field.mean_iterations_p"],
                 detail["phase_field.mean_iterations_T"], detail["phase_field.clipped_voxels"]);
-    std::printf("peak memory %.0f MiB; the paper: 2 hours (7200 s) on a 2.66 GHz Xeon; target <= 15 s with output < 10%%: %s\n",
+    std::printf("peak memory %.0f MiB; the paper: 2 hours (7200 s) on a 2.66 GHz Xeon; target (issue 24) <= 10 s with output < 10%%: %s\n",
                 sum.peakRssBytes / 1048576.0,
-                sum.totalSeconds <= 15.0 && sum.outputSeconds < 0.1 * sum.totalSeconds ? "met" : "MISSED");
+                sum.totalSeconds <= 10.0 && sum.outputSeconds < 0.1 * sum.totalSeconds ? "met" : "MISSED");
     // the last frame's output once more, piece by piece
     using Clock = std::chrono::steady_clock;
     auto since = [](Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); };
