@@ -358,6 +358,10 @@ constexpr double kMaxCentreWeight = 6.0;
 /// Surface nodes: the same bound on the gradient weights' absolute sum (a central difference
 /// has 1, the flat layer's fit 1.0 per axis).
 constexpr double kMaxGradientSpread = 4.0;
+/// Surface nodes: a tap whose weights are all below this fraction of their operator's largest
+/// (Laplacian, d/ds, d/dt) is dropped and the stencil refitted on the rest (see surfaceStencil).
+/// Below 1/8, so a flat axis-aligned layer keeps its corners.
+constexpr double kStrongTapFraction = 0.12;
 /// Surface nodes: the weight powers phi = r^-power of the Laplacian's and the gradient's fits.
 /// 6 gives a flat axis-aligned layer the isotropic 9-point Laplacian (docs/shells.md).
 constexpr double kLaplacianWeightPower = 8.0;
@@ -376,31 +380,78 @@ void ShellBand::surfaceStencil(size_t i, const openvdb::Int32Grid::ConstAccessor
     const Coord c = mCoords[i];
     const Vec3d q = closestPoint(i);
     const VoxelFrame f = frame(i);
-    struct Cand { int32_t id; double s, t, r2; };
+    struct Cand {
+        int32_t id;
+        double s, t, r2;
+        double phiLap, phiGrad; // the fits' weights r^-power, computed once (a refit reuses them)
+    };
     std::vector<Cand> cand;
     const double minD = kMinTapDistance, pLap = kLaplacianWeightPower, pGrad = kGradientWeightPower;
     // weights of least sum w^2 / phi, phi = r^-power, exact on (s, t, s^2, st, t^2) for @a rhs
-    auto fit = [&](double power, const Eigen::Matrix<double, 5, Eigen::Dynamic>& rhs,
+    auto fit = [&](double Cand::*power, const Eigen::Matrix<double, 5, Eigen::Dynamic>& rhs,
                    Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic>& w) {
         Eigen::Matrix<double, 5, 5> g = Eigen::Matrix<double, 5, 5>::Zero();
         std::vector<double> phi(cand.size());
         for (size_t k = 0; k < cand.size(); ++k) {
             const Cand& c = cand[k];
-            phi[k] = std::pow(c.r2, -0.5 * power);
+            phi[k] = c.*power;
             const Eigen::Matrix<double, 5, 1> m(c.s, c.t, c.s * c.s, c.s * c.t, c.t * c.t);
             g += phi[k] * m * m.transpose();
         }
-        Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 5, 5>> eig(g);
-        const auto& ev = eig.eigenvalues();
-        if (!(ev(0) > 1e-9 * ev(4))) return false; // degenerate layout (collinear)
-        const Eigen::Matrix<double, 5, Eigen::Dynamic> y =
-            eig.eigenvectors() * (ev.cwiseInverse().asDiagonal() * (eig.eigenvectors().transpose() * rhs));
+        // g is symmetric positive semi-definite: a pivoted LDL^T solves it (an eigensolver did
+        // until session 17, at four times the cost: most of the band's build)
+        const Eigen::LDLT<Eigen::Matrix<double, 5, 5>> ldlt(g);
+        const auto d = ldlt.vectorD().cwiseAbs();
+        if (ldlt.info() != Eigen::Success || !ldlt.isPositive() || !(d.minCoeff() > 1e-9 * d.maxCoeff()))
+            return false; // degenerate layout (collinear)
+        const Eigen::Matrix<double, 5, Eigen::Dynamic> y = ldlt.solve(rhs);
         w.resize(Eigen::Index(cand.size()), rhs.cols());
         for (size_t k = 0; k < cand.size(); ++k) {
             const Cand& c = cand[k];
             const Eigen::Matrix<double, 5, 1> m(c.s, c.t, c.s * c.s, c.s * c.t, c.t * c.t);
             w.row(Eigen::Index(k)) = phi[k] * (m.transpose() * y);
         }
+        return true;
+    };
+    // a lopsided neighbourhood (an open border, a gap in a steep layer) fits the quadratic with
+    // large weights of both signs: such a fit is refused (the wider ring then, so explicit steps
+    // stay stable; past that, the ring estimate below), as are negative Laplacian weights beyond
+    // a tenth of the centre weight (a lopsided neighbourhood at an open border: a 0.5 mm
+    // windshield went unstable at a corner after 1,600 steps)
+    auto acceptable = [](const Eigen::MatrixXd& wl, const Eigen::MatrixXd& wg) {
+        double centre = 0, spread = 0, gradSpread = 0;
+        for (Eigen::Index k = 0; k < wl.rows(); ++k) {
+            centre += wl(k, 0);
+            spread += std::fabs(wl(k, 0));
+            gradSpread += std::fabs(wg(k, 0)) + std::fabs(wg(k, 1));
+        }
+        const double negative = 0.5 * (spread - centre);
+        return !(centre > kMaxCentreWeight || spread > 2.0 * kMaxCentreWeight || gradSpread > kMaxGradientSpread ||
+                 negative > 0.1 * centre);
+    };
+    // Taps weak in every operator (each weight below kStrongTapFraction of that operator's
+    // largest) are dropped and the rest refitted: about a fifth of a tilted layer's taps carry
+    // little and cost as much as the strong ones in every step (docs/shells.md "The step"). On a
+    // flat axis-aligned layer every tap is strong (the corners carry 1/8 of the Laplacian), so
+    // its stencil is unchanged. Returns whether @a cand was thinned (the full set in allCand).
+    std::vector<Cand> allCand;
+    auto keepStrongTaps = [&](const Eigen::MatrixXd& wl, const Eigen::MatrixXd& wg) {
+        double mL = 0, mU = 0, mV = 0;
+        for (Eigen::Index k = 0; k < wl.rows(); ++k) {
+            mL = std::max(mL, std::fabs(wl(k, 0)));
+            mU = std::max(mU, std::fabs(wg(k, 0)));
+            mV = std::max(mV, std::fabs(wg(k, 1)));
+        }
+        const double part = kStrongTapFraction;
+        std::vector<Cand> strong;
+        for (size_t k = 0; k < cand.size(); ++k) {
+            const Eigen::Index r = Eigen::Index(k);
+            if (std::fabs(wl(r, 0)) >= part * mL || std::fabs(wg(r, 0)) >= part * mU || std::fabs(wg(r, 1)) >= part * mV)
+                strong.push_back(cand[k]);
+        }
+        if (strong.size() < 5 || strong.size() == cand.size()) return false; // 5: the quadratic's unknowns
+        allCand.swap(cand);
+        cand.swap(strong);
         return true;
     };
     Eigen::Matrix<double, 5, Eigen::Dynamic> lapRhs = Eigen::Matrix<double, 5, 1>::Zero(), gradRhs =
@@ -421,26 +472,22 @@ void ShellBand::surfaceStencil(size_t i, const openvdb::Int32Grid::ConstAccessor
                     // nearly the same surface point (two voxels of a steep slab): it adds no
                     // information, and a weight ~ 1/r^2 that explicit steps could not afford
                     if (r2 < minD * minD) continue;
-                    cand.push_back({id, s, t, r2});
+                    cand.push_back({id, s, t, r2, std::pow(r2, -0.5 * pLap), std::pow(r2, -0.5 * pGrad)});
                 }
         if (cand.size() < 5) continue;
         Eigen::MatrixXd wl, wg;
-        if (!fit(pLap, lapRhs, wl) || !fit(pGrad, gradRhs, wg)) continue; // a wider ring
-        double centre = 0, spread = 0, gradSpread = 0;
-        for (Eigen::Index k = 0; k < wl.rows(); ++k) {
-            centre += wl(k, 0);
-            spread += std::fabs(wl(k, 0));
-            gradSpread += std::fabs(wg(k, 0)) + std::fabs(wg(k, 1));
+        if (!fit(&Cand::phiLap, lapRhs, wl) || !fit(&Cand::phiGrad, gradRhs, wg)) continue; // a wider ring
+        if (!acceptable(wl, wg)) continue; // a wider ring
+        if (keepStrongTaps(wl, wg)) {
+            // refitted on the strong taps alone: kept when it passes the same checks
+            Eigen::MatrixXd sl, sg;
+            if (fit(&Cand::phiLap, lapRhs, sl) && fit(&Cand::phiGrad, gradRhs, sg) && acceptable(sl, sg)) {
+                wl = sl;
+                wg = sg;
+            } else {
+                cand.swap(allCand);
+            }
         }
-        // a lopsided neighbourhood (an open border, a gap in a steep layer) fits the quadratic
-        // with large weights of both signs: the wider ring then, so explicit steps stay stable;
-        // past that, the ring estimate below
-        // negative Laplacian weights beyond a tenth of the centre weight (a lopsided neighbourhood
-        // at an open border: a 0.5 mm windshield went unstable at a corner after 1,600 steps)
-        const double negative = 0.5 * (spread - centre);
-        if (centre > kMaxCentreWeight || spread > 2.0 * kMaxCentreWeight || gradSpread > kMaxGradientSpread ||
-            negative > 0.1 * centre)
-            continue;
         for (size_t k = 0; k < cand.size(); ++k)
             out.push_back({cand[k].id, float(wl(Eigen::Index(k), 0)), float(wg(Eigen::Index(k), 0)),
                            float(wg(Eigen::Index(k), 1))});

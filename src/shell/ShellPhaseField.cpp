@@ -168,6 +168,7 @@ void ShellPhaseField::grow()
     // lw_cn fades the anisotropy out where p is flat (the plane's kobayashiEpsSquared): eps_bar
     if (b.surfaceNodes()) { // the surface-node step needs no extension or lw_cn arrays
         mCoef.resize(n, SurfaceCoefficients{float(eps0 * eps0), 0.f, 0.f, 0.f});
+        mFieldSums.resize(n);
         for (auto* v : {&mPn, &mTn, &mGx, &mGy}) v->resize(n, 0.f);
     } else {
         mA.resize(n, mParams.scheme == PhaseFieldScheme::SecondOrder ? float(mParams.epsBar * mParams.epsBar)
@@ -492,18 +493,21 @@ void ShellPhaseField::stepSurface(double time, int64_t stepIndex, uint64_t seed,
     const float* P = mP.data();
     const float* T = mT.data();
     const auto& leaves = b.leaves();
-    // stage 1, pass 1: the gradient and coefficients (shell/SurfaceTapSums.h: four nodes at a time)
+    // stage 1, pass 1: the sums of p and T, the gradient and coefficients (shell/SurfaceTapSums.h)
     const SurfaceCoefficients4 coefficients4 = fastestSurfaceCoefficients4(mAniso);
     auto coefficientsOf = [&](uint32_t slot) {
         const ShellBand::Leaf& l = leaves[slot];
         size_t i = l.begin;
-        for (; i + 4 <= l.end; i += 4) coefficients4(b, P, mAniso, invH, i, mCoef.data(), mGx.data(), mGy.data());
-        for (; i < l.end; ++i) surfaceCoefficients(b, P, mAniso, invH, i, mCoef.data(), mGx.data(), mGy.data());
+        for (; i + 4 <= l.end; i += 4)
+            coefficients4(b, P, T, mAniso, invH, i, mCoef.data(), mGx.data(), mGy.data(), mFieldSums.data());
+        for (; i < l.end; ++i)
+            surfaceCoefficients(b, P, T, mAniso, invH, i, mCoef.data(), mGx.data(), mGy.data(), mFieldSums.data());
     };
     const SurfaceCoefficients* C = mCoef.data();
+    const FieldSums* sums = mFieldSums.data();
     const float tNext = float(time);
     const float tInf = float(k.farTemperature);
-    // stage 2, pass 2: node i's update from its tap sums (shell/SurfaceTapSums.h: four nodes at a time)
+    // stage 2, pass 2: the sums of the coefficients, node i's update (shell/SurfaceTapSums.h)
     const SurfaceUpdateInputs inputs{P, T, C, mGx.data(), mGy.data(), mMelt.empty() ? nullptr : mMelt.data(), &k, invH,
                                      invH2};
     auto update = [&](size_t i, const TapSums& s) {
@@ -530,7 +534,7 @@ void ShellPhaseField::stepSurface(double time, int64_t stepIndex, uint64_t seed,
         TapSums s[4];
         size_t i = l.begin;
         for (; i + 4 <= l.end; i += 4) {
-            sums4(b, P, T, C, i, s);
+            sums4(b, C, sums, i, s);
             if (!mWind.empty()) {
                 for (size_t n = 0; n < 4; ++n) update(i + n, s[n]);
                 continue;
@@ -545,7 +549,7 @@ void ShellPhaseField::stepSurface(double time, int64_t stepIndex, uint64_t seed,
                 mTn[i + n] = ghost ? tInf : tNew[n];
             }
         }
-        for (; i < l.end; ++i) update(i, tapSums(b, P, T, C, i));
+        for (; i < l.end; ++i) update(i, tapSums(b, C, sums, i));
     };
     // stage 3: the new values become the fields, growth and freeze time recorded, and per leaf
     // whether p crossed 1/2 anywhere in it ([dla] then rescans only those leaves)

@@ -13,18 +13,23 @@
 
 namespace frostvdb::shell {
 
-void surfaceCoefficients(const ShellBand& b, const float* P, const Anisotropy& an, double invH, std::size_t i,
-                         SurfaceCoefficients* C, float* gx, float* gy)
+void surfaceCoefficients(const ShellBand& b, const float* P, const float* T, const Anisotropy& an, double invH,
+                         std::size_t i, SurfaceCoefficients* C, float* gx, float* gy, FieldSums* sums)
 {
     const VoxelFrame f = b.frame(i);
-    // both derivatives in one pass over the taps (each sum in the taps' order)
-    const double p0 = P[i];
-    double su = 0, sv = 0;
+    // every sum of p and T in one pass over the taps (each in the taps' order)
+    const double p0 = P[i], t0 = T[i];
+    double lapP = 0, su = 0, sv = 0, lapT = 0, dtu = 0, dtv = 0;
     for (const SurfaceTap* t = b.tapsBegin(i); t != b.tapsEnd(i); ++t) {
-        const double dp = double(P[t->node]) - p0;
+        const double dp = double(P[t->node]) - p0, dT = double(T[t->node]) - t0;
+        lapP += double(t->lap) * dp;
         su += double(t->du) * dp;
         sv += double(t->dv) * dp;
+        lapT += double(t->lap) * dT;
+        dtu += double(t->du) * dT;
+        dtv += double(t->dv) * dT;
     }
+    sums[i] = FieldSums{lapP, lapT, dtu, dtv};
     const double gu = su * invH, gv = sv * invH;
     double eps, epsPrime;
     an(gu, gv, eps, epsPrime);
@@ -35,26 +40,28 @@ void surfaceCoefficients(const ShellBand& b, const float* P, const Anisotropy& a
     gy[i] = float(gv);
 }
 
-TapSums tapSums(const ShellBand& b, const float* P, const float* T, const SurfaceCoefficients* C, std::size_t i)
+TapSums tapSums(const ShellBand& b, const SurfaceCoefficients* C, const FieldSums* sums, std::size_t i)
 {
     const VoxelFrame f = b.frame(i);
-    const double p0 = P[i], t0v = T[i], a0 = C[i].a;
-    const openvdb::Vec3d c0(C[i].cx, C[i].cy, C[i].cz);
-    const double ct0 = c0.dot(f.tangent), cb0 = c0.dot(f.bitangent);
-    TapSums s;
+    const double a0 = C[i].a, x0 = C[i].cx, y0 = C[i].cy, z0 = C[i].cz;
+    double dau = 0, sux = 0, suy = 0, suz = 0, dav = 0, svx = 0, svy = 0, svz = 0;
     for (const SurfaceTap* t = b.tapsBegin(i); t != b.tapsEnd(i); ++t) {
-        const std::size_t j = std::size_t(t->node);
-        const double dp = double(P[j]) - p0, dT = double(T[j]) - t0v, da = double(C[j].a) - a0;
-        s.lapP += t->lap * dp;
-        s.lapT += t->lap * dT;
-        s.dau += t->du * da;
-        s.dav += t->dv * da;
-        s.dtu += t->du * dT;
-        s.dtv += t->dv * dT;
-        const openvdb::Vec3d cj(C[j].cx, C[j].cy, C[j].cz);
-        s.divC += t->du * (cj.dot(f.tangent) - ct0) + t->dv * (cj.dot(f.bitangent) - cb0);
+        const SurfaceCoefficients& c = C[t->node];
+        const double du = t->du, dv = t->dv;
+        const double da = double(c.a) - a0, dx = double(c.cx) - x0, dy = double(c.cy) - y0, dz = double(c.cz) - z0;
+        dau += du * da;
+        sux += du * dx;
+        suy += du * dy;
+        suz += du * dz;
+        dav += dv * da;
+        svx += dv * dx;
+        svy += dv * dy;
+        svz += dv * dz;
     }
-    return s;
+    // div C = t . SU + b . SV (each dot in Vec3d::dot's order)
+    const double divC = openvdb::Vec3d(sux, suy, suz).dot(f.tangent) + openvdb::Vec3d(svx, svy, svz).dot(f.bitangent);
+    const FieldSums& s = sums[i];
+    return TapSums{s.lapP, s.lapT, dau, dav, divC, s.dtu, s.dtv};
 }
 
 void surfaceUpdate(const SurfaceUpdateInputs& in, std::size_t i, const TapSums& s, double chi, float& pNew,
@@ -95,96 +102,90 @@ FV_AVX2 inline __m256d lanes(const FrameFloats* const f[4], openvdb::Vec3s Frame
     return _mm256_cvtps_pd(_mm_set_ps((f[3]->*v)[axis], (f[2]->*v)[axis], (f[1]->*v)[axis], (f[0]->*v)[axis]));
 }
 
-/// The taps of nodes i .. i + 3 slot by slot: tap(k, q) is node k's q-th, or a padding tap
-/// where it has fewer.
-struct TapGroup {
-    const SurfaceTap* first[4];
-    int count[4], most = 0;
-    SurfaceTap pad[4]; // weight 0 on the node itself: a difference of exactly 0 times 0
-    TapGroup(const ShellBand& b, std::size_t i)
-    {
-        for (int k = 0; k < 4; ++k) {
-            first[k] = b.tapsBegin(i + std::size_t(k));
-            count[k] = int(b.tapsEnd(i + std::size_t(k)) - first[k]);
-            most = std::max(most, count[k]);
-            pad[k].node = int32_t(i) + k;
-            pad[k].lap = pad[k].du = pad[k].dv = 0.f;
-        }
-    }
-    const SurfaceTap* tap(int k, int q) const { return q < count[k] ? first[k] + q : &pad[k]; }
-};
+/// Four rows of four doubles transposed: r[k] lane q becomes r[q] lane k.
+FV_AVX2 inline void transpose4(__m256d r[4])
+{
+    const __m256d t0 = _mm256_unpacklo_pd(r[0], r[1]), t1 = _mm256_unpackhi_pd(r[0], r[1]);
+    const __m256d t2 = _mm256_unpacklo_pd(r[2], r[3]), t3 = _mm256_unpackhi_pd(r[2], r[3]);
+    r[0] = _mm256_permute2f128_pd(t0, t2, 0x20);
+    r[1] = _mm256_permute2f128_pd(t1, t3, 0x20);
+    r[2] = _mm256_permute2f128_pd(t0, t2, 0x31);
+    r[3] = _mm256_permute2f128_pd(t1, t3, 0x31);
+}
 
-FV_AVX2 void tapSums4Avx2(const ShellBand& b, const float* P, const float* T, const SurfaceCoefficients* C,
-                          std::size_t i, TapSums out[4])
+/// A tap's weights as four doubles (0, lap, du, dv): its node index's bits are cleared first, so
+/// no integer is ever converted as a float.
+FV_AVX2 inline __m256d tapWeights(const SurfaceTap* t)
+{
+    return _mm256_cvtps_pd(_mm_blend_ps(_mm_loadu_ps(reinterpret_cast<const float*>(t)), _mm_setzero_ps(), 1));
+}
+
+/// Pass 1's sums of node i: (0, lap p, du p, dv p) and (0, lap T, du T, dv T), each lane the
+/// scalar code's sum in the taps' order.
+FV_AVX2 inline void fieldSums(const ShellBand& b, const float* P, const float* T, std::size_t i, __m256d& onP,
+                              __m256d& onT)
+{
+    const __m256d p0 = splat(double(P[i])), t0 = splat(double(T[i]));
+    __m256d sp = _mm256_setzero_pd(), st = sp;
+    for (const SurfaceTap* t = b.tapsBegin(i); t != b.tapsEnd(i); ++t) {
+        const __m256d w = tapWeights(t);
+        const std::size_t j = std::size_t(t->node);
+        sp = add(sp, mul(w, sub(splat(double(P[j])), p0)));
+        st = add(st, mul(w, sub(splat(double(T[j])), t0)));
+    }
+    onP = sp;
+    onT = st;
+}
+
+FV_AVX2 void tapSums4Avx2(const ShellBand& b, const SurfaceCoefficients* C, const FieldSums* sums, std::size_t i,
+                          TapSums out[4])
 {
     static_assert(sizeof(SurfaceTap) == 16 && sizeof(SurfaceCoefficients) == 16, "four floats each");
+    // per node: the taps' differences (da, dx, dy, dz) times du and times dv, in the taps' order
+    __m256d onU[4], onV[4];
+    for (std::size_t k = 0; k < 4; ++k) {
+        const __m256d c0 = load4(&C[i + k].a);
+        __m256d su = _mm256_setzero_pd(), sv = su;
+        for (const SurfaceTap* t = b.tapsBegin(i + k); t != b.tapsEnd(i + k); ++t) {
+            const __m256d d = sub(load4(&C[t->node].a), c0);
+            su = add(su, mul(_mm256_cvtps_pd(_mm_broadcast_ss(&t->du)), d));
+            sv = add(sv, mul(_mm256_cvtps_pd(_mm_broadcast_ss(&t->dv)), d));
+        }
+        onU[k] = su;
+        onV[k] = sv;
+    }
+    transpose4(onU); // dau, SU's x, y, z across the four nodes
+    transpose4(onV); // dav, SV's x, y, z
     const FrameFloats* f[4] = {&b.frameFloats(i), &b.frameFloats(i + 1), &b.frameFloats(i + 2), &b.frameFloats(i + 3)};
     const __m256d t[3] = {lanes(f, &FrameFloats::tangent, 0), lanes(f, &FrameFloats::tangent, 1),
                           lanes(f, &FrameFloats::tangent, 2)};
     const __m256d bt[3] = {lanes(f, &FrameFloats::bitangent, 0), lanes(f, &FrameFloats::bitangent, 1),
                            lanes(f, &FrameFloats::bitangent, 2)};
-    const __m256d p0 = _mm256_cvtps_pd(_mm_loadu_ps(P + i)), t0 = _mm256_cvtps_pd(_mm_loadu_ps(T + i));
-    // the four nodes' coefficients, transposed: a, cx, cy, cz across the lanes
-    __m128 c0 = _mm_loadu_ps(&C[i].a), c1 = _mm_loadu_ps(&C[i + 1].a), c2 = _mm_loadu_ps(&C[i + 2].a),
-           c3 = _mm_loadu_ps(&C[i + 3].a);
-    _MM_TRANSPOSE4_PS(c0, c1, c2, c3);
-    const __m256d a0 = _mm256_cvtps_pd(c0);
-    const __m256d ct0 = dot(_mm256_cvtps_pd(c1), _mm256_cvtps_pd(c2), _mm256_cvtps_pd(c3), t);
-    const __m256d cb0 = dot(_mm256_cvtps_pd(c1), _mm256_cvtps_pd(c2), _mm256_cvtps_pd(c3), bt);
-
-    const TapGroup g(b, i);
-    __m256d lapP = _mm256_setzero_pd(), lapT = lapP, dau = lapP, dav = lapP, divC = lapP, dtu = lapP, dtv = lapP;
-    for (int q = 0; q < g.most; ++q) {
-        const SurfaceTap* tp[4] = {g.tap(0, q), g.tap(1, q), g.tap(2, q), g.tap(3, q)};
-        // the four taps transposed: node indices (as bits), lap, du, dv
-        __m128 r0 = _mm_loadu_ps(reinterpret_cast<const float*>(tp[0])),
-               r1 = _mm_loadu_ps(reinterpret_cast<const float*>(tp[1])),
-               r2 = _mm_loadu_ps(reinterpret_cast<const float*>(tp[2])),
-               r3 = _mm_loadu_ps(reinterpret_cast<const float*>(tp[3]));
-        _MM_TRANSPOSE4_PS(r0, r1, r2, r3);
-        (void)r0;
-        const std::size_t j0 = std::size_t(tp[0]->node), j1 = std::size_t(tp[1]->node), j2 = std::size_t(tp[2]->node),
-                          j3 = std::size_t(tp[3]->node);
-        const __m256d lap = _mm256_cvtps_pd(r1), du = _mm256_cvtps_pd(r2), dv = _mm256_cvtps_pd(r3);
-        const __m256d dp = sub(_mm256_cvtps_pd(_mm_set_ps(P[j3], P[j2], P[j1], P[j0])), p0);
-        const __m256d dT = sub(_mm256_cvtps_pd(_mm_set_ps(T[j3], T[j2], T[j1], T[j0])), t0);
-        __m128 k0 = _mm_loadu_ps(&C[j0].a), k1 = _mm_loadu_ps(&C[j1].a), k2 = _mm_loadu_ps(&C[j2].a),
-               k3 = _mm_loadu_ps(&C[j3].a);
-        _MM_TRANSPOSE4_PS(k0, k1, k2, k3);
-        const __m256d da = sub(_mm256_cvtps_pd(k0), a0);
-        lapP = add(lapP, mul(lap, dp));
-        lapT = add(lapT, mul(lap, dT));
-        dau = add(dau, mul(du, da));
-        dav = add(dav, mul(dv, da));
-        dtu = add(dtu, mul(du, dT));
-        dtv = add(dtv, mul(dv, dT));
-        const __m256d cx = _mm256_cvtps_pd(k1), cy = _mm256_cvtps_pd(k2), cz = _mm256_cvtps_pd(k3);
-        divC = add(divC, add(mul(du, sub(dot(cx, cy, cz, t), ct0)), mul(dv, sub(dot(cx, cy, cz, bt), cb0))));
+    const __m256d divC = add(dot(onU[1], onU[2], onU[3], t), dot(onV[1], onV[2], onV[3], bt));
+    alignas(32) double v[3][4];
+    _mm256_store_pd(v[0], onU[0]);
+    _mm256_store_pd(v[1], onV[0]);
+    _mm256_store_pd(v[2], divC);
+    for (std::size_t k = 0; k < 4; ++k) {
+        const FieldSums& s = sums[i + k];
+        out[k] = TapSums{s.lapP, s.lapT, v[0][k], v[1][k], v[2][k], s.dtu, s.dtv};
     }
-    alignas(32) double v[7][4];
-    _mm256_store_pd(v[0], lapP);
-    _mm256_store_pd(v[1], lapT);
-    _mm256_store_pd(v[2], dau);
-    _mm256_store_pd(v[3], dav);
-    _mm256_store_pd(v[4], divC);
-    _mm256_store_pd(v[5], dtu);
-    _mm256_store_pd(v[6], dtv);
-    for (int k = 0; k < 4; ++k) out[k] = TapSums{v[0][k], v[1][k], v[2][k], v[3][k], v[4][k], v[5][k], v[6][k]};
 }
 
-FV_AVX2 void surfaceCoefficients4Avx2(const ShellBand& b, const float* P, const Anisotropy& an, double invH,
-                                      std::size_t i, SurfaceCoefficients* C, float* gx, float* gy)
+FV_AVX2 void surfaceCoefficients4Avx2(const ShellBand& b, const float* P, const float* T, const Anisotropy& an,
+                                      double invH, std::size_t i, SurfaceCoefficients* C, float* gx, float* gy,
+                                      FieldSums* sums)
 {
-    const TapGroup g(b, i);
-    const __m256d p0 = _mm256_cvtps_pd(_mm_loadu_ps(P + i));
-    __m256d su = _mm256_setzero_pd(), sv = su;
-    for (int q = 0; q < g.most; ++q) {
-        const SurfaceTap *t0 = g.tap(0, q), *t1 = g.tap(1, q), *t2 = g.tap(2, q), *t3 = g.tap(3, q);
-        const __m256d dp =
-            sub(_mm256_cvtps_pd(_mm_set_ps(P[t3->node], P[t2->node], P[t1->node], P[t0->node])), p0);
-        su = add(su, mul(_mm256_set_pd(t3->du, t2->du, t1->du, t0->du), dp));
-        sv = add(sv, mul(_mm256_set_pd(t3->dv, t2->dv, t1->dv, t0->dv), dp));
+    static_assert(sizeof(FieldSums) == 32, "four doubles");
+    __m256d onP[4];
+    for (std::size_t k = 0; k < 4; ++k) {
+        __m256d onT;
+        fieldSums(b, P, T, i + k, onP[k], onT);
+        // (lap p, lap T, du T, dv T): lap p swapped down from lane 1 into onT's unused lane 0
+        _mm256_storeu_pd(&sums[i + k].lapP, _mm256_blend_pd(onT, _mm256_permute_pd(onP[k], 0x1), 0x1));
     }
+    transpose4(onP); // du p and dv p across the four nodes in onP[2] and onP[3]
+    const __m256d su = onP[2], sv = onP[3];
     const __m256d h = _mm256_set1_pd(invH), gu = mul(su, h), gv = mul(sv, h);
     // Anisotropy, integer mode (the plane's vector rows, EulerRows.cpp): w = (g / |g|)^j where
     // |g|^2 > 1e-30, else w = 1 (a select whose discarded lane multiplies by 1 and adds +0)
@@ -250,10 +251,10 @@ FV_AVX2 void surfaceUpdate4Avx2(const SurfaceUpdateInputs& in, std::size_t i, co
 
 } // namespace
 
-void surfaceCoefficients4Plain(const ShellBand& b, const float* P, const Anisotropy& an, double invH, std::size_t i,
-                               SurfaceCoefficients* C, float* gx, float* gy)
+void surfaceCoefficients4Plain(const ShellBand& b, const float* P, const float* T, const Anisotropy& an, double invH,
+                               std::size_t i, SurfaceCoefficients* C, float* gx, float* gy, FieldSums* sums)
 {
-    for (std::size_t k = 0; k < 4; ++k) surfaceCoefficients(b, P, an, invH, i + k, C, gx, gy);
+    for (std::size_t k = 0; k < 4; ++k) surfaceCoefficients(b, P, T, an, invH, i + k, C, gx, gy, sums);
 }
 
 namespace {
@@ -277,10 +278,10 @@ SurfaceCoefficients4 fastestSurfaceCoefficients4(const Anisotropy& an)
     return &surfaceCoefficients4Plain;
 }
 
-void tapSums4Plain(const ShellBand& b, const float* P, const float* T, const SurfaceCoefficients* C, std::size_t i,
+void tapSums4Plain(const ShellBand& b, const SurfaceCoefficients* C, const FieldSums* sums, std::size_t i,
                    TapSums out[4])
 {
-    for (int k = 0; k < 4; ++k) out[k] = tapSums(b, P, T, C, i + std::size_t(k));
+    for (std::size_t k = 0; k < 4; ++k) out[k] = tapSums(b, C, sums, i + k);
 }
 
 SurfaceUpdate4 fastestSurfaceUpdate4()

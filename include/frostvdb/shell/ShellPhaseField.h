@@ -198,6 +198,7 @@ private:
     uint64_t mUpdateCount = 0; ///< voxels in the update set
     std::vector<float> mA, mCx, mCy, mCz, mGx, mGy, mGz;
     std::vector<SurfaceCoefficients> mCoef; ///< surface nodes: pass 1's coefficients (shell/SurfaceTapSums.h)
+    std::vector<FieldSums> mFieldSums;      ///< surface nodes: pass 1's sums of p and T, read by pass 2
     std::vector<openvdb::Vec3f> mWind; ///< tangential wind per voxel (empty: none)
     openvdb::Vec3d mWindWorld{0.0};
     bool mActive = false, mDirty = true;

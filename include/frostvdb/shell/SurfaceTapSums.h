@@ -1,13 +1,20 @@
 #pragma once
 /// @file SurfaceTapSums.h
 /// @brief The surface-node Euler step's two passes over a node's stencil taps
-/// (ShellPhaseField::stepSurface): pass 1's tangential gradient and anisotropic coefficients,
-/// pass 2's seven sums of differences to the neighbours that the node's update reads (40 double
-/// operations per tap) and the update itself. One node at a time, or four consecutive nodes at once on AVX2, which
-/// gives the same bits: each lane does the scalar code's IEEE operations on the same operands in
-/// the same order (no FMA in the target); a node with fewer taps than its group's largest reads
-/// extra taps of weight 0 on itself, whose products are zeros added to sums that started at +0
-/// and never become -0, so they change nothing.
+/// (ShellPhaseField::stepSurface) and the update itself.
+///  - pass 1 sums w (u_j - u_i) over node i's taps j for u = p and T, with each tap's three
+///    weights (Laplace-Beltrami lap, tangent du, bitangent dv): p's derivatives give the
+///    tangential gradient, so eps, eps' and C, and every sum of p and T the update reads is done
+///    here, where the taps are loaded anyway;
+///  - pass 2 sums du (C_j - C_i) and dv (C_j - C_i) over the four coefficients (eps^2 and C's
+///    three components), which give grad eps^2 and div C;
+///  - the update.
+/// The vector versions (AVX2) run one node at a time with a tap's weights or a coefficient's
+/// components across the four lanes: no transposes per tap and no padding taps, where four nodes
+/// across the lanes needed three 4 x 4 transposes and two gathers per tap and padded every node
+/// to its group's largest count (docs/shells.md "The step"). They give the scalar functions'
+/// bits: each lane does the scalar code's IEEE operations on the same operands in the same order
+/// (no FMA in the target).
 #include <frostvdb/icephysics/Kobayashi.h>
 #include <frostvdb/shell/ShellBand.h>
 
@@ -22,34 +29,45 @@ struct SurfaceCoefficients {
     float cx, cy, cz; ///< C = eps eps' (n x grad p), a world vector
 };
 
-/// Pass 1 at node @a i: g = (dp/dt, dp/db) from the taps (each sum in the taps' order), eps and
-/// eps' of its angle, C = eps eps' (n x g) = eps eps' (g_u b - g_v t) as a world vector; writes
-/// c[i] and g[i] = (gu, gv).
-void surfaceCoefficients(const ShellBand& band, const float* p, const Anisotropy& an, double invH, std::size_t i,
-                         SurfaceCoefficients* c, float* gu, float* gv);
+/// Pass 1's sums of a node that pass 2's update reads (sum over taps j of w (u_j - u_i)).
+struct FieldSums {
+    double lapP = 0; ///< lap on p
+    double lapT = 0; ///< lap on T
+    double dtu = 0;  ///< du on T (the wind's advection)
+    double dtv = 0;  ///< dv on T
+};
+
+/// Pass 1 at node @a i: the taps' sums on p and T (each in the taps' order) into sums[i]; g =
+/// (dp/dt, dp/db) = (sum du dp, sum dv dp) / h, eps and eps' of its angle, C = eps eps' (n x g) =
+/// eps eps' (g_u b - g_v t) as a world vector; writes c[i] and g[i] = (gu, gv).
+void surfaceCoefficients(const ShellBand& band, const float* p, const float* T, const Anisotropy& an, double invH,
+                         std::size_t i, SurfaceCoefficients* c, float* gu, float* gv, FieldSums* sums);
 /// Nodes i .. i + 3, bit for bit surfaceCoefficients of each.
-using SurfaceCoefficients4 = void (*)(const ShellBand& band, const float* p, const Anisotropy& an, double invH,
-                                      std::size_t i, SurfaceCoefficients* c, float* gu, float* gv);
-void surfaceCoefficients4Plain(const ShellBand& band, const float* p, const Anisotropy& an, double invH,
-                               std::size_t i, SurfaceCoefficients* c, float* gu, float* gv);
+using SurfaceCoefficients4 = void (*)(const ShellBand& band, const float* p, const float* T, const Anisotropy& an,
+                                      double invH, std::size_t i, SurfaceCoefficients* c, float* gu, float* gv,
+                                      FieldSums* sums);
+void surfaceCoefficients4Plain(const ShellBand& band, const float* p, const float* T, const Anisotropy& an,
+                               double invH, std::size_t i, SurfaceCoefficients* c, float* gu, float* gv,
+                               FieldSums* sums);
 /// The AVX2 version for an integer anisotropy mode (as fastestTapSums4), else the plain one.
 SurfaceCoefficients4 fastestSurfaceCoefficients4(const Anisotropy& an);
 
-/// Sums over node i's taps j of w (u_j - u_i): the Laplace-Beltrami weight on p and T, the
-/// tangent and bitangent derivative weights on eps^2 and T, and div C = sum du (C_j . t_i - C_i .
-/// t_i) + dv (C_j . b_i - C_i . b_i) (node i's frame t, b).
+/// Everything the update reads from the taps: pass 1's sums, and pass 2's grad eps^2 = (dau,
+/// dav) and div C = t_i . SU + b_i . SV, where SU = sum du (C_j - C_i), SV = sum dv (C_j - C_i)
+/// (node i's frame t, b; the surface divergence of a tangent field is the trace of its
+/// derivative on the tangent plane).
 struct TapSums {
     double lapP = 0, lapT = 0, dau = 0, dav = 0, divC = 0, dtu = 0, dtv = 0;
 };
 
-/// Node @a i's sums (the reference).
-TapSums tapSums(const ShellBand& band, const float* p, const float* T, const SurfaceCoefficients* c, std::size_t i);
+/// Node @a i's sums (the reference): pass 2's on @a C, and sums[i] from pass 1.
+TapSums tapSums(const ShellBand& band, const SurfaceCoefficients* C, const FieldSums* sums, std::size_t i);
 /// Nodes i .. i + 3 (band indices), bit for bit tapSums of each.
-using TapSums4 = void (*)(const ShellBand& band, const float* p, const float* T, const SurfaceCoefficients* c,
-                          std::size_t i, TapSums out[4]);
+using TapSums4 = void (*)(const ShellBand& band, const SurfaceCoefficients* C, const FieldSums* sums, std::size_t i,
+                          TapSums out[4]);
 /// tapSums of each of the four, one after the other.
-void tapSums4Plain(const ShellBand& band, const float* p, const float* T, const SurfaceCoefficients* c,
-                   std::size_t i, TapSums out[4]);
+void tapSums4Plain(const ShellBand& band, const SurfaceCoefficients* C, const FieldSums* sums, std::size_t i,
+                   TapSums out[4]);
 /// The AVX2 version when the CPU has it and FROSTVDB_NO_VECTOR_ROWS is not set (read at every
 /// call, once per step, so a test compares both in one process), else tapSums4Plain.
 TapSums4 fastestTapSums4();
