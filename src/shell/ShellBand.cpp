@@ -367,93 +367,93 @@ constexpr double kStrongTapFraction = 0.12;
 constexpr double kLaplacianWeightPower = 8.0;
 constexpr double kGradientWeightPower = 6.0;
 
+namespace {
+/// A neighbour of a surface node: its band index, its closest point's tangent-plane coordinates
+/// (s, t) from the node's, and the fits' weights r^-power (computed once: a refit reuses them).
+struct StencilCandidate {
+    int32_t id;
+    double s, t, r2;
+    double phiLap, phiGrad;
+};
+
+/// Weights w_j of least sum w_j^2 / phi_j, exact on (s, t, s^2, st, t^2) for @a rhs (one column
+/// per operator); false for a degenerate layout (collinear).
+bool fitStencil(const std::vector<StencilCandidate>& cand, double StencilCandidate::*phiOf,
+                const Eigen::Matrix<double, 5, Eigen::Dynamic>& rhs, Eigen::MatrixXd& w)
+{
+    Eigen::Matrix<double, 5, 5> g = Eigen::Matrix<double, 5, 5>::Zero();
+    for (const StencilCandidate& c : cand) {
+        const Eigen::Matrix<double, 5, 1> m(c.s, c.t, c.s * c.s, c.s * c.t, c.t * c.t);
+        g += c.*phiOf * m * m.transpose();
+    }
+    // g is symmetric positive semi-definite: a pivoted LDL^T solves it (an eigensolver did until
+    // session 17, at four times the cost: most of the band's build)
+    const Eigen::LDLT<Eigen::Matrix<double, 5, 5>> ldlt(g);
+    const auto d = ldlt.vectorD().cwiseAbs();
+    if (ldlt.info() != Eigen::Success || !ldlt.isPositive() || !(d.minCoeff() > 1e-9 * d.maxCoeff())) return false;
+    const Eigen::Matrix<double, 5, Eigen::Dynamic> y = ldlt.solve(rhs);
+    w.resize(Eigen::Index(cand.size()), rhs.cols());
+    for (size_t k = 0; k < cand.size(); ++k) {
+        const StencilCandidate& c = cand[k];
+        const Eigen::Matrix<double, 5, 1> m(c.s, c.t, c.s * c.s, c.s * c.t, c.t * c.t);
+        w.row(Eigen::Index(k)) = c.*phiOf * (m.transpose() * y);
+    }
+    return true;
+}
+
+/// Whether explicit steps can afford a fit. A lopsided neighbourhood (an open border, a gap in a
+/// steep layer) fits the quadratic with large weights of both signs, and negative Laplacian
+/// weights beyond a tenth of the centre weight made a 0.5 mm windshield unstable at a corner
+/// after 1,600 steps.
+bool stencilAcceptable(const Eigen::MatrixXd& wl, const Eigen::MatrixXd& wg)
+{
+    double centre = 0, spread = 0, gradSpread = 0;
+    for (Eigen::Index k = 0; k < wl.rows(); ++k) {
+        centre += wl(k, 0);
+        spread += std::fabs(wl(k, 0));
+        gradSpread += std::fabs(wg(k, 0)) + std::fabs(wg(k, 1));
+    }
+    const double negative = 0.5 * (spread - centre);
+    return !(centre > kMaxCentreWeight || spread > 2.0 * kMaxCentreWeight || gradSpread > kMaxGradientSpread ||
+             negative > 0.1 * centre);
+}
+
+/// The candidates strong in some operator: a weight at least kStrongTapFraction of that
+/// operator's largest (Laplacian @a wl, d/ds and d/dt @a wg). About a fifth of a tilted layer's
+/// taps carry little and cost as much as the strong ones in every step (docs/shells.md "The
+/// step"); on a flat axis-aligned layer every tap is strong (the corners carry 1/8 of the
+/// Laplacian), so its stencil is unchanged.
+std::vector<StencilCandidate> strongCandidates(const std::vector<StencilCandidate>& cand, const Eigen::MatrixXd& wl,
+                                               const Eigen::MatrixXd& wg)
+{
+    const Eigen::Index n = wl.rows();
+    const double part = kStrongTapFraction, mL = wl.col(0).cwiseAbs().maxCoeff(),
+                 mU = wg.col(0).cwiseAbs().maxCoeff(), mV = wg.col(1).cwiseAbs().maxCoeff();
+    std::vector<StencilCandidate> strong;
+    for (Eigen::Index k = 0; k < n; ++k)
+        if (std::fabs(wl(k, 0)) >= part * mL || std::fabs(wg(k, 0)) >= part * mU || std::fabs(wg(k, 1)) >= part * mV)
+            strong.push_back(cand[size_t(k)]);
+    return strong;
+}
+} // namespace
+
 void ShellBand::surfaceStencil(size_t i, const openvdb::Int32Grid::ConstAccessor& acc,
                                std::vector<SurfaceTap>& out) const
 {
     // Generalised finite differences on the layer: weights w_j on differences u_j - u_i that are
     // exact for every quadratic in the tangent-plane coordinates (s, t) of the neighbours' closest
-    // points, of least weighted norm sum w_j^2 / phi_j. At the node, where the surface is a graph
-    // over its tangent plane with zero slope, u_ss + u_tt is the Laplace-Beltrami operator.
-    // phi = r^-6 would make the stencil of a flat, axis-aligned layer the isotropic 9-point
-    // Laplacian (edge 2/3, corner 1/6); the Laplacian uses r^-8 (edge 0.8, corner 0.1: nearer the
-    // plane's 5-point stencil, measured in docs/shells.md), the gradient r^-6 (Sobel-like).
+    // points, of least weighted norm sum w_j^2 / phi_j (fitStencil). At the node, where the
+    // surface is a graph over its tangent plane with zero slope, u_ss + u_tt is the
+    // Laplace-Beltrami operator. phi = r^-6 would make the stencil of a flat, axis-aligned layer
+    // the isotropic 9-point Laplacian (edge 2/3, corner 1/6); the Laplacian uses r^-8 (edge 0.8,
+    // corner 0.1: nearer the plane's 5-point stencil, measured in docs/shells.md), the gradient
+    // r^-6 (Sobel-like).
+    using Cand = StencilCandidate;
     const Coord c = mCoords[i];
     const Vec3d q = closestPoint(i);
     const VoxelFrame f = frame(i);
-    struct Cand {
-        int32_t id;
-        double s, t, r2;
-        double phiLap, phiGrad; // the fits' weights r^-power, computed once (a refit reuses them)
-    };
     std::vector<Cand> cand;
     const double minD = kMinTapDistance, pLap = kLaplacianWeightPower, pGrad = kGradientWeightPower;
-    // weights of least sum w^2 / phi, phi = r^-power, exact on (s, t, s^2, st, t^2) for @a rhs
-    auto fit = [&](double Cand::*power, const Eigen::Matrix<double, 5, Eigen::Dynamic>& rhs,
-                   Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic>& w) {
-        Eigen::Matrix<double, 5, 5> g = Eigen::Matrix<double, 5, 5>::Zero();
-        std::vector<double> phi(cand.size());
-        for (size_t k = 0; k < cand.size(); ++k) {
-            const Cand& c = cand[k];
-            phi[k] = c.*power;
-            const Eigen::Matrix<double, 5, 1> m(c.s, c.t, c.s * c.s, c.s * c.t, c.t * c.t);
-            g += phi[k] * m * m.transpose();
-        }
-        // g is symmetric positive semi-definite: a pivoted LDL^T solves it (an eigensolver did
-        // until session 17, at four times the cost: most of the band's build)
-        const Eigen::LDLT<Eigen::Matrix<double, 5, 5>> ldlt(g);
-        const auto d = ldlt.vectorD().cwiseAbs();
-        if (ldlt.info() != Eigen::Success || !ldlt.isPositive() || !(d.minCoeff() > 1e-9 * d.maxCoeff()))
-            return false; // degenerate layout (collinear)
-        const Eigen::Matrix<double, 5, Eigen::Dynamic> y = ldlt.solve(rhs);
-        w.resize(Eigen::Index(cand.size()), rhs.cols());
-        for (size_t k = 0; k < cand.size(); ++k) {
-            const Cand& c = cand[k];
-            const Eigen::Matrix<double, 5, 1> m(c.s, c.t, c.s * c.s, c.s * c.t, c.t * c.t);
-            w.row(Eigen::Index(k)) = phi[k] * (m.transpose() * y);
-        }
-        return true;
-    };
-    // a lopsided neighbourhood (an open border, a gap in a steep layer) fits the quadratic with
-    // large weights of both signs: such a fit is refused (the wider ring then, so explicit steps
-    // stay stable; past that, the ring estimate below), as are negative Laplacian weights beyond
-    // a tenth of the centre weight (a lopsided neighbourhood at an open border: a 0.5 mm
-    // windshield went unstable at a corner after 1,600 steps)
-    auto acceptable = [](const Eigen::MatrixXd& wl, const Eigen::MatrixXd& wg) {
-        double centre = 0, spread = 0, gradSpread = 0;
-        for (Eigen::Index k = 0; k < wl.rows(); ++k) {
-            centre += wl(k, 0);
-            spread += std::fabs(wl(k, 0));
-            gradSpread += std::fabs(wg(k, 0)) + std::fabs(wg(k, 1));
-        }
-        const double negative = 0.5 * (spread - centre);
-        return !(centre > kMaxCentreWeight || spread > 2.0 * kMaxCentreWeight || gradSpread > kMaxGradientSpread ||
-                 negative > 0.1 * centre);
-    };
-    // Taps weak in every operator (each weight below kStrongTapFraction of that operator's
-    // largest) are dropped and the rest refitted: about a fifth of a tilted layer's taps carry
-    // little and cost as much as the strong ones in every step (docs/shells.md "The step"). On a
-    // flat axis-aligned layer every tap is strong (the corners carry 1/8 of the Laplacian), so
-    // its stencil is unchanged. Returns whether @a cand was thinned (the full set in allCand).
-    std::vector<Cand> allCand;
-    auto keepStrongTaps = [&](const Eigen::MatrixXd& wl, const Eigen::MatrixXd& wg) {
-        double mL = 0, mU = 0, mV = 0;
-        for (Eigen::Index k = 0; k < wl.rows(); ++k) {
-            mL = std::max(mL, std::fabs(wl(k, 0)));
-            mU = std::max(mU, std::fabs(wg(k, 0)));
-            mV = std::max(mV, std::fabs(wg(k, 1)));
-        }
-        const double part = kStrongTapFraction;
-        std::vector<Cand> strong;
-        for (size_t k = 0; k < cand.size(); ++k) {
-            const Eigen::Index r = Eigen::Index(k);
-            if (std::fabs(wl(r, 0)) >= part * mL || std::fabs(wg(r, 0)) >= part * mU || std::fabs(wg(r, 1)) >= part * mV)
-                strong.push_back(cand[k]);
-        }
-        if (strong.size() < 5 || strong.size() == cand.size()) return false; // 5: the quadratic's unknowns
-        allCand.swap(cand);
-        cand.swap(strong);
-        return true;
-    };
     Eigen::Matrix<double, 5, Eigen::Dynamic> lapRhs = Eigen::Matrix<double, 5, 1>::Zero(), gradRhs =
                                                         Eigen::Matrix<double, 5, 2>::Zero();
     lapRhs(2, 0) = lapRhs(4, 0) = 2.0; // Laplacian: 2 (c_ss + c_tt)
@@ -476,17 +476,17 @@ void ShellBand::surfaceStencil(size_t i, const openvdb::Int32Grid::ConstAccessor
                 }
         if (cand.size() < 5) continue;
         Eigen::MatrixXd wl, wg;
-        if (!fit(&Cand::phiLap, lapRhs, wl) || !fit(&Cand::phiGrad, gradRhs, wg)) continue; // a wider ring
-        if (!acceptable(wl, wg)) continue; // a wider ring
-        if (keepStrongTaps(wl, wg)) {
-            // refitted on the strong taps alone: kept when it passes the same checks
-            Eigen::MatrixXd sl, sg;
-            if (fit(&Cand::phiLap, lapRhs, sl) && fit(&Cand::phiGrad, gradRhs, sg) && acceptable(sl, sg)) {
-                wl = sl;
-                wg = sg;
-            } else {
-                cand.swap(allCand);
-            }
+        if (!fitStencil(cand, &Cand::phiLap, lapRhs, wl) || !fitStencil(cand, &Cand::phiGrad, gradRhs, wg) ||
+            !stencilAcceptable(wl, wg))
+            continue; // a wider ring
+        // the weak taps dropped and the rest refitted, kept when the refit passes the same checks
+        std::vector<Cand> strong = strongCandidates(cand, wl, wg);
+        Eigen::MatrixXd sl, sg;
+        if (strong.size() >= 5 && strong.size() < cand.size() && fitStencil(strong, &Cand::phiLap, lapRhs, sl) &&
+            fitStencil(strong, &Cand::phiGrad, gradRhs, sg) && stencilAcceptable(sl, sg)) {
+            cand.swap(strong);
+            wl = sl;
+            wg = sg;
         }
         for (size_t k = 0; k < cand.size(); ++k)
             out.push_back({cand[k].id, float(wl(Eigen::Index(k), 0)), float(wg(Eigen::Index(k), 0)),
