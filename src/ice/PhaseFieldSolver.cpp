@@ -175,6 +175,66 @@ void gatherFolded(const ConstAcc& acc, const Block& b, const openvdb::Coord& gro
     }
 }
 
+/// The part of a plane block that the rows of a group read (both schemes): the box of the
+/// group's present leaves and kHalo cells around it, in block cells [x0, x1) x [y0, y1) (the
+/// whole block in a box). A group at the region's edge often holds one or two of its 16 leaves;
+/// gathering and extrapolating only this part gives the same values wherever they are read.
+struct BlockRect {
+    int x0 = 0, x1 = 0, y0 = 0, y1 = 0;
+};
+
+template <typename LeafT>
+BlockRect presentRect(const Block& b, const openvdb::Coord& groupOrigin, const LeafT* const* leaves, size_t count)
+{
+    BlockRect r{0, b.bx, 0, b.by};
+    if (!b.plane || count == 0) return r;
+    const openvdb::Coord bo = b.origin(groupOrigin);
+    r = {b.bx, 0, b.by, 0};
+    for (size_t q = 0; q < count; ++q) {
+        const openvdb::Coord o = leaves[q]->origin() - bo; // kHalo + 8 * leaf index in the group
+        r.x0 = std::min(r.x0, o.x() - kHalo);
+        r.x1 = std::max(r.x1, o.x() + kDim + kHalo);
+        r.y0 = std::min(r.y0, o.y() - kHalo);
+        r.y1 = std::max(r.y1, o.y() + kDim + kHalo);
+    }
+    return r;
+}
+
+/// gather() on the cells of @a rect only (planes; boxes take the whole block).
+void gatherRect(const ConstAcc& acc, const Block& b, const openvdb::Coord& groupOrigin, int z0, const BlockRect& rect,
+                std::vector<float>& out)
+{
+    if (!b.plane) {
+        gather(acc, b, groupOrigin, z0, out);
+        return;
+    }
+    const openvdb::Coord bo = b.origin(groupOrigin);
+    auto floor8 = [](int v) { return v & ~(kDim - 1); };
+    const int zLeaf = floor8(z0);
+    const int gx0 = bo.x() + rect.x0, gx1 = bo.x() + rect.x1, gy0 = bo.y() + rect.y0, gy1 = bo.y() + rect.y1;
+    for (int lyo = floor8(gy0); lyo < gy1; lyo += kDim)
+        for (int lxo = floor8(gx0); lxo < gx1; lxo += kDim) {
+            const openvdb::Coord lo(lxo, lyo, zLeaf);
+            const int x0 = std::max(lxo, gx0), x1 = std::min(lxo + kDim, gx1);
+            const int y0 = std::max(lyo, gy0), y1 = std::min(lyo + kDim, gy1);
+            if (const FloatLeaf* leaf = acc.probeConstLeaf(lo)) {
+                const float* buf = leaf->buffer().data();
+                for (int y = y0; y < y1; ++y) {
+                    float* dst = &out[b.index(x0 - bo.x(), y - bo.y(), 0)];
+                    const float* src = buf + ((((x0 & 7) << 6) | ((y & 7) << 3) | (z0 & 7)));
+                    for (int x = x0; x < x1; ++x, src += 64) *dst++ = *src;
+                }
+            } else {
+                const float v = acc.getValue(lo);
+                for (int y = y0; y < y1; ++y) {
+                    float* dst = &out[b.index(x0 - bo.x(), y - bo.y(), 0)];
+                    for (int x = x0; x < x1; ++x) *dst++ = v;
+                }
+            }
+        }
+}
+
+
 /// Marks, on a plane block, the cells pass 1 must cover: each present leaf and a ring of one.
 template <typename LeafT>
 void markNeeded(Block& b, const openvdb::Coord& groupOrigin, const LeafT* const* leaves, size_t count)
@@ -671,11 +731,13 @@ struct LeafKernel {
                 for (int y = 0; y < kDim; ++y)
                     if ((crossed >> (8 * y + x)) & 1) cross->push_back(openvdb::Coord(lo.x() + x, lo.y() + y, lo.z()));
     }
-    /// Sets @a bits in mask word @a y of a folded leaf atomically (plane::setOnAtomic, a row at once).
+    /// Sets @a bits in mask word @a y of a folded leaf atomically (plane::setOnAtomic, a row at
+    /// once). The locked OR only when a bit is still off: a growing region's accumulator cells are
+    /// on after their first step, and the lock cost a third of the writer (perf).
     static void orRowBits(FloatLeaf& leaf, int y, uint64_t bits)
     {
         auto& word = leaf.getValueMask().template getWord<uint64_t>(openvdb::Index(y));
-        __atomic_fetch_or(&word, bits, __ATOMIC_RELAXED);
+        if ((__atomic_load_n(&word, __ATOMIC_RELAXED) & bits) != bits) __atomic_fetch_or(&word, bits, __ATOMIC_RELAXED);
     }
     /// The bounds failures of row @a y of the plane leaf at @a lo (cells @a bad); @a pe null: p' is 0.
     void reportRow(const openvdb::Coord& lo, int y, unsigned bad, const float* pe, const float* te) const
@@ -792,14 +854,16 @@ struct LeafKernel {
                 const openvdb::Coord go = groups.origin[g];
                 const size_t first = groups.start[g], count = groups.start[g + 1] - first;
                 for (size_t q = 0; q < count; ++q) present[q] = &planeLeaves.leaf(groups.leaves[first + q]);
+                // only the present leaves and their halo are read (most groups at a front hold a few)
+                const BlockRect rect = presentRect(b, go, present, count);
                 if (foldedLeaf) {
-                    gatherFolded(pAcc, b, go, b.p);
-                    gatherFolded(tAcc, b, go, b.T);
+                    gatherFolded(pAcc, b, go, b.p, rect.x0, rect.x1, rect.y0, rect.y1);
+                    gatherFolded(tAcc, b, go, b.T, rect.x0, rect.x1, rect.y0, rect.y1);
                 } else {
-                    gather(pAcc, b, go, z0, b.p);
-                    gather(tAcc, b, go, z0, b.T);
+                    gatherRect(pAcc, b, go, z0, rect, b.p);
+                    gatherRect(tAcc, b, go, z0, rect, b.T);
                 }
-                if (mAcc) gather(*mAcc, b, go, z0, b.melt);
+                if (mAcc) gatherRect(*mAcc, b, go, z0, rect, b.melt);
                 // Leaves in the heat halo, where p is 0 all around, take the heat step alone;
                 // pass 1 covers only the others.
                 bool heatOnly[kPlaneGroup * kPlaneGroup];
@@ -1274,66 +1338,6 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
 }
 
 namespace {
-
-/// The part of a plane block that the second-order rows of a group read: the box of the
-/// group's present leaves and kHalo cells around it, in block cells [x0, x1) x [y0, y1) (the
-/// whole block in a box). A group at the region's edge often holds one or two of its 16 leaves;
-/// gathering and extrapolating only this part gives the same values wherever they are read.
-struct BlockRect {
-    int x0 = 0, x1 = 0, y0 = 0, y1 = 0;
-};
-
-template <typename LeafT>
-BlockRect presentRect(const Block& b, const openvdb::Coord& groupOrigin, const LeafT* const* leaves, size_t count)
-{
-    BlockRect r{0, b.bx, 0, b.by};
-    if (!b.plane || count == 0) return r;
-    const openvdb::Coord bo = b.origin(groupOrigin);
-    r = {b.bx, 0, b.by, 0};
-    for (size_t q = 0; q < count; ++q) {
-        const openvdb::Coord o = leaves[q]->origin() - bo; // kHalo + 8 * leaf index in the group
-        r.x0 = std::min(r.x0, o.x() - kHalo);
-        r.x1 = std::max(r.x1, o.x() + kDim + kHalo);
-        r.y0 = std::min(r.y0, o.y() - kHalo);
-        r.y1 = std::max(r.y1, o.y() + kDim + kHalo);
-    }
-    return r;
-}
-
-/// gather() on the cells of @a rect only (planes; boxes take the whole block).
-void gatherRect(const ConstAcc& acc, const Block& b, const openvdb::Coord& groupOrigin, int z0, const BlockRect& rect,
-                std::vector<float>& out)
-{
-    if (!b.plane) {
-        gather(acc, b, groupOrigin, z0, out);
-        return;
-    }
-    const openvdb::Coord bo = b.origin(groupOrigin);
-    auto floor8 = [](int v) { return v & ~(kDim - 1); };
-    const int zLeaf = floor8(z0);
-    const int gx0 = bo.x() + rect.x0, gx1 = bo.x() + rect.x1, gy0 = bo.y() + rect.y0, gy1 = bo.y() + rect.y1;
-    for (int lyo = floor8(gy0); lyo < gy1; lyo += kDim)
-        for (int lxo = floor8(gx0); lxo < gx1; lxo += kDim) {
-            const openvdb::Coord lo(lxo, lyo, zLeaf);
-            const int x0 = std::max(lxo, gx0), x1 = std::min(lxo + kDim, gx1);
-            const int y0 = std::max(lyo, gy0), y1 = std::min(lyo + kDim, gy1);
-            if (const FloatLeaf* leaf = acc.probeConstLeaf(lo)) {
-                const float* buf = leaf->buffer().data();
-                for (int y = y0; y < y1; ++y) {
-                    float* dst = &out[b.index(x0 - bo.x(), y - bo.y(), 0)];
-                    const float* src = buf + ((((x0 & 7) << 6) | ((y & 7) << 3) | (z0 & 7)));
-                    for (int x = x0; x < x1; ++x, src += 64) *dst++ = *src;
-                }
-            } else {
-                const float v = acc.getValue(lo);
-                for (int y = y0; y < y1; ++y) {
-                    float* dst = &out[b.index(x0 - bo.x(), y - bo.y(), 0)];
-                    for (int x = x0; x < x1; ++x) *dst++ = v;
-                }
-            }
-        }
-}
-
 
 /// What the second-order rows of a step read: the fields at the step's start, the last step's
 /// start values (the midpoint extrapolation), the region's leaf groups and rows.
