@@ -808,6 +808,23 @@ struct LeafKernel {
         }
     }
 
+    /// p, T (and the melt map) over the rectangle of a group's present leaves and their halo:
+    /// nothing else is read (most groups at a front hold a few of their 16 leaves).
+    template <typename LeafT>
+    void gatherGroup(Block& b, const openvdb::Coord& go, int z0, const LeafT* const* present, size_t count,
+                     const ConstAcc& pAcc, const ConstAcc& tAcc, const ConstAcc* mAcc) const
+    {
+        const BlockRect rect = presentRect(b, go, present, count);
+        if (foldedLeaf) {
+            gatherFolded(pAcc, b, go, b.p, rect.x0, rect.x1, rect.y0, rect.y1);
+            gatherFolded(tAcc, b, go, b.T, rect.x0, rect.x1, rect.y0, rect.y1);
+        } else {
+            gatherRect(pAcc, b, go, z0, rect, b.p);
+            gatherRect(tAcc, b, go, z0, rect, b.T);
+        }
+        if (mAcc) gatherRect(*mAcc, b, go, z0, rect, b.melt);
+    }
+
     /// The kernel over the region's leaves: p's own leaves, or with folded p and T the region
     /// mask's plane leaves (@a regionLeaves: the same leaves, order and masks p has unfolded).
     void run(openvdb::tree::LeafManager<openvdb::FloatTree>& pLeaves,
@@ -854,16 +871,7 @@ struct LeafKernel {
                 const openvdb::Coord go = groups.origin[g];
                 const size_t first = groups.start[g], count = groups.start[g + 1] - first;
                 for (size_t q = 0; q < count; ++q) present[q] = &planeLeaves.leaf(groups.leaves[first + q]);
-                // only the present leaves and their halo are read (most groups at a front hold a few)
-                const BlockRect rect = presentRect(b, go, present, count);
-                if (foldedLeaf) {
-                    gatherFolded(pAcc, b, go, b.p, rect.x0, rect.x1, rect.y0, rect.y1);
-                    gatherFolded(tAcc, b, go, b.T, rect.x0, rect.x1, rect.y0, rect.y1);
-                } else {
-                    gatherRect(pAcc, b, go, z0, rect, b.p);
-                    gatherRect(tAcc, b, go, z0, rect, b.T);
-                }
-                if (mAcc) gatherRect(*mAcc, b, go, z0, rect, b.melt);
+                gatherGroup(b, go, z0, present, count, pAcc, tAcc, mAcc.get());
                 // Leaves in the heat halo, where p is 0 all around, take the heat step alone;
                 // pass 1 covers only the others.
                 bool heatOnly[kPlaneGroup * kPlaneGroup];
