@@ -171,3 +171,60 @@ TEST_CASE("Hexagonal vector Euler rows give the plain rows' bits", "[fast][phase
     }
     CHECK(compared == 2 * 2 * 40 * 3);
 }
+
+TEST_CASE("Heat rows give kobayashiEulerHeatOnly's bits, and the full rows' T where p is 0", "[fast][phase_field]")
+{
+    // The engine runs the heat rows on leaves whose p is 0 within two stencil steps (the heat
+    // halo) and the full rows elsewhere: both must give the bits of the per-cell functions.
+    const int W = 48, H = 12;
+    std::mt19937 rng(5);
+    int compared = 0;
+    for (const LatticeKind kind : {LatticeKind::Square, LatticeKind::Hexagonal}) {
+        KobayashiParams k;
+        k.anisotropyMode = kind == LatticeKind::Hexagonal ? 6 : 4;
+        k.delta = 0.04;
+        k.latentHeat = 1.6;
+        FlatStencil st(Lattice(kind, 0.03).stencil(false), W, 0);
+        const Anisotropy an(k);
+        useD6Forms(st, an);
+        const EulerRows fast = fastestEulerRows(st, an), plain = plainEulerRows();
+        if (!fast.vector) {
+            WARN("no AVX2 on this CPU: the vector rows are not built here, nothing to compare");
+            return;
+        }
+        CHECK(fast.heat != plain.heat);
+        const auto T = field(W, H, rng, -0.5f);
+        const std::vector<float> p(size_t(W) * H, 0.f);
+        const size_t n = size_t(W) * H;
+        std::vector<float> A[6];
+        for (auto& v : A) v.assign(n, 0.f);
+        for (int y = 1; y < H - 1; ++y)
+            fast.aux(p.data(), size_t(y) * W + 1, size_t(y) * W + W - 1, st, an, A[0].data(), A[1].data(), A[2].data(),
+                     A[3].data(), A[4].data(), A[5].data());
+        for (int len = 1; len <= 40; ++len)
+            for (int y : {2, 5, H - 3}) {
+                const size_t i0 = size_t(y) * W + 2 + size_t(len % 3), i1 = i0 + size_t(len);
+                std::vector<float> heatOut[2], cellOut(n, 0.f), fullP(n, 0.f), fullT(n, 0.f);
+                for (int s = 0; s < 2; ++s) {
+                    heatOut[s].assign(n, 0.f);
+                    (s ? fast : plain).heat(T.data(), i0, i1, st, k, heatOut[s].data());
+                }
+                bool pZero = true;
+                for (size_t i = i0; i < i1; ++i) {
+                    float pn;
+                    kobayashiEulerHeatOnly(T.data(), i, st, k, pn, cellOut[i]);
+                    pZero = pZero && pn == 0.f;
+                }
+                fast.euler(p.data(), T.data(), A[0].data(), A[1].data(), A[2].data(), A[3].data(), A[4].data(),
+                           A[5].data(), i0, i1, st, k, nullptr, nullptr, fullP.data(), fullT.data(), nullptr);
+                INFO((kind == LatticeKind::Square ? "square" : "hexagonal") << " len " << len);
+                CHECK(pZero);
+                CHECK(std::memcmp(heatOut[0].data(), cellOut.data(), n * sizeof(float)) == 0);
+                CHECK(std::memcmp(heatOut[1].data(), cellOut.data(), n * sizeof(float)) == 0);
+                CHECK(std::memcmp(fullT.data(), cellOut.data(), n * sizeof(float)) == 0);
+                CHECK(std::memcmp(fullP.data(), std::vector<float>(n, 0.f).data(), n * sizeof(float)) == 0);
+                ++compared;
+            }
+    }
+    CHECK(compared == 2 * 40 * 3);
+}

@@ -149,28 +149,91 @@ void gather(const ConstAcc& acc, const Block& b, const openvdb::Coord& groupOrig
 }
 
 /// gather() from a folded plane field (core/PlaneFold.h) over block cells [bx0, bx1) x [by0, by1)
-/// (the whole block by default): each block row is read as runs of contiguous x from the folded
-/// leaves' rows (one run per 64-column tile it crosses).
+/// (the whole block by default), folded leaf by folded leaf (a 64 x 8 tile: one probe, then up to
+/// 8 runs of contiguous x).
 void gatherFolded(const ConstAcc& acc, const Block& b, const openvdb::Coord& groupOrigin, std::vector<float>& out,
                   int bx0 = 0, int bx1 = -1, int by0 = 0, int by1 = -1)
 {
     const openvdb::Coord bo = b.origin(groupOrigin);
     if (bx1 < 0) bx1 = b.bx;
     if (by1 < 0) by1 = b.by;
-    for (int y = bo.y() + by0; y < bo.y() + by1; ++y) {
-        float* dst = &out[b.index(bx0, y - bo.y(), 0)];
-        for (int x = bo.x() + bx0; x < bo.x() + bx1;) {
-            const int x1 = std::min((x & ~63) + 64, bo.x() + bx1);
-            const openvdb::Coord f = plane::fold(openvdb::Coord(x, y, 0));
-            if (const FloatLeaf* leaf = acc.probeConstLeaf(f))
-                std::copy_n(leaf->buffer().data() + (((y & 7) << 6) | (x & 63)), x1 - x, dst);
-            else
-                std::fill_n(dst, x1 - x, acc.getValue(f));
-            dst += x1 - x;
-            x = x1;
+    const int gx0 = bo.x() + bx0, gx1 = bo.x() + bx1, gy0 = bo.y() + by0, gy1 = bo.y() + by1;
+    for (int ty = gy0 & ~7; ty < gy1; ty += 8) {
+        const int y0 = std::max(ty, gy0), y1 = std::min(ty + 8, gy1);
+        for (int tx = gx0 & ~63; tx < gx1; tx += 64) {
+            const int x0 = std::max(tx, gx0), x1 = std::min(tx + 64, gx1);
+            const openvdb::Coord f = plane::fold(openvdb::Coord(x0, y0, 0));
+            float* dst = &out[b.index(x0 - bo.x(), y0 - bo.y(), 0)];
+            if (const FloatLeaf* leaf = acc.probeConstLeaf(f)) {
+                const float* src = leaf->buffer().data() + (((y0 & 7) << 6) | (x0 & 63));
+                for (int y = y0; y < y1; ++y, src += 64, dst += b.bx) std::copy_n(src, x1 - x0, dst);
+            } else {
+                const float v = acc.getValue(f);
+                for (int y = y0; y < y1; ++y, dst += b.bx) std::fill_n(dst, x1 - x0, v);
+            }
         }
     }
 }
+
+/// The part of a plane block that the rows of a group read (both schemes): the box of the
+/// group's present leaves and kHalo cells around it, in block cells [x0, x1) x [y0, y1) (the
+/// whole block in a box). A group at the region's edge often holds one or two of its 16 leaves;
+/// gathering and extrapolating only this part gives the same values wherever they are read.
+struct BlockRect {
+    int x0 = 0, x1 = 0, y0 = 0, y1 = 0;
+};
+
+template <typename LeafT>
+BlockRect presentRect(const Block& b, const openvdb::Coord& groupOrigin, const LeafT* const* leaves, size_t count)
+{
+    BlockRect r{0, b.bx, 0, b.by};
+    if (!b.plane || count == 0) return r;
+    const openvdb::Coord bo = b.origin(groupOrigin);
+    r = {b.bx, 0, b.by, 0};
+    for (size_t q = 0; q < count; ++q) {
+        const openvdb::Coord o = leaves[q]->origin() - bo; // kHalo + 8 * leaf index in the group
+        r.x0 = std::min(r.x0, o.x() - kHalo);
+        r.x1 = std::max(r.x1, o.x() + kDim + kHalo);
+        r.y0 = std::min(r.y0, o.y() - kHalo);
+        r.y1 = std::max(r.y1, o.y() + kDim + kHalo);
+    }
+    return r;
+}
+
+/// gather() on the cells of @a rect only (planes; boxes take the whole block).
+void gatherRect(const ConstAcc& acc, const Block& b, const openvdb::Coord& groupOrigin, int z0, const BlockRect& rect,
+                std::vector<float>& out)
+{
+    if (!b.plane) {
+        gather(acc, b, groupOrigin, z0, out);
+        return;
+    }
+    const openvdb::Coord bo = b.origin(groupOrigin);
+    auto floor8 = [](int v) { return v & ~(kDim - 1); };
+    const int zLeaf = floor8(z0);
+    const int gx0 = bo.x() + rect.x0, gx1 = bo.x() + rect.x1, gy0 = bo.y() + rect.y0, gy1 = bo.y() + rect.y1;
+    for (int lyo = floor8(gy0); lyo < gy1; lyo += kDim)
+        for (int lxo = floor8(gx0); lxo < gx1; lxo += kDim) {
+            const openvdb::Coord lo(lxo, lyo, zLeaf);
+            const int x0 = std::max(lxo, gx0), x1 = std::min(lxo + kDim, gx1);
+            const int y0 = std::max(lyo, gy0), y1 = std::min(lyo + kDim, gy1);
+            if (const FloatLeaf* leaf = acc.probeConstLeaf(lo)) {
+                const float* buf = leaf->buffer().data();
+                for (int y = y0; y < y1; ++y) {
+                    float* dst = &out[b.index(x0 - bo.x(), y - bo.y(), 0)];
+                    const float* src = buf + ((((x0 & 7) << 6) | ((y & 7) << 3) | (z0 & 7)));
+                    for (int x = x0; x < x1; ++x, src += 64) *dst++ = *src;
+                }
+            } else {
+                const float v = acc.getValue(lo);
+                for (int y = y0; y < y1; ++y) {
+                    float* dst = &out[b.index(x0 - bo.x(), y - bo.y(), 0)];
+                    for (int x = x0; x < x1; ++x) *dst++ = v;
+                }
+            }
+        }
+}
+
 
 /// Marks, on a plane block, the cells pass 1 must cover: each present leaf and a ring of one.
 template <typename LeafT>
@@ -408,12 +471,19 @@ void commitStaged(openvdb::tree::LeafManager<openvdb::FloatTree>& pLeaves,
             const float* st = sv.t(li);
             auto& mask = pl.getValueMask();
             if (!trunc) {
-                for (openvdb::Index w = 0; w < FloatLeaf::NodeMaskType::WORD_COUNT; ++w)
-                    for (uint64_t bits = mask.template getWord<uint64_t>(w); bits; bits &= bits - 1) {
+                for (openvdb::Index w = 0; w < FloatLeaf::NodeMaskType::WORD_COUNT; ++w) {
+                    const uint64_t word = mask.template getWord<uint64_t>(w);
+                    if (word == ~uint64_t(0) && sv.shift == 0) { // a full word: 64 slots in a row
+                        std::copy_n(sp + w * 64, 64, pv + w * 64);
+                        std::copy_n(st + w * 64, 64, tv + w * 64);
+                        continue;
+                    }
+                    for (uint64_t bits = word; bits; bits &= bits - 1) {
                         const openvdb::Index n = w * 64 + openvdb::Index(__builtin_ctzll(bits));
                         pv[n] = sp[n >> sv.shift];
                         tv[n] = st[n >> sv.shift];
                     }
+                }
                 continue;
             }
             // p and T share the region's topology: one walk over the mask, two masks out.
@@ -552,6 +622,135 @@ struct LeafKernel {
         }
     }
 
+    /// Pass 2 on a plane block's heat-halo leaves (@a heat: p is 0 all around them): the heat
+    /// rows into te over runs of horizontally adjacent such leaves.
+    template <typename LeafT>
+    static void heatRows(Block& b, const openvdb::Coord& go, const FlatStencil& st, const KobayashiParams& k,
+                         const EulerRows& rows, const LeafT* const* heat, size_t nHeat)
+    {
+        unsigned cols[kPlaneGroup] = {}; // per leaf row of the group: bit lx for each leaf
+        for (size_t q = 0; q < nHeat; ++q) {
+            const openvdb::Coord lo = heat[q]->origin();
+            cols[(lo.y() - go.y()) / kDim] |= 1u << ((lo.x() - go.x()) / kDim);
+        }
+        for (int ly = 0; ly < kPlaneGroup; ++ly)
+            for (unsigned bits = cols[ly]; bits;) {
+                const int x0 = __builtin_ctz(bits);
+                const unsigned run = bits + (1u << x0); // clears the run of ones at x0
+                const int x1 = __builtin_ctz(run & ~bits);
+                bits &= run;
+                for (int y = 0; y < kDim; ++y) {
+                    const size_t i0 = b.index(kHalo + x0 * kDim, kHalo + ly * kDim + y, 0);
+                    rows.heat(b.T.data(), i0, i0 + size_t(x1 - x0) * kDim, st, k, b.te.data());
+                }
+            }
+    }
+
+    /// A plane leaf's active cells as 8 row masks (byte y, bit x) from its value mask (word x,
+    /// bit (y << 3) | z): the transpose of the layer @a zb.
+    template <typename LeafT>
+    static uint64_t activeRows(const LeafT& leaf, int zb)
+    {
+        uint64_t rows = 0;
+        for (int x = 0; x < kDim; ++x)
+            rows |= ((leaf.getValueMask().template getWord<uint64_t>(openvdb::Index(x)) >> zb) & 0x0101010101010101ull) << x;
+        return rows;
+    }
+
+    /// Writes one plane leaf of a block into folded staging and folded accumulators, a row of 8
+    /// cells at a time: each row is contiguous in the block (pe, te, dp) and in the folded leaf
+    /// (slots (y << 6) | (x & 63)), so its values are copied as runs and its accumulator mask
+    /// bits set by one atomic OR per row (the folded leaf's mask word is shared with the leaves
+    /// beside it). @a heatOnly: te holds the heat rows, p' is 0, dp 0. The same values, masks,
+    /// bounds reports, queued writes and crossings (in planeLeaf's order) as planeLeaf.
+    template <typename LeafT>
+    void foldedLeafRows(Block& b, const openvdb::Coord& go, const LeafT& pl, bool heatOnly, const Out& o,
+                        FloatLeaf* gl, FloatLeaf* fl, float tn1, std::vector<Accumulators::Pending>*& pending,
+                        std::vector<openvdb::Coord>* cross) const
+    {
+        const openvdb::Coord bo = b.origin(go);
+        const openvdb::Coord lo = pl.origin();
+        const int ox = lo.x() - bo.x(), oy = lo.y() - bo.y(), sh = lo.x() & 63;
+        const uint64_t active = activeRows(pl, 0);
+        const bool growth = acc && acc->growth && !heatOnly, freeze = acc && acc->freeze && !heatOnly;
+        float* gv = gl ? gl->buffer().data() : nullptr;
+        float* fv = fl ? fl->buffer().data() : nullptr;
+        uint64_t crossed = 0; // byte y, bit x, as active
+        for (int y = 0; y < kDim; ++y) {
+            const unsigned on = unsigned(active >> (8 * y)) & 0xffu;
+            if (!on) continue;
+            const size_t i = b.index(ox, oy + y, 0);
+            const openvdb::Index s0 = openvdb::Index((y << 6) | sh);
+            const float* pe = &b.pe[i];
+            const float* te = &b.te[i];
+            const double* dp = &b.dp[i];
+            float* outP = &o.p[s0];
+            float* outT = &o.t[s0];
+            if (heatOnly) std::fill_n(outP, kDim, 0.f);
+            else std::copy_n(pe, kDim, outP);
+            std::copy_n(te, kDim, outT);
+            unsigned bad = 0, grew = 0, iced = 0, flips = 0;
+            for (int x = 0; x < kDim; ++x) {
+                const float pn = heatOnly ? 0.f : pe[x];
+                bad |= unsigned(!(pn >= -0.05f && pn <= 1.05f) || !std::isfinite(te[x])) << x;
+                grew |= unsigned(dp[x] > 0) << x;
+                iced |= unsigned(pn > 0.5f) << x;
+                flips |= unsigned((b.p[i + size_t(x)] > 0.5f) != (pn > 0.5f)) << x;
+            }
+            if (failure && (bad & on)) reportRow(lo, y, bad & on, heatOnly ? nullptr : pe, te);
+            if (cross && !heatOnly) crossed |= uint64_t(flips & on) << (8 * y);
+            if (growth && (grew &= on)) {
+                if (gv) {
+                    for (unsigned bits = grew; bits; bits &= bits - 1) {
+                        const int x = __builtin_ctz(bits);
+                        gv[s0 + x] = gv[s0 + x] + float(dp[x]);
+                    }
+                    orRowBits(*gl, y, uint64_t(grew) << sh);
+                } else {
+                    for (unsigned bits = grew; bits; bits &= bits - 1) {
+                        const int x = __builtin_ctz(bits);
+                        acc->queue(pending).push_back({openvdb::Coord(lo.x() + x, lo.y() + y, lo.z()), float(dp[x]), true});
+                    }
+                }
+            }
+            if (freeze && (iced &= on)) {
+                if (fv) {
+                    const auto& word = fl->getValueMask().template getWord<uint64_t>(openvdb::Index(y));
+                    iced &= ~unsigned(__atomic_load_n(&word, __ATOMIC_RELAXED) >> sh);
+                    for (unsigned bits = iced; bits; bits &= bits - 1) fv[s0 + __builtin_ctz(bits)] = tn1;
+                    if (iced) orRowBits(*fl, y, uint64_t(iced) << sh);
+                } else {
+                    for (unsigned bits = iced; bits; bits &= bits - 1)
+                        acc->queue(pending).push_back({openvdb::Coord(lo.x() + __builtin_ctz(bits), lo.y() + y, lo.z()), tn1, false});
+                }
+            }
+        }
+        // planeLeaf's order: x outer, y inner (the walkers take the list as it comes)
+        if (crossed)
+            for (int x = 0; x < kDim; ++x)
+                for (int y = 0; y < kDim; ++y)
+                    if ((crossed >> (8 * y + x)) & 1) cross->push_back(openvdb::Coord(lo.x() + x, lo.y() + y, lo.z()));
+    }
+    /// Sets @a bits in mask word @a y of a folded leaf atomically (plane::setOnAtomic, a row at
+    /// once). The locked OR only when a bit is still off: a growing region's accumulator cells are
+    /// on after their first step, and the lock cost a third of the writer (perf).
+    static void orRowBits(FloatLeaf& leaf, int y, uint64_t bits)
+    {
+        auto& word = leaf.getValueMask().template getWord<uint64_t>(openvdb::Index(y));
+        if ((__atomic_load_n(&word, __ATOMIC_RELAXED) & bits) != bits) __atomic_fetch_or(&word, bits, __ATOMIC_RELAXED);
+    }
+    /// The bounds failures of row @a y of the plane leaf at @a lo (cells @a bad); @a pe null: p' is 0.
+    void reportRow(const openvdb::Coord& lo, int y, unsigned bad, const float* pe, const float* te) const
+    {
+        for (; bad; bad &= bad - 1) {
+            const int x = __builtin_ctz(bad);
+            const openvdb::Coord c(lo.x() + x, lo.y() + y, lo.z());
+            const float pn = pe ? pe[x] : 0.f, tn = te[x];
+            if (!std::isfinite(pn) || pn < -0.05f || pn > 1.05f) failure->report(c, "p (ice)", pn);
+            if (!std::isfinite(tn)) failure->report(c, "T (temperature)", tn);
+        }
+    }
+
     /// Writes one leaf of a plane block from the scratch planeRows filled: its active voxels,
     /// with the bounds check and the accumulators.
     template <typename LeafT>
@@ -609,6 +808,23 @@ struct LeafKernel {
         }
     }
 
+    /// p, T (and the melt map) over the rectangle of a group's present leaves and their halo:
+    /// nothing else is read (most groups at a front hold a few of their 16 leaves).
+    template <typename LeafT>
+    void gatherGroup(Block& b, const openvdb::Coord& go, int z0, const LeafT* const* present, size_t count,
+                     const ConstAcc& pAcc, const ConstAcc& tAcc, const ConstAcc* mAcc) const
+    {
+        const BlockRect rect = presentRect(b, go, present, count);
+        if (foldedLeaf) {
+            gatherFolded(pAcc, b, go, b.p, rect.x0, rect.x1, rect.y0, rect.y1);
+            gatherFolded(tAcc, b, go, b.T, rect.x0, rect.x1, rect.y0, rect.y1);
+        } else {
+            gatherRect(pAcc, b, go, z0, rect, b.p);
+            gatherRect(tAcc, b, go, z0, rect, b.T);
+        }
+        if (mAcc) gatherRect(*mAcc, b, go, z0, rect, b.melt);
+    }
+
     /// The kernel over the region's leaves: p's own leaves, or with folded p and T the region
     /// mask's plane leaves (@a regionLeaves: the same leaves, order and masks p has unfolded).
     void run(openvdb::tree::LeafManager<openvdb::FloatTree>& pLeaves,
@@ -632,6 +848,11 @@ struct LeafKernel {
         useD6Forms(st, an);
         const EulerRows rows = fastestEulerRows(st, an);
         const float tn1 = float(tNext);
+        // Folded p and T (and folded accumulators, or none): leaves are written row by row
+        // (foldedLeafRows); otherwise voxel by voxel.
+        const bool byRows = plane && foldedLeaf && staged &&
+                            (!acc || ((!acc->growth || acc->foldG) && (!acc->freeze || acc->foldF)));
+        using MutableAcc = openvdb::tree::ValueAccessor<openvdb::FloatTree, /*IsSafe=*/false>;
         tbb::enumerable_thread_specific<Block> blocks([plane] { return Block(plane); });
         tbb::enumerable_thread_specific<std::vector<openvdb::Coord>> crossed;
         tbb::parallel_for(tbb::blocked_range<size_t>(0, groups.count(), 1), [&](const tbb::blocked_range<size_t>& r) {
@@ -642,29 +863,44 @@ struct LeafKernel {
             std::unique_ptr<ConstAcc> mAcc;
             if (melt) mAcc = std::make_unique<ConstAcc>(melt->tree());
             std::vector<Accumulators::Pending>* pending = nullptr;
+            std::unique_ptr<MutableAcc> gAcc, fAcc; // the folded accumulators (byRows)
+            if (byRows && acc && acc->growth) gAcc = std::make_unique<MutableAcc>(*acc->growth);
+            if (byRows && acc && acc->freeze) fAcc = std::make_unique<MutableAcc>(*acc->freeze);
             const LeafT* present[kPlaneGroup * kPlaneGroup];
             for (size_t g = r.begin(); g != r.end(); ++g) {
                 const openvdb::Coord go = groups.origin[g];
                 const size_t first = groups.start[g], count = groups.start[g + 1] - first;
                 for (size_t q = 0; q < count; ++q) present[q] = &planeLeaves.leaf(groups.leaves[first + q]);
-                if (foldedLeaf) {
-                    gatherFolded(pAcc, b, go, b.p);
-                    gatherFolded(tAcc, b, go, b.T);
-                } else {
-                    gather(pAcc, b, go, z0, b.p);
-                    gather(tAcc, b, go, z0, b.T);
-                }
-                if (mAcc) gather(*mAcc, b, go, z0, b.melt);
+                gatherGroup(b, go, z0, present, count, pAcc, tAcc, mAcc.get());
                 // Leaves in the heat halo, where p is 0 all around, take the heat step alone;
                 // pass 1 covers only the others.
                 bool heatOnly[kPlaneGroup * kPlaneGroup];
                 const LeafT* full[kPlaneGroup * kPlaneGroup];
-                size_t nFull = 0;
+                const LeafT* heat[kPlaneGroup * kPlaneGroup];
+                size_t nFull = 0, nHeat = 0;
                 for (size_t q = 0; q < count; ++q) {
                     heatOnly[q] = phaseZeroAround(b, go, *present[q]);
                     if (!heatOnly[q]) full[nFull++] = present[q];
+                    else heat[nHeat++] = present[q];
                 }
                 markNeeded(b, go, full, nFull);
+                if (byRows) { // folded fields: rows in, rows out
+                    if (nFull) {
+                        auxRuns(b, st, an, rows);
+                        planeRows(b, go, z0, st, rows, full, nFull);
+                    }
+                    heatRows(b, go, st, k, rows, heat, nHeat);
+                    for (size_t q = 0; q < count; ++q) {
+                        const size_t li = groups.leaves[first + q];
+                        const LeafT& pl = *present[q];
+                        const openvdb::Coord fo = plane::foldedLeafOrigin(pl.origin());
+                        FloatLeaf* gl = gAcc ? gAcc->probeLeaf(fo) : nullptr;
+                        FloatLeaf* fl = fAcc ? fAcc->probeLeaf(fo) : nullptr;
+                        foldedLeafRows(b, go, pl, heatOnly[q], out(li, pl.origin(), pLeaves, tLeaves), gl, fl, tn1,
+                                       pending, cross);
+                    }
+                    continue;
+                }
                 if (nFull) {
                     if (plane) {
                         auxRuns(b, st, an, rows);
@@ -1110,66 +1346,6 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
 }
 
 namespace {
-
-/// The part of a plane block that the second-order rows of a group read: the box of the
-/// group's present leaves and kHalo cells around it, in block cells [x0, x1) x [y0, y1) (the
-/// whole block in a box). A group at the region's edge often holds one or two of its 16 leaves;
-/// gathering and extrapolating only this part gives the same values wherever they are read.
-struct BlockRect {
-    int x0 = 0, x1 = 0, y0 = 0, y1 = 0;
-};
-
-template <typename LeafT>
-BlockRect presentRect(const Block& b, const openvdb::Coord& groupOrigin, const LeafT* const* leaves, size_t count)
-{
-    BlockRect r{0, b.bx, 0, b.by};
-    if (!b.plane || count == 0) return r;
-    const openvdb::Coord bo = b.origin(groupOrigin);
-    r = {b.bx, 0, b.by, 0};
-    for (size_t q = 0; q < count; ++q) {
-        const openvdb::Coord o = leaves[q]->origin() - bo; // kHalo + 8 * leaf index in the group
-        r.x0 = std::min(r.x0, o.x() - kHalo);
-        r.x1 = std::max(r.x1, o.x() + kDim + kHalo);
-        r.y0 = std::min(r.y0, o.y() - kHalo);
-        r.y1 = std::max(r.y1, o.y() + kDim + kHalo);
-    }
-    return r;
-}
-
-/// gather() on the cells of @a rect only (planes; boxes take the whole block).
-void gatherRect(const ConstAcc& acc, const Block& b, const openvdb::Coord& groupOrigin, int z0, const BlockRect& rect,
-                std::vector<float>& out)
-{
-    if (!b.plane) {
-        gather(acc, b, groupOrigin, z0, out);
-        return;
-    }
-    const openvdb::Coord bo = b.origin(groupOrigin);
-    auto floor8 = [](int v) { return v & ~(kDim - 1); };
-    const int zLeaf = floor8(z0);
-    const int gx0 = bo.x() + rect.x0, gx1 = bo.x() + rect.x1, gy0 = bo.y() + rect.y0, gy1 = bo.y() + rect.y1;
-    for (int lyo = floor8(gy0); lyo < gy1; lyo += kDim)
-        for (int lxo = floor8(gx0); lxo < gx1; lxo += kDim) {
-            const openvdb::Coord lo(lxo, lyo, zLeaf);
-            const int x0 = std::max(lxo, gx0), x1 = std::min(lxo + kDim, gx1);
-            const int y0 = std::max(lyo, gy0), y1 = std::min(lyo + kDim, gy1);
-            if (const FloatLeaf* leaf = acc.probeConstLeaf(lo)) {
-                const float* buf = leaf->buffer().data();
-                for (int y = y0; y < y1; ++y) {
-                    float* dst = &out[b.index(x0 - bo.x(), y - bo.y(), 0)];
-                    const float* src = buf + ((((x0 & 7) << 6) | ((y & 7) << 3) | (z0 & 7)));
-                    for (int x = x0; x < x1; ++x, src += 64) *dst++ = *src;
-                }
-            } else {
-                const float v = acc.getValue(lo);
-                for (int y = y0; y < y1; ++y) {
-                    float* dst = &out[b.index(x0 - bo.x(), y - bo.y(), 0)];
-                    for (int x = x0; x < x1; ++x) *dst++ = v;
-                }
-            }
-        }
-}
-
 
 /// What the second-order rows of a step read: the fields at the step's start, the last step's
 /// start values (the midpoint extrapolation), the region's leaf groups and rows.

@@ -35,6 +35,15 @@ __attribute__((noinline)) void eulerRowPlain(const float* p, const float* T, con
     }
 }
 
+__attribute__((noinline)) void heatRowPlain(const float* T, std::size_t i0, std::size_t i1, const FlatStencil& st,
+                                            const KobayashiParams& k, float* tOut)
+{
+    for (std::size_t i = i0; i < i1; ++i) {
+        float pOut;
+        kobayashiEulerHeatOnly(T, i, st, k, pOut, tOut[i]);
+    }
+}
+
 #ifdef FROSTVDB_HAVE_AVX2_ROWS
 // Vector rows: kobayashiAux and kobayashiEuler of the 4-tap square plane (no d6 forms, integer
 // anisotropy mode), transcribed operation by operation onto 4 lanes of doubles. What keeps the
@@ -169,6 +178,27 @@ __attribute__((noinline)) FV_AVX2 void eulerRowAvx2(const float* p, const float*
     if (i < i1) eulerRowPlain(p, T, a, cx, cy, gx, gy, gz, i, i1, st, k, melt, chi, pOut, tOut, dpOut);
 }
 
+/// kobayashiEulerHeatOnly on the 4-tap square plane: eulerRowAvx2's T update with dp = 0.
+__attribute__((noinline)) FV_AVX2 void heatRowAvx2(const float* T, std::size_t i0, std::size_t i1,
+                                                   const FlatStencil& st, const KobayashiParams& k, float* tOut)
+{
+    __m256d wL[kTaps];
+    std::ptrdiff_t off[kTaps];
+    for (int q = 0; q < kTaps; ++q) {
+        wL[q] = splat(st.wLap[q]);
+        off[q] = st.off[q];
+    }
+    const __m256d zero = _mm256_setzero_pd(), dt = splat(k.dt), latentZero = mul(splat(k.latentHeat), zero);
+    std::size_t i = i0;
+    for (; i + 4 <= i1; i += 4) {
+        const __m256d t0 = load4(T + i);
+        __m256d lapT = zero;
+        for (int q = 0; q < kTaps; ++q) lapT = add(lapT, mul(wL[q], sub(load4(T + i + off[q]), t0)));
+        store4(tOut + i, add(add(t0, mul(dt, lapT)), latentZero));
+    }
+    if (i < i1) heatRowPlain(T, i, i1, st, k, tOut);
+}
+
 // Hexagonal plane, j = 6 (st.d6): kobayashiAux's and kobayashiEuler's D6 forms on 4 lanes.
 // canonicalSum of 3 terms is the same min/max network; canonicalProduct3 sorts by magnitude,
 // and any order by magnitude gives the scalar product's bits (ties differ only in sign, and the
@@ -300,11 +330,30 @@ __attribute__((noinline)) FV_AVX2 void eulerRowHexAvx2(const float* p, const flo
     if (i < i1) eulerRowPlain(p, T, a, cx, cy, gx, gy, gz, i, i1, st, k, melt, chi, pOut, tOut, dpOut);
 }
 
+/// kobayashiEulerHeatOnly on the hexagonal plane (any anisotropy: the heat step has none).
+__attribute__((noinline)) FV_AVX2 void heatRowHexAvx2(const float* T, std::size_t i0, std::size_t i1,
+                                                      const FlatStencil& st, const KobayashiParams& k, float* tOut)
+{
+    __m256d wL[kHexTaps];
+    std::ptrdiff_t off[kHexTaps];
+    for (int q = 0; q < kHexTaps; ++q) {
+        wL[q] = splat(st.wLap[q]);
+        off[q] = st.off[q];
+    }
+    const __m256d dt = splat(k.dt), latentZero = mul(splat(k.latentHeat), _mm256_setzero_pd());
+    std::size_t i = i0;
+    for (; i + 4 <= i1; i += 4) {
+        const __m256d t0 = load4(T + i);
+        store4(tOut + i, add(add(t0, mul(dt, hexLaplacian(T, i, off, wL, t0))), latentZero));
+    }
+    if (i < i1) heatRowPlain(T, i, i1, st, k, tOut);
+}
+
 #endif
 
 } // namespace
 
-EulerRows plainEulerRows() { return {&auxRowPlain, &eulerRowPlain, false}; }
+EulerRows plainEulerRows() { return {&auxRowPlain, &eulerRowPlain, false, &heatRowPlain}; }
 
 EulerRows fastestEulerRows(const FlatStencil& st, const Anisotropy& an)
 {
@@ -312,9 +361,21 @@ EulerRows fastestEulerRows(const FlatStencil& st, const Anisotropy& an)
     // read at every call (once per step), so a test can compare both builds in one process
     const char* v = std::getenv("FROSTVDB_NO_VECTOR_ROWS");
     const bool disabled = v && std::strcmp(v, "0") != 0 && *v;
-    if (!disabled && cpuHasAvx2() && st.n == kTaps && !st.hexagonal && !st.d6 && an.integerMode >= 0)
-        return {&auxRowAvx2, &eulerRowAvx2, true};
-    if (!disabled && cpuHasAvx2() && st.d6) return {&auxRowHexAvx2, &eulerRowHexAvx2, true};
+    EulerRows rows = plainEulerRows();
+    if (disabled || !cpuHasAvx2()) return rows;
+    const bool square = st.n == kTaps && !st.hexagonal, hexagonal = st.n == kHexTaps && st.hexagonal;
+    if (square) rows.heat = &heatRowAvx2;
+    if (hexagonal) rows.heat = &heatRowHexAvx2;
+    if (square && !st.d6 && an.integerMode >= 0) {
+        rows.aux = &auxRowAvx2;
+        rows.euler = &eulerRowAvx2;
+        rows.vector = true;
+    } else if (st.d6) {
+        rows.aux = &auxRowHexAvx2;
+        rows.euler = &eulerRowHexAvx2;
+        rows.vector = true;
+    }
+    return rows;
 #else
     (void)st;
     (void)an;

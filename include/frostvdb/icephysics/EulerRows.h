@@ -26,10 +26,16 @@ using EulerRowFn = void (*)(const float* p, const float* T, const float* a, cons
                             const FlatStencil& st, const KobayashiParams& k, const float* melt, const double* chi,
                             float* pOut, float* tOut, double* dpOut);
 
+/// Pass 2 over cells [i0, i1) whose p is exactly 0 within two stencil steps (the heat halo):
+/// T' at the same indices, kobayashiEulerHeatOnly's bits (p' is 0 there, dp 0).
+using HeatRowFn = void (*)(const float* T, std::size_t i0, std::size_t i1, const FlatStencil& st,
+                           const KobayashiParams& k, float* tOut);
+
 struct EulerRows {
     AuxRowFn aux;
     EulerRowFn euler;
-    bool vector; ///< the AVX2 build
+    bool vector; ///< the AVX2 build of aux and euler
+    HeatRowFn heat; ///< AVX2 on the square and hexagonal planes wherever the CPU has it
 };
 
 /// The plain rows (one cell at a time).
