@@ -744,8 +744,8 @@ struct PhaseFieldSolver::FoldedLayout {
     {
         openvdb::tree::LeafManager<const openvdb::MaskTree> folded(region->tree()), planeLeaves(planeRegion.tree());
         foldedLeaves = folded.leafCount();
-        // A folded leaf's origin (y, (x >> 3) & ~7, 0) gives the key (y >> 3, x >> 6): a dense
-        // table of keys over the folded leaves' box numbers them, read by every plane leaf.
+        // A folded leaf holds plane rows y .. y+7, columns x .. x+63: the key (y >> 3, x >> 6)
+        // in a dense table over the folded leaves' box numbers them, read by every plane leaf.
         openvdb::CoordBBox box;
         for (size_t i = 0; i < foldedLeaves; ++i) box.expand(tableKey(folded.leaf(i).origin()));
         const openvdb::Coord dim = box.empty() ? openvdb::Coord(0) : box.dim();
@@ -765,12 +765,15 @@ struct PhaseFieldSolver::FoldedLayout {
         if (std::find(leafOf.begin(), leafOf.end(), kNone) != leafOf.end())
             throw std::logic_error("FoldedLayout: a region leaf has no folded leaf");
     }
-    /// A folded leaf origin in leaf units (z 0).
+    /// A folded leaf origin as its 8 x 64 tile of the plane, in tile units (z 0).
     static openvdb::Coord tableKey(const openvdb::Coord& foldedOrigin)
     {
-        return openvdb::Coord(foldedOrigin.x() >> 3, foldedOrigin.y() >> 3, 0);
+        return openvdb::Coord(foldedOrigin.x() >> 3, plane::planeX(foldedOrigin.y(), foldedOrigin.z()) >> 6, 0);
     }
 };
+
+uint64_t PhaseFieldSolver::regionBytes() const { return mRegionMask ? mRegionMask->memUsage() : 0; }
+uint64_t PhaseFieldSolver::foldedRegionBytes() const { return mFolded ? mFolded->region->memUsage() : 0; }
 
 const PhaseFieldSolver::FoldedLayout& PhaseFieldSolver::foldedLayout()
 {
@@ -1056,6 +1059,9 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
     if (k.scheme == PhaseFieldScheme::Euler) {
         // folded: one slot per voxel of a folded leaf (512, all of them plane voxels)
         staged.emplace(mStageP, mStageT, pLeaves.leafCount(), mDomain.flat() && !folded);
+        if (stats)
+            stats->stagingPeakBytes = std::max<uint64_t>(stats->stagingPeakBytes,
+                                                         (mStageP.capacity() + mStageT.capacity()) * sizeof(float));
         LeafKernel kernel{k, mDomain, *p, *T, mMelt, stepIndex, tNext, seed, &acc, &failure, &*staged};
         kernel.crossings = mCrossings;
         if (folded) {
