@@ -21,7 +21,6 @@
 #include <frostvdb/core/PlaneFold.h>
 #include <frostvdb/core/Random.h>
 #include <frostvdb/core/RegionOfTopology.h>
-#include <frostvdb/io/Preview.h>
 
 #include <array>
 #include <cstdlib>
@@ -275,7 +274,8 @@ TEST_CASE("A grid of the first fold (a checkpoint's) is moved to this fold voxel
     CHECK(leaves == expected->tree().leafCount());
     CHECK(legacy->activeVoxelCount() == plane->activeVoxelCount());
     auto pa = plane->getConstAccessor();
-    for (auto it = plane::unfoldGrid(*legacy)->cbeginValueOn(); it; ++it) {
+    const auto back = plane::unfoldGrid(*legacy);
+    for (auto it = back->cbeginValueOn(); it; ++it) {
         REQUIRE(pa.isValueOn(it.getCoord()));
         REQUIRE(*it == pa.getValue(it.getCoord()));
     }
@@ -438,7 +438,7 @@ TEST_CASE("A plane region edited in place, and its folded topology, equal the on
         }
 }
 
-TEST_CASE("A folded grid draws the displacement map and preview of its plane layout byte for byte", "[fast][fold][export]")
+TEST_CASE("A folded grid draws the displacement map of its plane layout byte for byte", "[fast][fold][export]")
 {
     // columns across a 64-column tile, a 1024-column span and a band edge (x = 0), values in [0, 1]
     // and inactive ones off the background
@@ -464,9 +464,6 @@ TEST_CASE("A folded grid draws the displacement map and preview of its plane lay
         CHECK(!want.empty());
         for (size_t i = 0; i < want.size(); ++i) CHECK(fileBytes(want[i]) == fileBytes(got[i]));
     }
-    writePreview(*plane, dir + "/plane_preview.png");
-    writePreview(*folded, dir + "/folded_preview.png");
-    CHECK(fileBytes(dir + "/plane_preview.png") == fileBytes(dir + "/folded_preview.png"));
 }
 
 TEST_CASE("A folded field resampled in place exports the bits its unfolded copy exports", "[fast][fold][export]")

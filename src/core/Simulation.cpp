@@ -810,6 +810,9 @@ std::string Simulation::writeFramePreview(const Frame& frame, int64_t f, const s
         throw SceneError(mWorld.sceneLabel, 0, "output.preview_grid",
                          "no float grid named '" + mOutput.previewGrid + "' in the frame");
     if (!pick) return {};
+    // a frame's copy made folded for the PNGs (ice/IceState.cpp): the preview reads the plane
+    // layout (io/ knows no fold); the copy lives while it is drawn, under the VDB writer's peak
+    if (auto g = openvdb::gridPtrCast<openvdb::FloatGrid>(pick); g && plane::isFolded(*g)) pick = plane::unfoldGrid(*g);
     writePreview(*pick, png);
     return png;
 }

@@ -1,5 +1,4 @@
 #include <frostvdb/io/Preview.h>
-#include <frostvdb/core/FoldedReader.h>
 #include <frostvdb/io/Png.h>
 
 #include <openvdb/tools/Count.h>
@@ -10,7 +9,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <optional>
 
 namespace frostvdb {
 
@@ -45,23 +43,14 @@ void flatPreview(const openvdb::FloatGrid& grid, const std::string& path, const 
     if (vmax <= 0.f) {
         vmax = std::max(openvdb::tools::minMax(grid.tree()).max(), 1e-6f);
     }
-    const bool folded = plane::isFolded(grid); // read in place as its plane layout
     tbb::parallel_for(0, H, [&](int y) {
         auto acc = grid.getConstAccessor();
         openvdb::tools::GridSampler<openvdb::FloatGrid::ConstAccessor, openvdb::tools::BoxSampler> s(acc, xf);
-        std::optional<plane::FoldedReader> reader;
-        if (folded) reader.emplace(grid);
         const double z = xf.indexToWorld(openvdb::Vec3d(0, 0, bbox.min().z())).z();
         for (int x = 0; x < W; ++x) {
             const double wx = lo.x() + (x + 0.5) / W * spanX;
             const double wy = hi.y() - (y + 0.5) / H * spanY; // row 0 at the top
-            const openvdb::Vec3d ws(wx, wy, z);
-            float v;
-            if (reader) // what GridSampler::wsSample does, on the plane-layout view
-                openvdb::tools::BoxSampler::sample(*reader, xf.worldToIndex(ws), v);
-            else
-                v = s.wsSample(ws);
-            val[size_t(y) * W + x] = v / vmax;
+            val[size_t(y) * W + x] = s.wsSample(openvdb::Vec3d(wx, wy, z)) / vmax;
         }
     });
     ImageRGB img(W, H);
@@ -124,33 +113,13 @@ void volumePreview(const openvdb::FloatGrid& grid, const std::string& path, cons
     writePngRGB(path, img);
 }
 
-/// evalActiveVoxelBoundingBox of plane::unfoldGrid(@a folded), from the folded leaves.
-openvdb::CoordBBox unfoldedActiveBBox(const openvdb::FloatGrid& folded)
-{
-    openvdb::CoordBBox box;
-    for (auto it = folded.tree().cbeginLeaf(); it; ++it) {
-        plane::PlaneChunk chunks[8];
-        const int n = plane::chunksOf(*it, chunks);
-        for (int c = 0; c < n; ++c) {
-            const plane::PlaneChunk& k = chunks[c];
-            box.expand(k.origin.offsetBy(__builtin_ctz(k.columns), k.y0, 0));
-            box.expand(k.origin.offsetBy(31 - __builtin_clz(k.columns), k.y1, 0));
-        }
-    }
-    return box;
-}
-
 } // namespace
 
 void writePreview(const openvdb::GridBase& base, const std::string& pngPath, const PreviewOptions& opt)
 {
     auto grid = dynamic_cast<const openvdb::FloatGrid*>(&base);
     if (!grid) throw std::runtime_error("preview: grid '" + base.getName() + "' is not a float grid");
-    if (plane::isFolded(*grid) && grid->tree().hasActiveTiles()) { // (not made by the frames)
-        writePreview(*plane::unfoldGrid(*grid), pngPath, opt);
-        return;
-    }
-    openvdb::CoordBBox bbox = plane::isFolded(*grid) ? unfoldedActiveBBox(*grid) : grid->evalActiveVoxelBoundingBox();
+    openvdb::CoordBBox bbox = grid->evalActiveVoxelBoundingBox();
     if (bbox.empty()) bbox = openvdb::CoordBBox(openvdb::Coord(0), openvdb::Coord(7, 7, 0));
     if (bbox.dim().z() <= 1) flatPreview(*grid, pngPath, opt, bbox);
     else volumePreview(*grid, pngPath, opt, bbox);
