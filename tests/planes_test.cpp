@@ -24,6 +24,9 @@
 
 #include <array>
 #include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
 
 using namespace frostvdb;
 using namespace frostvdb::test;
@@ -68,6 +71,30 @@ std::vector<std::string> runFrames(const std::string& text, bool old, const std:
         CHECK(plane::isFolded(*sim.world().fields.grid("T")) == *phaseFolded);
     }
     return {ro.outDir + "/hybrid.0001.vdb", ro.outDir + "/hybrid.0002.vdb"};
+}
+
+/// Bytes of a file.
+std::string fileBytes(const std::filesystem::path& path)
+{
+    std::ifstream in(path, std::ios::binary);
+    std::ostringstream ss;
+    ss << in.rdbuf();
+    return ss.str();
+}
+
+/// The PNGs beside frame @a a, each equal byte for byte to its namesake beside frame @a b; how many.
+int samePngs(const std::string& a, const std::string& b)
+{
+    const auto da = std::filesystem::path(a).parent_path(), db = std::filesystem::path(b).parent_path();
+    int n = 0;
+    for (const auto& e : std::filesystem::directory_iterator(da)) {
+        if (e.path().extension() != ".png") continue;
+        INFO(e.path().filename());
+        REQUIRE(std::filesystem::exists(db / e.path().filename()));
+        CHECK(fileBytes(e.path()) == fileBytes(db / e.path().filename()));
+        ++n;
+    }
+    return n;
 }
 
 } // namespace
@@ -123,13 +150,22 @@ TEST_CASE("Folded plane fields give the plane layout's frames bit for bit, squar
             CHECK(sameVdbContent(unfolded[f], folded1[f], &why));
             INFO(why);
         }
+        // the PNGs (displacement map, preview) drawn from the folded copies in place
+        CHECK(samePngs(unfolded[0], folded[0]) > 0);
     }
 }
 
 TEST_CASE("The fold is a permutation: fold and unfold give back every value and active state", "[fast][fold]")
 {
-    CHECK(plane::fold(openvdb::Coord(-1, 5, 0)) == openvdb::Coord(5, -1, 7));
-    for (int x = -70; x < 70; ++x)
+    // x = -1: the last column of the last span (15) of band -1
+    CHECK(plane::fold(openvdb::Coord(-1, 5, 0)) == openvdb::Coord(5, -1, 127));
+    CHECK(plane::fold(openvdb::Coord(1024 + 9, 5, 0)) == openvdb::Coord(5, 1, 8 + 1));
+    CHECK(plane::fold(openvdb::Coord(16384 + 64, 5, 0)) == openvdb::Coord(5, 128 + 8, 0));
+    std::vector<int> xs; // every column near the 64-column tiles, 1024-column spans and bands
+    for (int x = -70; x < 70; ++x) xs.push_back(x);
+    for (int edge : {1024, -1024, 3 * 1024, 16384, -16384, 2 * 16384 + 5 * 1024, -3 * 16384 - 7 * 1024})
+        for (int x = edge - 70; x < edge + 70; ++x) xs.push_back(x);
+    for (int x : xs)
         for (int y = -9; y < 9; ++y) {
             const openvdb::Coord c(x, y, 0);
             REQUIRE(plane::unfold(plane::fold(c)) == c);
@@ -167,6 +203,88 @@ TEST_CASE("The fold is a permutation: fold and unfold give back every value and 
                 REQUIRE(l);
                 REQUIRE(l->getValue(v.getCoord()) == *v);
             }
+}
+
+TEST_CASE("The fold fills the internal nodes: scattered islands on a 16384^2 plane, node for node", "[fast][fold]")
+{
+    // 1000 islands of 3 x 3 plane leaves scattered over a 16384^2 plane (bench scale's seeds):
+    // the first fold, Coord(y, x >> 3, x & 7), gave one 33 KiB level-1 node per island in every
+    // folded tree (1/16 of its slots usable); this fold spans a node over 128 rows x 16384
+    // columns, so the plane holds at most 128 of them.
+    auto g = openvdb::FloatGrid::create(0.f);
+    for (int i = 0; i < 1000; ++i) {
+        const uint64_t h = hashCounters(24, uint64_t(i));
+        const int cx = int(h % 16000) + 100, cy = int((h >> 24) % 16000) + 100;
+        for (int y = cy - 12; y < cy + 12; ++y)
+            for (int x = cx - 12; x < cx + 12; ++x) g->tree().setValueOn(openvdb::Coord(x, y, 0), float(x ^ y));
+    }
+    auto folded = plane::foldGrid(*g);
+    const auto nodes = folded->tree().nodeCount(); // per level: leaves, level 1, level 2, root
+    CHECK(nodes[1] <= 128);
+    CHECK(nodes[2] <= 4);
+    CHECK(folded->memUsage() * 4 < g->memUsage());
+    // the same values and active states as the plane layout, voxel for voxel
+    auto back = plane::unfoldGrid(*folded);
+    CHECK(back->tree().hasSameTopology(g->tree()));
+    auto ga = g->getConstAccessor();
+    for (auto it = back->cbeginValueOn(); it; ++it) REQUIRE(*it == ga.getValue(it.getCoord()));
+}
+
+TEST_CASE("A grid of the first fold (a checkpoint's) is moved to this fold voxel for voxel", "[fast][fold][checkpoint]")
+{
+    // the first fold stored plane voxel (x, y) at Coord(y, x >> 3, x & 7), flagged by a bool
+    auto plane = openvdb::FloatGrid::create(0.5f);
+    auto legacy = openvdb::FloatGrid::create(0.5f);
+    auto legacyHits = openvdb::Int32Grid::create(0);
+    auto planeHits = openvdb::Int32Grid::create(0);
+    for (int i = 0; i < 20000; ++i) {
+        const uint64_t h = hashCounters(17, uint64_t(i));
+        const openvdb::Coord c(int(h % 40000) - 20000, int((h >> 20) % 600) - 300, 0);
+        const openvdb::Coord old(c.y(), c.x() >> 3, c.x() & 7);
+        const float v = float(h % 1000) * 0.001f;
+        if (h >> 60 & 1) {
+            plane->tree().setValueOn(c, v);
+            legacy->tree().setValueOn(old, v);
+        } else {
+            plane->tree().setValueOff(c, -v);
+            legacy->tree().setValueOff(old, -v);
+        }
+        planeHits->tree().setValueOn(c, int(i));
+        legacyHits->tree().setValueOn(old, int(i));
+    }
+    legacy->insertMeta(plane::kFoldMeta, openvdb::BoolMetadata(true));
+    legacyHits->insertMeta(plane::kFoldMeta, openvdb::BoolMetadata(true));
+    CHECK(!plane::isFolded(*legacy));
+    plane::upgradeLegacyFold(*legacy);
+    plane::upgradeLegacyFold(*legacyHits);
+    REQUIRE(plane::isFolded(*legacy));
+    REQUIRE(plane::isFolded(*legacyHits));
+    // leaf for leaf the grid this fold makes of the plane layout (foldGrid drops the plane leaves
+    // holding inactive values only; the legacy grid keeps them), and the same plane layout back
+    auto expected = plane::foldGrid(*plane);
+    size_t leaves = 0;
+    for (auto it = legacy->tree().cbeginLeaf(); it; ++it) {
+        if (it->isEmpty()) continue;
+        ++leaves;
+        const auto* l = expected->tree().probeConstLeaf(it->origin());
+        REQUIRE(l);
+        REQUIRE(l->getValueMask() == it->getValueMask());
+        for (auto v = it->cbeginValueOn(); v; ++v) REQUIRE(l->getValue(v.pos()) == *v);
+    }
+    CHECK(leaves == expected->tree().leafCount());
+    CHECK(legacy->activeVoxelCount() == plane->activeVoxelCount());
+    auto pa = plane->getConstAccessor();
+    const auto back = plane::unfoldGrid(*legacy);
+    for (auto it = back->cbeginValueOn(); it; ++it) {
+        REQUIRE(pa.isValueOn(it.getCoord()));
+        REQUIRE(*it == pa.getValue(it.getCoord()));
+    }
+    CHECK(plane::foldGrid(*planeHits)->tree().hasSameTopology(legacyHits->tree()));
+    // a grid already of this fold, or not folded, is left as it is
+    const auto before = expected->activeVoxelCount();
+    plane::upgradeLegacyFold(*expected);
+    CHECK(plane::isFolded(*expected));
+    CHECK(expected->activeVoxelCount() == before);
 }
 
 TEST_CASE("A checkpoint of the plane layout resumes on a folding build to the same frames", "[fast][fold][checkpoint]")
@@ -318,6 +436,34 @@ TEST_CASE("A plane region edited in place, and its folded topology, equal the on
             CHECK(removed > 100); // the history did lose and gain leaves
             CHECK(added > 100);
         }
+}
+
+TEST_CASE("A folded grid draws the displacement map of its plane layout byte for byte", "[fast][fold][export]")
+{
+    // columns across a 64-column tile, a 1024-column span and a band edge (x = 0), values in [0, 1]
+    // and inactive ones off the background
+    const Lattice hex{LatticeKind::Hexagonal, 3.0 / 64.0};
+    const Domain dom = makePlaneDomain(hex, openvdb::Coord(300, 200, 1), 1e-4, openvdb::Coord(-140, -8, 0));
+    auto g = openvdb::FloatGrid::create(0.f);
+    g->setName("growth");
+    g->setTransform(dom.transform()->copy());
+    for (int i = 0; i < 9000; ++i) {
+        const uint64_t h = hashCounters(31, uint64_t(i));
+        const openvdb::Coord c(int(h % 300) - 140, int((h >> 20) % 200) - 8, 0);
+        if (h >> 60 & 3) g->tree().setValueOn(c, float(h % 1000) * 0.001f);
+        else g->tree().setValueOff(c, 0.5f);
+    }
+    const auto folded = plane::foldGrid(*g);
+    const auto plane = plane::unfoldGrid(*folded); // what a frame held: the plane layout of the field
+    const std::string dir = tempDir("fold_pngs");
+    for (int tile : {64, 1 << 30}) {
+        INFO("tile " << tile);
+        const auto want = writeDisplacementMaps(*plane, dom, dir + "/plane", tile);
+        const auto got = writeDisplacementMaps(*folded, dom, dir + "/folded", tile);
+        REQUIRE(want.size() == got.size());
+        CHECK(!want.empty());
+        for (size_t i = 0; i < want.size(); ++i) CHECK(fileBytes(want[i]) == fileBytes(got[i]));
+    }
 }
 
 TEST_CASE("A folded field resampled in place exports the bits its unfolded copy exports", "[fast][fold][export]")

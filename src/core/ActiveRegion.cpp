@@ -224,8 +224,8 @@ struct PlaneLeafRows {
         const LeafT& leaf = leaves.leaf(i / 8);
         const int g = int(i % 8);
         const openvdb::Coord fo = leaf.origin();
-        if (fo.z() != 0) throw std::logic_error("planeRegionByLeaves: a folded plane field has a leaf off layer 0");
-        o = openvdb::Coord((fo.y() + g) * kLeafDim, fo.x(), 0);
+        if (!plane::isFoldedLeafOrigin(fo)) throw std::logic_error("planeRegionByLeaves: a folded plane field has a leaf off its layers");
+        o = plane::planeLeafOfChunk(fo, g);
         uint64_t bytes = 0; // byte dy: the chunk's row dy (bit dx)
         for (int dy = 0; dy < kLeafDim; ++dy)
             bytes |= ((leaf.getValueMask().template getWord<uint64_t>(openvdb::Index(dy)) >> (g * 8)) & 0xffu) << (dy * 8);

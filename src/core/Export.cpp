@@ -1,4 +1,5 @@
 #include <frostvdb/core/Export.h>
+#include <frostvdb/core/FoldedReader.h>
 #include <frostvdb/core/PlaneFold.h>
 #include <frostvdb/io/Png.h>
 
@@ -14,6 +15,7 @@
 #include <algorithm>
 #include <functional>
 #include <cmath>
+#include <optional>
 #include <stdexcept>
 
 namespace frostvdb {
@@ -157,54 +159,7 @@ openvdb::GridBase::Ptr resampleSparse(const openvdb::GridBase& base, const openv
     return resampleBoxes<GridT, Sampler, Nearest>(boxes, [&] { return in.getConstAccessor(); }, in, target);
 }
 
-/// A folded plane field (core/PlaneFold.h) read as its plane layout (plane::unfoldGrid's
-/// result) by plane index, without making that copy: a plane cell reads its folded cell when
-/// its 8 x 8 chunk holds an active voxel (unfoldGrid makes a plane leaf only there) and the
-/// background elsewhere, as do cells off layer 0. The folded tree has no active tiles.
-class FoldedReader {
-public:
-    using ValueType = float;
-    using TreeType = openvdb::FloatTree;
-    explicit FoldedReader(const openvdb::FloatGrid& folded) : mAcc(folded.tree()), mBg(folded.background()) {}
-    bool probeValue(const openvdb::Coord& c, float& v) const
-    {
-        const openvdb::FloatTree::LeafNodeType* leaf = chunkLeaf(c);
-        if (!leaf) {
-            v = mBg;
-            return false;
-        }
-        const openvdb::Index n = offset(c);
-        v = leaf->getValue(n);
-        return leaf->isValueOn(n);
-    }
-    float getValue(const openvdb::Coord& c) const
-    {
-        float v;
-        probeValue(c, v);
-        return v;
-    }
-    bool isValueOn(const openvdb::Coord& c) const
-    {
-        const openvdb::FloatTree::LeafNodeType* leaf = chunkLeaf(c);
-        return leaf && leaf->isValueOn(offset(c));
-    }
-
-private:
-    static openvdb::Index offset(const openvdb::Coord& c) { return openvdb::Index(((c.y() & 7) << 6) | (c.x() & 63)); }
-    const openvdb::FloatTree::LeafNodeType* chunkLeaf(const openvdb::Coord& c) const
-    {
-        if (c.z() != 0) return nullptr;
-        const auto* leaf = mAcc.probeConstLeaf(plane::fold(c));
-        if (!leaf) return nullptr;
-        const int g = (c.x() >> 3) & 7;
-        const auto& m = leaf->getValueMask();
-        uint64_t any = 0;
-        for (openvdb::Index w = 0; w < 8; ++w) any |= m.template getWord<uint64_t>(w);
-        return ((any >> (g * 8)) & 0xffu) ? leaf : nullptr;
-    }
-    mutable openvdb::tree::ValueAccessor<const openvdb::FloatTree> mAcc;
-    float mBg;
-};
+using plane::FoldedReader;
 
 /// resampleSparse of plane::unfoldGrid(@a folded) (its metadata and background from @a like),
 /// reading the folded leaves in place: the boxes are the unfolded leaves' (one per 8 x 8 chunk
@@ -229,7 +184,7 @@ openvdb::FloatGrid::Ptr resampleFolded(const openvdb::FloatGrid& folded, const o
             if (!cols) continue;
             // the plane leaf's tight active box widened by one voxel within its node box, as
             // resampleSparse takes it from the unfolded leaf
-            const openvdb::Coord lo((fo.y() + g) * 8, fo.x(), 0);
+            const openvdb::Coord lo = plane::planeLeafOfChunk(fo, g);
             openvdb::CoordBBox bb(lo.offsetBy(__builtin_ctzll(cols), y0, 0), lo.offsetBy(63 - __builtin_clzll(cols), y1, 0));
             bb.expand(1);
             bb.intersect(openvdb::CoordBBox::createCube(lo, 8));
@@ -434,15 +389,24 @@ std::vector<std::pair<int, int>> touchedBlocks(const openvdb::FloatGrid& g, cons
     const auto& xf = g.transform();
     auto raster = openvdb::math::Transform::createLinearTransform(r.h);
     openvdb::tree::LeafManager<const openvdb::FloatTree> leaves(g.tree());
-    std::vector<openvdb::CoordBBox> boxes(leaves.leafCount());
+    const bool folded = plane::isFolded(g); // then one box per plane leaf unfoldGrid would make
+    std::vector<openvdb::CoordBBox> boxes(leaves.leafCount() * (folded ? 8 : 1));
     tbb::parallel_for(size_t(0), leaves.leafCount(), [&](size_t i) {
         if (leaves.leaf(i).isEmpty()) return;
+        if (folded) {
+            plane::PlaneChunk chunks[8];
+            const int n = plane::chunksOf(leaves.leaf(i), chunks);
+            for (int c = 0; c < n; ++c) // a plane leaf's node box, as evalActiveBoundingBox(bb, false) gives
+                boxes[i * 8 + size_t(c)] = footprint(openvdb::CoordBBox::createCube(chunks[c].origin, 8), xf, *raster, false);
+            return;
+        }
         openvdb::CoordBBox bb;
         leaves.leaf(i).evalActiveBoundingBox(bb, false);
         boxes[i] = footprint(bb, xf, *raster, false);
     });
     auto tile = g.tree().cbeginValueOn();
     tile.setMaxDepth(openvdb::FloatTree::ValueOnCIter::LEAF_DEPTH - 1);
+    if (folded && tile) throw std::logic_error("touchedBlocks: a folded plane grid with active tiles");
     for (; tile; ++tile) boxes.push_back(footprint(tile.getBoundingBox(), xf, *raster, false));
     (void)z;
     std::vector<std::pair<int, int>> blocks;
@@ -460,14 +424,18 @@ std::vector<std::pair<int, int>> touchedBlocks(const openvdb::FloatGrid& g, cons
 
 /// Samples @a growth at the raster pixels of @a blocks that fall in the image window
 /// [ia, ia + W) x [ib, ib + H) (raster offsets; image row 0 at the top) into @a values.
+/// A folded growth (core/PlaneFold.h) is read in place as its plane layout (FoldedReader).
 void sampleBlocks(const openvdb::FloatGrid& growth, const SquareRaster& r, double z,
                   const std::vector<std::pair<int, int>>& blocks, int ia, int ib, int W, int H,
                   std::vector<uint16_t>& values)
 {
+    const bool folded = plane::isFolded(growth);
     tbb::parallel_for(tbb::blocked_range<size_t>(0, blocks.size(), 16), [&](const tbb::blocked_range<size_t>& rg) {
         auto acc = growth.getConstAccessor();
         openvdb::tools::GridSampler<openvdb::FloatGrid::ConstAccessor, openvdb::tools::BoxSampler> s(
             acc, growth.transform());
+        std::optional<FoldedReader> reader;
+        if (folded) reader.emplace(growth);
         for (size_t k = rg.begin(); k != rg.end(); ++k) {
             for (int dy = 0; dy < 8; ++dy)
                 for (int dx = 0; dx < 8; ++dx) {
@@ -475,7 +443,13 @@ void sampleBlocks(const openvdb::FloatGrid& growth, const SquareRaster& r, doubl
                     if (a < 0 || b < 0 || a >= W || b >= H) continue;
                     const int ra = r.a0 + ia + a, rb = r.b0 + ib + b;
                     if (ra > r.a1 || rb > r.b1) continue;
-                    values[size_t(H - 1 - b) * W + a] = toSample16(float(s.wsSample(openvdb::Vec3d(ra * r.h, rb * r.h, z))));
+                    const openvdb::Vec3d ws(ra * r.h, rb * r.h, z);
+                    float v;
+                    if (reader) // what GridSampler::wsSample does, on the plane-layout view
+                        openvdb::tools::BoxSampler::sample(*reader, growth.transform().worldToIndex(ws), v);
+                    else
+                        v = s.wsSample(ws);
+                    values[size_t(H - 1 - b) * W + a] = toSample16(float(v));
                 }
         }
     });

@@ -47,14 +47,14 @@ typename GridT::Ptr unfoldGrid(const GridT& folded)
     for (auto it = src.cbeginLeaf(); it; ++it) {
         const LeafT& fl = *it;
         const openvdb::Coord fo = fl.origin();
-        if (fo.z() != 0) throw std::logic_error("unfoldGrid: a folded plane grid has a leaf off layer 0");
+        if (!plane::isFoldedLeafOrigin(fo)) throw std::logic_error("unfoldGrid: a folded plane grid has a leaf off its layers");
         const auto& fm = fl.getValueMask();
         for (int g = 0; g < 8; ++g) {
             bool any = false; // a plane leaf only where the folded chunk has an active voxel
             for (int dy = 0; dy < 8 && !any; ++dy)
                 any = ((fm.template getWord<uint64_t>(openvdb::Index(dy)) >> (g * 8)) & 0xffu) != 0;
             if (!any) continue;
-            LeafT* pl = dst.touchLeaf(openvdb::Coord((fo.y() + g) * 8, fo.x(), 0));
+            LeafT* pl = dst.touchLeaf(plane::planeLeafOfChunk(fo, g));
             for (int dy = 0; dy < 8; ++dy)
                 for (int dx = 0; dx < 8; ++dx) {
                     const openvdb::Index s = openvdb::Index((dy << 6) | (g << 3) | dx);
@@ -159,7 +159,7 @@ void refoldTopology(openvdb::MaskGrid& folded, const openvdb::MaskGrid& planeReg
             const int g = lo.x() & 63;
             for (int dy = 0; dy < 8; ++dy) fl->getValueMask().template getWord<uint64_t>(openvdb::Index(dy)) &= ~(uint64_t(0xff) << g);
             bool left = false;
-            for (int c = 0; c < 8 && !left; ++c) left = plane.probeConstLeaf(openvdb::Coord((fo.y() + c) * 8, fo.x(), 0)) != nullptr;
+            for (int c = 0; c < 8 && !left; ++c) left = plane.probeConstLeaf(plane::planeLeafOfChunk(fo, c)) != nullptr;
             if (!left) emptied.push_back(fo);
         }
         for (const openvdb::Coord& lo : added) {
@@ -185,7 +185,7 @@ openvdb::MaskGrid::Ptr unfoldTopology(const GridT& folded)
     openvdb::tree::ValueAccessor<openvdb::MaskTree> acc(out->tree());
     for (auto it = src.cbeginLeaf(); it; ++it) {
         const openvdb::Coord fo = it->origin();
-        if (fo.z() != 0) throw std::logic_error("unfoldTopology: a folded plane grid has a leaf off layer 0");
+        if (!plane::isFoldedLeafOrigin(fo)) throw std::logic_error("unfoldTopology: a folded plane grid has a leaf off its layers");
         const auto& fm = it->getValueMask();
         for (int g = 0; g < 8; ++g) {
             uint64_t rows[8];
@@ -195,13 +195,51 @@ openvdb::MaskGrid::Ptr unfoldTopology(const GridT& folded)
                 any = any || rows[dy];
             }
             if (!any) continue; // a plane leaf only where the chunk has an active voxel (as unfoldGrid)
-            auto& pm = acc.touchLeaf(openvdb::Coord((fo.y() + g) * 8, fo.x(), 0))->getValueMask();
+            auto& pm = acc.touchLeaf(plane::planeLeafOfChunk(fo, g))->getValueMask();
             for (int dy = 0; dy < 8; ++dy)
                 for (uint64_t b = rows[dy]; b; b &= b - 1)
                     pm.template getWord<uint64_t>(openvdb::Index(__builtin_ctzll(b))) |= uint64_t(1) << (dy << 3);
         }
     }
     return out;
+}
+
+namespace {
+
+/// upgradeLegacyFold on one grid type: each leaf copied whole to its new origin.
+template <typename GridT>
+bool moveLegacyLeaves(openvdb::GridBase& base)
+{
+    auto* g = dynamic_cast<GridT*>(&base);
+    if (!g) return false;
+    using TreeT = typename GridT::TreeType;
+    using LeafT = typename TreeT::LeafNodeType;
+    typename TreeT::Ptr hold;
+    const TreeT& src = voxelTree(g->tree(), hold);
+    auto moved = std::make_shared<TreeT>(g->tree().background());
+    for (auto it = src.cbeginLeaf(); it; ++it) {
+        const openvdb::Coord fo = it->origin(); // the first fold: Coord(y, x >> 3, x & 7)
+        if (fo.z() != 0) throw std::logic_error("upgradeLegacyFold: a folded plane grid has a leaf off layer 0");
+        auto* leaf = new LeafT(*it);
+        leaf->setOrigin(foldedLeafOrigin(openvdb::Coord(fo.y() * 8, fo.x(), 0)));
+        moved->addLeaf(leaf);
+    }
+    g->setTree(moved);
+    return true;
+}
+
+} // namespace
+
+void upgradeLegacyFold(openvdb::GridBase& g)
+{
+    const auto legacy = g.getMetadata<openvdb::BoolMetadata>(kFoldMeta);
+    if (!legacy) return;
+    g.removeMeta(kFoldMeta);
+    if (!legacy->value()) return;
+    if (!moveLegacyLeaves<openvdb::FloatGrid>(g) && !moveLegacyLeaves<openvdb::Int32Grid>(g) &&
+        !moveLegacyLeaves<openvdb::MaskGrid>(g))
+        throw std::logic_error("upgradeLegacyFold: a folded grid of type " + g.type());
+    markFolded(g);
 }
 
 template openvdb::MaskGrid::Ptr unfoldTopology<openvdb::FloatGrid>(const openvdb::FloatGrid&);

@@ -1,4 +1,5 @@
 #include <frostvdb/core/Simulation.h>
+#include <frostvdb/core/PlaneFold.h>
 
 #include <nlohmann/json.hpp>
 #include <frostvdb/core/FieldWriters.h>
@@ -455,7 +456,13 @@ Frame Simulation::buildFrame(int64_t frameNumber)
 Frame Simulation::currentFrame(int64_t frameNumber)
 {
     Frame frame = buildFrame(frameNumber);
+    // Copies made folded for the PNGs to read in place (ice/IceState.cpp) are made again in the
+    // plane layout: a frame handed out holds the plane layout only.
+    bool folded = false;
+    for (const auto& g : frame.grids) folded = folded || (g && plane::isFolded(*g));
+    if (folded) frame.dropCopies();
     frame.makeDeferred();
+    for (size_t i = 0; i < frame.grids.size(); ++i) frame.grid(i);
     return frame;
 }
 
@@ -803,6 +810,9 @@ std::string Simulation::writeFramePreview(const Frame& frame, int64_t f, const s
         throw SceneError(mWorld.sceneLabel, 0, "output.preview_grid",
                          "no float grid named '" + mOutput.previewGrid + "' in the frame");
     if (!pick) return {};
+    // a frame's copy made folded for the PNGs (ice/IceState.cpp): the preview reads the plane
+    // layout (io/ knows no fold); the copy lives while it is drawn, under the VDB writer's peak
+    if (auto g = openvdb::gridPtrCast<openvdb::FloatGrid>(pick); g && plane::isFolded(*g)) pick = plane::unfoldGrid(*g);
     writePreview(*pick, png);
     return png;
 }

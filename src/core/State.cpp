@@ -1,4 +1,5 @@
 #include <frostvdb/core/State.h>
+#include <frostvdb/core/PlaneFold.h>
 #include <frostvdb/core/Random.h>
 
 #include <openvdb/io/Stream.h>
@@ -244,6 +245,7 @@ openvdb::GridBase::Ptr StateReader::getGridBase(const std::string& key) const
     for (auto it = g->beginMeta(); it != g->endMeta(); ++it)
         if (!names.count(it->first)) extra.push_back(it->first);
     for (auto& k : extra) g->removeMeta(k);
+    plane::upgradeLegacyFold(*g); // a checkpoint written with the first plane fold
     return g;
 }
 

@@ -5,6 +5,7 @@
 
 #include <frostvdb/core/Effect.h>
 #include <frostvdb/core/Error.h>
+#include <frostvdb/core/PlaneFold.h>
 #include <frostvdb/io/Png.h>
 #include <frostvdb/io/VdbIO.h>
 
@@ -623,7 +624,9 @@ void writeGasPreview(const openvdb::GridPtrVec& grids, const V3& up, const std::
 {
     auto density = findGrid<openvdb::FloatGrid>(grids, out::kDensity.name);
     if (!density) throw SimulationError("gas preview: the frame has no density grid");
-    const PreviewVolume v = samplePreview(density, findGrid<openvdb::FloatGrid>(grids, out::kIce.name),
+    auto ice = findGrid<openvdb::FloatGrid>(grids, out::kIce.name);
+    if (ice && plane::isFolded(*ice)) ice = plane::unfoldGrid(*ice); // a frame's PNG copy may be folded
+    const PreviewVolume v = samplePreview(density, ice,
                                           findGrid<openvdb::Vec3SGrid>(grids, out::kColour.name),
                                           findGrid<openvdb::FloatGrid>(grids, out::kFlame.name), up, width);
     const double k = extinctionScale(v);

@@ -78,6 +78,9 @@ public:
         }
         world.fields.replace(ice::kPhase, p);
         world.fields.replace(ice::kTemperature, T);
+        // A frame may be written now, and other effects add their copies to it before ours
+        // (addToFrame): give the staging area back first (remade at the next step).
+        if (world.stepsPerFrame > 0 && (step + 1) % world.stepsPerFrame == 0) mSolver->releaseScratch();
     }
 
     void addToFrame(World& world, Frame& frame) override
@@ -136,7 +139,10 @@ public:
     {
         std::vector<std::pair<std::string, double>> t{{"region_rebuilds", double(mStats.rebuilds)},
                                                       {"region_growths", double(mStats.regionGrowths)},
-                                                      {"voxel_updates", double(mStats.voxelUpdates)}};
+                                                      {"voxel_updates", double(mStats.voxelUpdates)},
+                                                      {"region_mib", mSolver ? mSolver->regionBytes() / 1048576.0 : 0.0},
+                                                      {"folded_region_mib", mSolver ? mSolver->foldedRegionBytes() / 1048576.0 : 0.0},
+                                                      {"staging_peak_mib", mStats.stagingPeakBytes / 1048576.0}};
         if (secondOrder()) {
             const double n = double(std::max<int64_t>(1, mStats.solves));
             t.push_back({"mean_iterations_p", mStats.solverIterationsP / n});

@@ -107,6 +107,14 @@ openvdb::GridBase::Ptr normalisedGrowth(const openvdb::FloatGrid& acc)
     return growth;
 }
 
+/// growth_acc normalised (the frame's `growth`) in its own layout.
+openvdb::FloatGrid::Ptr normalisedFolded(const openvdb::FloatGrid& acc)
+{
+    auto growth = acc.deepCopy();
+    normaliseGrowth(*growth);
+    return growth;
+}
+
 } // namespace
 
 void normaliseGrowth(openvdb::FloatGrid& growth)
@@ -127,7 +135,9 @@ void addIceOutputs(World& world, Frame& frame)
     if (!p) return;
     // Copies of live fields: the writer may drop them and make them again when it writes them
     // (the fields do not change in between), so a frame being written holds one at a time.
-    frame.addCopy(iceFog(*p), [p]() -> openvdb::GridBase::Ptr {
+    // Folded p: the copy the PNGs read is folded too (4.5 bytes per voxel against the plane
+    // layout's 36; the preview reads it in place), and is made again for the writer.
+    frame.addCopy(plane::isFolded(*p) ? toFog(p->deepCopy()) : iceFog(*p), [p]() -> openvdb::GridBase::Ptr {
         // made again for the VDB writer: exported from a folded fog copy, in place (the clamp and
         // the pruning commute with the fold: a plane leaf is pruned when its chunk has no active
         // voxel left)
@@ -163,7 +173,8 @@ void addIceFieldOutputs(World& world, Frame& frame)
     }
     // growth_acc and freeze_time may be folded (core/PlaneFold.h): frames hold the plane layout.
     if (auto acc = world.fields.get<openvdb::FloatGrid>(kGrowth)) {
-        frame.addCopy(normalisedGrowth(*acc), [acc]() -> openvdb::GridBase::Ptr {
+        // folded: the copy the displacement map reads is folded too (read in place, as ice's)
+        frame.addCopy(plane::isFolded(*acc) ? normalisedFolded(*acc) : normalisedGrowth(*acc), [acc]() -> openvdb::GridBase::Ptr {
             if (exportsFoldedInPlace(*acc)) { // normalised folded (the same active values), exported in place
                 auto growth = acc->deepCopy();
                 normaliseGrowth(*growth);

@@ -5,18 +5,26 @@
 /// A plane field stored as Coord(x, y, 0) uses one z layer of every 8^3 leaf: 64 of 512 values,
 /// about 36 bytes per voxel. Folded, plane voxel (x, y) of layer z = 0 is stored at
 /// @code
-///   Coord(y, x >> 3, x & 7)      // fold()
+///   Coord(y, ((x >> 3) & 127) | ((x >> 14) << 7), (x & 7) | (((x >> 10) & 15) << 3))   // fold()
 /// @endcode
 /// so an 8^3 leaf is a dense tile of 8 rows (y) by 64 columns (x), rows of x contiguous in the
 /// leaf's buffer (offset ((y & 7) << 6) | (x & 63)), every value used: about 4.5 bytes per voxel
 /// (`frostvdb bench layout`, docs/performance.md). The grid stays an OpenVDB grid (leaf managers,
 /// pruning, checkpoints and I/O unchanged); only coordinates differ.
 ///
-/// A folded grid carries the metadata flag kFoldMeta; every reader and writer of a field that may
-/// be folded asks isFolded(grid) once per step and maps plane coordinates with fold() (a
-/// PlaneCells accessor does that per cell). So a field restored from an older checkpoint (not
-/// folded) is still read right. Frames never hold folded grids: export unfolds (unfoldGrid), a
-/// permutation of the values, so a frame's grids keep their world placement and their bits.
+/// Which leaf a tile lands in is chosen so that the trees' internal nodes are used in all three
+/// axes: the tile's 1024-column span within a 16384-column band (x bits 10..13) goes to z, so a
+/// level-1 node (16^3 leaf slots, 33 KiB whatever it holds) covers a band of 128 rows by 16384
+/// columns with every slot usable. (The first fold, Coord(y, x >> 3, x & 7), used one z slab in
+/// 16 of every node: with 1000 scattered seeds on a 16384^2 pane each folded tree paid ~30 MiB of
+/// nodes; docs/performance.md session 17.) Checkpoints written with that fold are moved to this
+/// one when read (upgradeLegacyFold).
+///
+/// A folded grid carries the metadata kFoldMeta (Int32 kFoldVersion); every reader and writer of a
+/// field that may be folded asks isFolded(grid) once per step and maps plane coordinates with
+/// fold() (a PlaneCells accessor does that per cell). So a field restored from an older checkpoint
+/// (not folded) is still read right. Frames never hold folded grids: export unfolds (unfoldGrid),
+/// a permutation of the values, so a frame's grids keep their world placement and their bits.
 ///
 /// Which fields are folded, and when: see foldsPlaneFields() and docs/architecture.md.
 #include <frostvdb/core/Domain.h>
@@ -32,46 +40,73 @@
 namespace frostvdb {
 namespace plane {
 
-/// Grid metadata naming a folded plane field (bool true).
+/// Grid metadata naming a folded plane field: Int32 kFoldVersion (a bool true marks the first
+/// fold, see upgradeLegacyFold).
 inline const char* const kFoldMeta = "frostvdb_plane_fold";
+inline constexpr int32_t kFoldVersion = 2;
+
+/// Stored y of plane column @a x: columns 8k .. 8k+7 of the 1024-column span, then the band.
+inline int foldedY(int x) { return ((x >> 3) & 127) | ((x >> 14) * 128); }
+/// Stored z of plane column @a x: its place in the leaf row, then its span within the band.
+inline int foldedZ(int x) { return (x & 7) | (((x >> 10) & 15) << 3); }
+/// Plane column of stored (y, z) (the inverse of foldedY and foldedZ).
+inline int planeX(int fy, int fz) { return (fz & 7) | ((fy & 127) << 3) | (((fz >> 3) & 15) << 10) | ((fy >> 7) * 16384); }
 
 /// Stored coordinate of plane voxel @a c (c.z() must be 0).
 inline openvdb::Coord fold(const openvdb::Coord& c)
 {
-    return openvdb::Coord(c.y(), c.x() >> 3, c.x() & 7);
+    return openvdb::Coord(c.y(), foldedY(c.x()), foldedZ(c.x()));
 }
 /// Plane voxel of stored coordinate @a f (the inverse of fold()).
 inline openvdb::Coord unfold(const openvdb::Coord& f)
 {
-    return openvdb::Coord(f.y() * 8 + f.z(), f.x(), 0);
+    return openvdb::Coord(planeX(f.y(), f.z()), f.x(), 0);
 }
 /// Origin of the folded leaf holding the plane leaf at @a lo (x, y multiples of 8, z 0).
 inline openvdb::Coord foldedLeafOrigin(const openvdb::Coord& lo)
 {
-    return openvdb::Coord(lo.y(), (lo.x() >> 3) & ~7, 0);
+    return openvdb::Coord(lo.y(), foldedY(lo.x()) & ~7, foldedZ(lo.x()) & ~7);
 }
 /// Offset in its folded leaf of the voxel at (dx, dy) in the plane leaf at @a lo.
 inline openvdb::Index foldedOffset(const openvdb::Coord& lo, int dx, int dy)
 {
     return openvdb::Index((dy << 6) | (lo.x() & 63) | dx);
 }
+/// Origin of the plane leaf stored as chunk @a g (0..7: its 8 columns of each row) of the folded
+/// leaf at @a fo (the inverse of foldedLeafOrigin with the chunk g = (lo.x() >> 3) & 7).
+inline openvdb::Coord planeLeafOfChunk(const openvdb::Coord& fo, int g)
+{
+    return openvdb::Coord(planeX(fo.y() + g, fo.z()), fo.x(), 0);
+}
+/// True when @a fo can be a folded leaf's origin (a folded plane grid holds no other leaves).
+inline bool isFoldedLeafOrigin(const openvdb::Coord& fo) { return fo.z() >= 0 && fo.z() < 128; }
 
-/// The stored box holding the folded cells of the plane box @a planeBox (z 0): what an active
-/// tile of a folded field is clipped to before its cells are unfolded.
+/// A stored box holding the folded cells of the plane box @a planeBox (z 0) (and, where the
+/// columns cross a 1024-column span, others: callers keep the cells whose unfold() is inside
+/// @a planeBox): what an active tile of a folded field is clipped to before its cells are unfolded.
 inline openvdb::CoordBBox foldedBBox(const openvdb::CoordBBox& planeBox)
 {
-    return openvdb::CoordBBox(openvdb::Coord(planeBox.min().y(), planeBox.min().x() >> 3, 0),
-                              openvdb::Coord(planeBox.max().y(), planeBox.max().x() >> 3, 7));
+    const int x0 = planeBox.min().x(), x1 = planeBox.max().x();
+    if ((x0 >> 10) == (x1 >> 10)) // one span: a box
+        return openvdb::CoordBBox(openvdb::Coord(planeBox.min().y(), foldedY(x0), foldedZ(x0) & ~7),
+                                  openvdb::Coord(planeBox.max().y(), foldedY(x1), foldedZ(x0) | 7));
+    return openvdb::CoordBBox(openvdb::Coord(planeBox.min().y(), (x0 >> 14) * 128, 0),
+                              openvdb::Coord(planeBox.max().y(), (x1 >> 14) * 128 + 127, 127));
 }
 
 /// True when @a g is a folded plane field.
 inline bool isFolded(const openvdb::GridBase& g)
 {
-    const auto m = g.getMetadata<openvdb::BoolMetadata>(kFoldMeta);
-    return m && m->value();
+    const auto m = g.getMetadata<openvdb::Int32Metadata>(kFoldMeta);
+    return m && m->value() == kFoldVersion;
 }
 /// Marks a fresh (empty) grid as folded.
-inline void markFolded(openvdb::GridBase& g) { g.insertMeta(kFoldMeta, openvdb::BoolMetadata(true)); }
+inline void markFolded(openvdb::GridBase& g) { g.insertMeta(kFoldMeta, openvdb::Int32Metadata(kFoldVersion)); }
+
+/// A grid read from a checkpoint written with the first fold (kFoldMeta a bool true, plane voxel
+/// (x, y) at Coord(y, x >> 3, x & 7)): its leaves moved to this fold's origins (their buffers
+/// and masks are the same), and marked with kFoldVersion. Other grids are left as they are.
+void upgradeLegacyFold(openvdb::GridBase& g);
 
 /// True when @a d's plane fields are folded when created: a flat lattice domain on layer z = 0
 /// (planes), unless FROSTVDB_NO_PLANE_FOLD=1 (read at every call: tests compare both layouts

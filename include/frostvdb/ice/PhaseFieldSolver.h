@@ -41,6 +41,7 @@ struct PhaseFieldStepStats {
     int64_t clippedVoxels = 0;
     int64_t rebuilds = 0;      ///< region rebuilds (every k steps, or when another effect wrote p or T)
     int64_t regionGrowths = 0; ///< standing regions grown around cells other effects reported
+    uint64_t stagingPeakBytes = 0; ///< forward Euler's staging area at its largest
 };
 
 struct LeafGroups;
@@ -95,6 +96,11 @@ public:
         std::vector<float>().swap(mStageP);
         std::vector<float>().swap(mStageT);
     }
+
+    /// Bytes held by the region's trees now (the plane-layout mask; its folded twin when the
+    /// fields are folded), for `bench scale`'s account of the memory.
+    uint64_t regionBytes() const;
+    uint64_t foldedRegionBytes() const;
 
     /// The melt map (field `melt`, values in [0,1]); null for none. Not owned.
     void setMeltMap(const openvdb::FloatGrid* melt) { mMelt = melt; }
