@@ -446,11 +446,6 @@ struct StagedValues {
     }
     float* p(size_t li) const { return p0 + li * slots; }
     float* t(size_t li) const { return t0 + li * slots; }
-    /// Folded p and T: the values are staged per region plane leaf (64 slots, x-major like a
-    /// plane leaf's layer), not per folded leaf (512), so a folded leaf the region covers in part
-    /// stages only its region's chunks; chunk g of p's folded leaf fi is region leaf
-    /// chunkLeaf[fi * 8 + g] (FoldedLayout::chunkLeaf).
-    const std::vector<uint32_t>* chunkLeaf = nullptr;
 };
 
 /// truncateToTolerance (core/ActiveRegion.h) done by the commit on a retiring step: the same
@@ -472,24 +467,8 @@ void commitStaged(openvdb::tree::LeafManager<openvdb::FloatTree>& pLeaves,
             FloatLeaf& tl = tLeaves.leaf(li);
             float* pv = pl.buffer().data();
             float* tv = tl.buffer().data();
-            const float* sp = sv.chunkLeaf ? nullptr : sv.p(li);
-            const float* st = sv.chunkLeaf ? nullptr : sv.t(li);
-            // folded: the staged value of folded offset n, in its chunk's region leaf
-            const float* cp[8] = {};
-            const float* ct[8] = {};
-            if (sv.chunkLeaf)
-                for (int g = 0; g < 8; ++g) {
-                    const uint32_t r = (*sv.chunkLeaf)[li * 8 + size_t(g)];
-                    if (r == ~uint32_t(0)) continue; // no region voxel there: never read
-                    cp[g] = sv.p(r);
-                    ct[g] = sv.t(r);
-                }
-            auto stagedP = [&](openvdb::Index n) {
-                return sp ? sp[n >> sv.shift] : cp[(n >> 3) & 7][((n & 7) << 3) | (n >> 6)];
-            };
-            auto stagedT = [&](openvdb::Index n) {
-                return st ? st[n >> sv.shift] : ct[(n >> 3) & 7][((n & 7) << 3) | (n >> 6)];
-            };
+            const float* sp = sv.p(li);
+            const float* st = sv.t(li);
             auto& mask = pl.getValueMask();
             if (!trunc) {
                 for (openvdb::Index w = 0; w < FloatLeaf::NodeMaskType::WORD_COUNT; ++w) {
@@ -501,8 +480,8 @@ void commitStaged(openvdb::tree::LeafManager<openvdb::FloatTree>& pLeaves,
                     }
                     for (uint64_t bits = word; bits; bits &= bits - 1) {
                         const openvdb::Index n = w * 64 + openvdb::Index(__builtin_ctzll(bits));
-                        pv[n] = stagedP(n);
-                        tv[n] = stagedT(n);
+                        pv[n] = sp[n >> sv.shift];
+                        tv[n] = st[n >> sv.shift];
                     }
                 }
                 continue;
@@ -518,7 +497,7 @@ void commitStaged(openvdb::tree::LeafManager<openvdb::FloatTree>& pLeaves,
                 for (uint64_t bits = wp; bits; bits &= bits - 1) {
                     const int b = __builtin_ctzll(bits);
                     const openvdb::Index n = w * 64 + openvdb::Index(b);
-                    const float x = stagedP(n), y = stagedT(n);
+                    const float x = sp[n >> sv.shift], y = st[n >> sv.shift];
                     if (std::fabs(x - bgP) <= tol) { pv[n] = bgP; clearP |= uint64_t(1) << b; }
                     else pv[n] = x;
                     if (std::fabs(y - bgT) <= tol) { tv[n] = bgT; clearT |= uint64_t(1) << b; }
@@ -560,9 +539,8 @@ struct LeafKernel {
     /// Where the cells whose p crossed 1/2 go (null: nobody listens), see setCrossingLog.
     std::vector<openvdb::Coord>* crossings = nullptr;
 
-    /// Folded p and T (core/PlaneFold.h): the kernel walks the region's plane leaves (region
-    /// leaf li's values staged in its own 64 slots, StagedValues::chunkLeaf); its folded leaf is
-    /// foldedLeaf[li] of p's leaves.
+    /// Folded p and T (core/PlaneFold.h): the kernel walks the region's plane leaves, and
+    /// region leaf li's values are staged in its folded leaf, foldedLeaf[li] of p's leaves.
     const std::vector<uint32_t>* foldedLeaf = nullptr;
 
     /// Where leaf @a li's new values go: the staging slots or the leaf buffer itself, and the
@@ -583,6 +561,10 @@ struct LeafKernel {
     Out out(size_t li, const openvdb::Coord& lo, openvdb::tree::LeafManager<openvdb::FloatTree>& pLeaves,
             openvdb::tree::LeafManager<openvdb::FloatTree>& tLeaves) const
     {
+        if (foldedLeaf) {
+            const size_t fi = (*foldedLeaf)[li];
+            return {staged->p(fi), staged->t(fi), 0, true, lo};
+        }
         if (staged) return {staged->p(li), staged->t(li), staged->shift, false, lo};
         return {pLeaves.leaf(li).buffer().data(), tLeaves.leaf(li).buffer().data(), 0, false, lo};
     }
@@ -978,7 +960,6 @@ struct LeafKernel {
 struct PhaseFieldSolver::FoldedLayout {
     openvdb::MaskGrid::Ptr region;
     std::vector<uint32_t> leafOf;
-    std::vector<uint32_t> chunkLeaf; ///< per folded leaf and chunk g (x >> 3 & 7): its region leaf, or ~0
     uint64_t generation = 0;
     size_t foldedLeaves = 0;
 
@@ -1019,9 +1000,6 @@ struct PhaseFieldSolver::FoldedLayout {
         });
         if (std::find(leafOf.begin(), leafOf.end(), kNone) != leafOf.end())
             throw std::logic_error("FoldedLayout: a region leaf has no folded leaf");
-        chunkLeaf.assign(foldedLeaves * 8, kNone);
-        for (size_t i = 0; i < leafOf.size(); ++i)
-            chunkLeaf[size_t(leafOf[i]) * 8 + size_t((planeLeaves.leaf(i).origin().x() >> 3) & 7)] = uint32_t(i);
     }
     /// A folded leaf origin as its 8 x 64 tile of the plane, in tile units (z 0).
     static openvdb::Coord tableKey(const openvdb::Coord& foldedOrigin)
@@ -1315,9 +1293,8 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
     Failure failure;
     std::optional<StagedValues> staged;
     if (k.scheme == PhaseFieldScheme::Euler) {
-        // folded: 64 slots per region plane leaf, committed into p's folded leaves by chunk
-        staged.emplace(mStageP, mStageT, folded ? regionLeaves->leafCount() : pLeaves.leafCount(), mDomain.flat());
-        if (folded) staged->chunkLeaf = &mFolded->chunkLeaf;
+        // folded: one slot per voxel of a folded leaf (512, all of them plane voxels)
+        staged.emplace(mStageP, mStageT, pLeaves.leafCount(), mDomain.flat() && !folded);
         if (stats)
             stats->stagingPeakBytes = std::max<uint64_t>(stats->stagingPeakBytes,
                                                          (mStageP.capacity() + mStageT.capacity()) * sizeof(float));
