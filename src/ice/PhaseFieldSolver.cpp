@@ -605,21 +605,29 @@ struct LeafKernel {
                     b.chi[b.index(ox + x, oy + y, 0)] =
                         noiseDraw(k, seed, stepIndex, openvdb::Coord(lo.x() + x, lo.y() + y, z0));
         }
-        for (int ly = 0; ly < kPlaneGroup; ++ly) {
-            unsigned bits = cols[ly];
-            while (bits) {
+        forEachLeafRun(cols, [&](int ly, int x0, int x1) {
+            for (int y = 0; y < kDim; ++y) {
+                const size_t i0 = b.index(kHalo + x0 * kDim, kHalo + ly * kDim + y, 0);
+                rows.euler(b.p.data(), b.T.data(), b.a.data(), b.cx.data(), b.cy.data(), b.gx.data(), b.gy.data(),
+                           b.gz.data(), i0, i0 + size_t(x1 - x0) * kDim, st, k, melt ? b.melt.data() : nullptr,
+                           k.noise != 0 ? b.chi.data() : nullptr, b.pe.data(), b.te.data(), b.dp.data());
+            }
+        });
+    }
+
+    /// Calls f(ly, x0, x1) for each run of horizontally adjacent leaves [x0, x1) in leaf row ly
+    /// of a group (cols[ly]: bit lx for each leaf), left to right, rows in order.
+    template <typename F>
+    static void forEachLeafRun(const unsigned (&cols)[kPlaneGroup], const F& f)
+    {
+        for (int ly = 0; ly < kPlaneGroup; ++ly)
+            for (unsigned bits = cols[ly]; bits;) {
                 const int x0 = __builtin_ctz(bits);
                 const unsigned run = bits + (1u << x0); // clears the run of ones at x0
                 const int x1 = __builtin_ctz(run & ~bits);
                 bits &= run;
-                for (int y = 0; y < kDim; ++y) {
-                    const size_t i0 = b.index(kHalo + x0 * kDim, kHalo + ly * kDim + y, 0);
-                    rows.euler(b.p.data(), b.T.data(), b.a.data(), b.cx.data(), b.cy.data(), b.gx.data(), b.gy.data(),
-                               b.gz.data(), i0, i0 + size_t(x1 - x0) * kDim, st, k, melt ? b.melt.data() : nullptr,
-                               k.noise != 0 ? b.chi.data() : nullptr, b.pe.data(), b.te.data(), b.dp.data());
-                }
+                f(ly, x0, x1);
             }
-        }
     }
 
     /// Pass 2 on a plane block's heat-halo leaves (@a heat: p is 0 all around them): the heat
@@ -633,17 +641,12 @@ struct LeafKernel {
             const openvdb::Coord lo = heat[q]->origin();
             cols[(lo.y() - go.y()) / kDim] |= 1u << ((lo.x() - go.x()) / kDim);
         }
-        for (int ly = 0; ly < kPlaneGroup; ++ly)
-            for (unsigned bits = cols[ly]; bits;) {
-                const int x0 = __builtin_ctz(bits);
-                const unsigned run = bits + (1u << x0); // clears the run of ones at x0
-                const int x1 = __builtin_ctz(run & ~bits);
-                bits &= run;
-                for (int y = 0; y < kDim; ++y) {
-                    const size_t i0 = b.index(kHalo + x0 * kDim, kHalo + ly * kDim + y, 0);
-                    rows.heat(b.T.data(), i0, i0 + size_t(x1 - x0) * kDim, st, k, b.te.data());
-                }
+        forEachLeafRun(cols, [&](int ly, int x0, int x1) {
+            for (int y = 0; y < kDim; ++y) {
+                const size_t i0 = b.index(kHalo + x0 * kDim, kHalo + ly * kDim + y, 0);
+                rows.heat(b.T.data(), i0, i0 + size_t(x1 - x0) * kDim, st, k, b.te.data());
             }
+        });
     }
 
     /// A plane leaf's active cells as 8 row masks (byte y, bit x) from its value mask (word x,
