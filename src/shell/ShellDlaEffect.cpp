@@ -124,7 +124,7 @@ public:
     std::vector<std::pair<std::string, double>> timings() const override
     {
         return {{"walkers", mStats.walkSeconds}, {"apply", mStats.applySeconds}, {"sync", mStats.syncSeconds},
-                {"steam", mStats.steamSeconds}};
+                {"clearances", mStats.clearanceSeconds}, {"steam", mStats.steamSeconds}};
     }
     std::vector<std::pair<std::string, double>> counters() const override
     {
@@ -415,6 +415,9 @@ void ShellDlaEffect::walkAndFreeze(StepContext& ctx, int64_t step, uint64_t tota
     for (uint64_t first = 0; first < total; first += uint64_t(mParams.batch)) {
         const uint64_t count = std::min<uint64_t>(uint64_t(mParams.batch), total - first);
         auto t0 = Clock::now();
+        mWalkers->flushIce();
+        mStats.clearanceSeconds += since(t0);
+        t0 = Clock::now();
         mWalkers->walkBatch(step, first, count, in, ends);
         mStats.walkSeconds += since(t0);
         t0 = Clock::now();

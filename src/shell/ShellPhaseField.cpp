@@ -497,11 +497,16 @@ void ShellPhaseField::stepSurface(double time, int64_t stepIndex, uint64_t seed,
     const SurfaceCoefficients4 coefficients4 = fastestSurfaceCoefficients4(mAniso);
     auto coefficientsOf = [&](uint32_t slot) {
         const ShellBand::Leaf& l = leaves[slot];
-        size_t i = l.begin;
-        for (; i + 4 <= l.end; i += 4)
-            coefficients4(b, P, T, mAniso, invH, i, mCoef.data(), mGx.data(), mGy.data(), mFieldSums.data());
-        for (; i < l.end; ++i)
-            surfaceCoefficients(b, P, T, mAniso, invH, i, mCoef.data(), mGx.data(), mGy.data(), mFieldSums.data());
+        for (size_t i = l.begin; i < l.end; i += 4) {
+            if (i + 4 <= l.end) {
+                coefficients4(b, P, T, mAniso, invH, i, mCoef.data(), mGx.data(), mGy.data(), mFieldSums.data());
+            } else if (l.end - l.begin >= 4) { // the tail: the leaf's last four again (same values)
+                coefficients4(b, P, T, mAniso, invH, l.end - 4, mCoef.data(), mGx.data(), mGy.data(), mFieldSums.data());
+            } else {
+                for (; i < l.end; ++i)
+                    surfaceCoefficients(b, P, T, mAniso, invH, i, mCoef.data(), mGx.data(), mGy.data(), mFieldSums.data());
+            }
+        }
     };
     const SurfaceCoefficients* C = mCoef.data();
     const FieldSums* sums = mFieldSums.data();
@@ -532,8 +537,11 @@ void ShellPhaseField::stepSurface(double time, int64_t stepIndex, uint64_t seed,
     auto updateOf = [&](uint32_t slot) {
         const ShellBand::Leaf& l = leaves[slot];
         TapSums s[4];
-        size_t i = l.begin;
-        for (; i + 4 <= l.end; i += 4) {
+        // a leaf's tail of 1-3 nodes as its last four again (each node's values depend on the
+        // fields only, so those written twice are written the same): the vector path's cost
+        const size_t vectorEnd = l.end - l.begin >= 4 ? l.end : l.begin;
+        for (size_t q = l.begin; q < vectorEnd; q += 4) {
+            const size_t i = std::min(q, size_t(l.end) - 4);
             sums4(b, C, sums, i, s);
             if (!mWind.empty()) {
                 for (size_t n = 0; n < 4; ++n) update(i + n, s[n]);
@@ -549,7 +557,7 @@ void ShellPhaseField::stepSurface(double time, int64_t stepIndex, uint64_t seed,
                 mTn[i + n] = ghost ? tInf : tNew[n];
             }
         }
-        for (; i < l.end; ++i) update(i, tapSums(b, C, sums, i));
+        for (size_t i = vectorEnd; i < l.end; ++i) update(i, tapSums(b, C, sums, i));
     };
     // stage 3: the new values become the fields, growth and freeze time recorded, and per leaf
     // whether p crossed 1/2 anywhere in it ([dla] then rescans only those leaves)

@@ -241,6 +241,9 @@ public:
         const std::vector<double>* steamCdf = nullptr;
         const std::vector<size_t>* steamSites = nullptr;
     };
+    /// Brings the ice's distance bounds up to the ice added and removed since the last batch
+    /// (walkBatch does it too; called first, it is timed apart from the walks).
+    void flushIce() const { mIce.flushClearances(); }
     /// Walkers [first, first + count) of @a step in parallel; results indexed by walker - first.
     void walkBatch(int64_t step, uint64_t first, uint64_t count, const Inputs& in,
                    std::vector<ShellWalkEnd>& out) const;
