@@ -121,8 +121,6 @@ void ShellBand::init(const TriangleMesh& mesh, const BandSettings& settings)
         mBorderA.push_back(mPts[e.first]);
         mBorderB.push_back(mPts[e.second]);
     }
-    mIndex = openvdb::Int32Grid::create(-1);
-    mIndex->setTransform(mTransform);
     mMask = openvdb::MaskGrid::create();
     mMask->setTransform(mTransform);
 }
@@ -258,12 +256,9 @@ size_t ShellBand::materialiseLocked(std::vector<Coord> origins) const
         mSlotOf[origins[k]] = int32_t(mLeaves.size());
         mLeaves.push_back(leaf);
         if (d.coords.empty()) continue;
-        auto* il = mIndex->tree().touchLeaf(origins[k]);
+        mIndex.addLeaf(origins[k], leaf.begin, d.coords); // the coordinates in offset order
         auto* ml = mMask->tree().touchLeaf(origins[k]);
-        for (size_t j = 0; j < d.coords.size(); ++j) {
-            il->setValueOn(d.coords[j], int32_t(leaf.begin + j));
-            ml->setValueOn(d.coords[j]);
-        }
+        for (const Coord& c : d.coords) ml->setValueOn(c);
         mCoords.insert(mCoords.end(), d.coords.begin(), d.coords.end());
         for (const Vec3d& q : d.cp) mCp.emplace_back(q); // rounded to floats once, here
         mTriangle.insert(mTriangle.end(), d.tri.begin(), d.tri.end());
@@ -320,7 +315,7 @@ void ShellBand::prepareLocked(std::vector<Coord> origins) const
     }
     bool missing = false;
     tbb::parallel_for(tbb::blocked_range<size_t>(0, todo.size(), 1), [&](const tbb::blocked_range<size_t>& r) {
-        auto acc = mIndex->getConstAccessor();
+        BandIndex::Accessor acc = mIndex.accessor();
         static const Coord nb[6] = {Coord(-1, 0, 0), Coord(1, 0, 0), Coord(0, -1, 0),
                                     Coord(0, 1, 0),  Coord(0, 0, -1), Coord(0, 0, 1)};
         for (size_t k = r.begin(); k < r.end(); ++k) {
@@ -437,7 +432,7 @@ std::vector<StencilCandidate> strongCandidates(const std::vector<StencilCandidat
 }
 } // namespace
 
-void ShellBand::surfaceStencil(size_t i, const openvdb::Int32Grid::ConstAccessor& acc,
+void ShellBand::surfaceStencil(size_t i, BandIndex::Accessor& acc,
                                std::vector<SurfaceTap>& out) const
 {
     // Generalised finite differences on the layer: weights w_j on differences u_j - u_i that are
@@ -516,7 +511,7 @@ void ShellBand::prepareSurface(const std::vector<uint32_t>& slots) const
 {
     std::vector<std::vector<SurfaceTap>> taps(slots.size());
     tbb::parallel_for(tbb::blocked_range<size_t>(0, slots.size(), 1), [&](const tbb::blocked_range<size_t>& r) {
-        auto acc = mIndex->getConstAccessor();
+        BandIndex::Accessor acc = mIndex.accessor();
         for (size_t k = r.begin(); k < r.end(); ++k) {
             const Leaf& l = mLeaves[slots[k]];
             for (size_t i = l.begin; i < l.end; ++i) {
@@ -612,7 +607,7 @@ size_t ShellBand::materialiseBox(const openvdb::CoordBBox& box) const
 // ---------------------------------------------------------------------------------------------
 // ShellBand: queries
 
-int32_t ShellBand::indexOf(const Coord& c) const { return mIndex->tree().getValue(c); }
+int32_t ShellBand::indexOf(const Coord& c) const { return mIndex.getValue(c); }
 
 bool ShellBand::contains(const Coord& c) const
 {
@@ -775,7 +770,7 @@ size_t ShellBand::memoryBytes() const
     const size_t neighbours = mSurface ? 0 : 6 * sizeof(int32_t);
     return n * (sizeof(Coord) + sizeof(openvdb::Vec3s) + 3 * sizeof(float) + sizeof(FrameFloats) + sizeof(uint32_t) +
                 neighbours + stencil) + mTapTotal * sizeof(SurfaceTap) + mLeafTaps.size() * sizeof(mLeafTaps[0]) +
-           mLuminance.size() * sizeof(float) + mIndex->memUsage() + mMask->memUsage() +
+           mLuminance.size() * sizeof(float) + mIndex.memUsage() + mMask->memUsage() +
            mLeaves.size() * (sizeof(Leaf) + 32) + mBvh.memoryBytes() +
            (mPts.size() * 2 + mTriNormal.size()) * sizeof(Vec3d) + mTris.size() * sizeof(openvdb::Vec3I);
 }

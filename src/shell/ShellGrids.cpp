@@ -24,11 +24,10 @@ openvdb::FloatGrid::Ptr toGrid(const ShellBand& band, const std::vector<float>& 
     grid->setName(name);
     grid->tree().topologyUnion(band.mask().tree());
     openvdb::tree::LeafManager<openvdb::FloatTree> leaves(grid->tree());
-    const openvdb::Int32Tree& index = band.indexGrid().tree();
     leaves.foreach([&](openvdb::FloatTree::LeafNodeType& leaf, size_t) {
-        const auto* il = index.probeConstLeaf(leaf.origin()); // same topology, same leaves
+        BandIndex::Accessor index = band.index().accessor(); // same voxels: one band leaf per leaf
         for (auto it = leaf.beginValueOn(); it; ++it) {
-            const int32_t i = il ? il->getValue(it.pos()) : -1;
+            const int32_t i = index.getValue(it.getCoord());
             const float v = i >= 0 ? values[size_t(i)] : background;
             // nodes at the background stay off: a grid costs what its off-background values do
             // (p, growth and freeze time away from the ice were 3 full copies of the band)
@@ -56,12 +55,16 @@ void fromGrid(const ShellBand& band, const openvdb::FloatGrid& grid, std::vector
         band.materialise(std::move(origins));
     }
     values.resize(band.size());
-    openvdb::tree::LeafManager<const openvdb::Int32Tree> leaves(band.indexGrid().tree());
-    leaves.foreach([&](const openvdb::Int32Tree::LeafNodeType& il, size_t) {
-        const auto* fl = grid.tree().probeConstLeaf(il.origin());
+    const auto& leaves = band.leaves();
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, leaves.size(), 8), [&](const tbb::blocked_range<size_t>& r) {
         auto acc = grid.getConstAccessor();
-        for (auto it = il.cbeginValueOn(); it; ++it)
-            values[size_t(*it)] = fl ? fl->getValue(it.pos()) : acc.getValue(it.getCoord());
+        for (size_t s = r.begin(); s < r.end(); ++s) {
+            const ShellBand::Leaf& l = leaves[s];
+            if (l.begin == l.end) continue;
+            const auto* fl = grid.tree().probeConstLeaf(l.origin);
+            for (size_t i = l.begin; i < l.end; ++i)
+                values[i] = fl ? fl->getValue(band.coord(i)) : acc.getValue(band.coord(i));
+        }
     });
 }
 

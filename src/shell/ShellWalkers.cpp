@@ -34,7 +34,7 @@ Coord unpackBucket(uint64_t key)
                  int(int64_t((key >> 42) & kMask) - kOff));
 }
 
-using IndexAccessor = openvdb::Int32Grid::ConstAccessor;
+using IndexAccessor = BandIndex::Accessor;
 
 /// One trilinear pass of the band's closest points at @a y.
 bool interpolateCp(const ShellBand& b, IndexAccessor& acc, const Vec3d& y, Vec3d& out, double* lateral)
@@ -604,13 +604,13 @@ void ShellWalkers::addIce(const Vec3d& x)
 {
     mIce.insert(x);
     if (mIceNode.empty()) return;
-    auto acc = mBand->indexGrid().getConstAccessor();
+    BandIndex::Accessor acc = mBand->index().accessor();
     if (const int32_t k = nodeOfStick(*mBand, acc, x); k >= 0) mIceNode[size_t(k)] = 1;
 }
 
 void ShellWalkers::forgetSticks(const std::vector<Vec3d>& sticks, const std::vector<float>& p)
 {
-    auto acc = mBand->indexGrid().getConstAccessor();
+    BandIndex::Accessor acc = mBand->index().accessor();
     for (const Vec3d& x : sticks) {
         mIce.erase(x); // one copy: a stick on a node's closest point leaves the node's own
         if (mIceNode.empty()) continue;
@@ -688,19 +688,19 @@ ShellWalkers::GraphStep ShellWalkers::graphStep(int32_t node, ice::WalkerRng& rn
 int32_t ShellWalkers::siteOf(const Vec3d& x) const
 {
     if (!mBand->surfaceNodes()) return mBand->indexOf(Coord::round(x));
-    auto acc = mBand->indexGrid().getConstAccessor();
+    BandIndex::Accessor acc = mBand->index().accessor();
     return nodeNear(*mBand, acc, x);
 }
 
 bool ShellWalkers::project(const Vec3d& y, Vec3d& out, double* lateral) const
 {
-    auto acc = mBand->indexGrid().getConstAccessor();
+    BandIndex::Accessor acc = mBand->index().accessor();
     return projectWith(*mBand, acc, y, out, lateral);
 }
 
 int32_t ShellWalkers::freeNodeNear(const Vec3d& x, const std::vector<float>& p) const
 {
-    auto acc = mBand->indexGrid().getConstAccessor();
+    BandIndex::Accessor acc = mBand->index().accessor();
     const Coord c = Coord::round(x);
     int32_t id = -1;
     double best = std::numeric_limits<double>::max();
@@ -718,7 +718,7 @@ int32_t ShellWalkers::freeNodeNear(const Vec3d& x, const std::vector<float>& p) 
 std::vector<size_t> ShellWalkers::markDisc(const Vec3d& x) const
 {
     std::vector<size_t> out;
-    auto acc = mBand->indexGrid().getConstAccessor();
+    BandIndex::Accessor acc = mBand->index().accessor();
     if (mBand->surfaceNodes()) { // one node per surface cell: a stick freezes the node holding it, as on a plane
         const int32_t id = nodeNear(*mBand, acc, x);
         if (id >= 0) out.push_back(size_t(id));
@@ -755,7 +755,7 @@ void ShellWalkers::walkBatch(int64_t step, uint64_t first, uint64_t count, const
 /// One walker's state along its walk, shared by walk()'s stages.
 struct ShellWalkers::Walk {
     Walk(const ShellWalkers& w, const Inputs& inputs, ice::WalkerRng r)
-        : b(*w.mBand), in(inputs), rng(r), acc(b.indexGrid().getConstAccessor()), ice(w.mIce), border(w.mBorder),
+        : b(*w.mBand), in(inputs), rng(r), acc(b.index().accessor()), ice(w.mIce), border(w.mBorder),
           onNodes(b.surfaceNodes())
     {
     }

@@ -33,6 +33,7 @@
 #include <frostvdb/core/Domain.h>
 #include <frostvdb/geometry/TriangleBvh.h>
 #include <frostvdb/io/Mesh.h>
+#include <frostvdb/shell/BandIndex.h>
 
 #include <openvdb/openvdb.h>
 
@@ -167,8 +168,8 @@ public:
     bool contains(const openvdb::Coord& c) const;
     /// The frame at voxel @a c's closest point (computed from the mesh where its leaf is not built).
     VoxelFrame frameAt(const openvdb::Coord& c) const;
-    /// Band index per voxel (background -1): the same topology as mask().
-    const openvdb::Int32Grid& indexGrid() const { return *mIndex; }
+    /// Band index per voxel (-1 off the band): the same voxels as mask().
+    const BandIndex& index() const { return mIndex; }
     /// The built band's voxels as a mask (for the domain's support).
     const openvdb::MaskGrid& mask() const { return *mMask; }
     double voxelSize() const { return mVoxelSize; }
@@ -289,7 +290,7 @@ private:
     /// Surface nodes: fills the 6 neighbours and the stencils of these leaves' voxels.
     void prepareSurface(const std::vector<uint32_t>& slots) const;
     /// Surface nodes: the least-squares stencil of voxel @a i (its 26 or 124 neighbours built).
-    void surfaceStencil(size_t i, const openvdb::Int32Grid::ConstAccessor& acc, std::vector<SurfaceTap>& out) const;
+    void surfaceStencil(size_t i, BandIndex::Accessor& acc, std::vector<SurfaceTap>& out) const;
     /// Closest point of voxel @a c (exact, lowest triangle index on ties): false beyond the half-width.
     bool voxelGeometry(const openvdb::Coord& c, openvdb::Vec3d& cp, uint32_t& tri, double& dist) const;
     VoxelFrame frameOn(uint32_t tri, const openvdb::Vec3d& cp, openvdb::Vec3d* bary = nullptr) const;
@@ -329,7 +330,7 @@ private:
     mutable std::vector<uint8_t> mTapCount;               ///< per voxel: number of taps
     mutable std::vector<int32_t> mNodes;                  ///< 64 per voxel: x fastest, then y, then z
     mutable std::vector<std::array<float, 12>> mWeights;  ///< per axis x, y, z: 4 Lagrange weights
-    mutable openvdb::Int32Grid::Ptr mIndex;               ///< band index per voxel, background -1
+    mutable BandIndex mIndex;                             ///< band index per voxel, -1 off the band
     mutable openvdb::MaskGrid::Ptr mMask;
     mutable std::vector<Leaf> mLeaves;
     struct CoordHash {
