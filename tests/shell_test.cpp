@@ -944,6 +944,54 @@ TEST_CASE("Frame: a deferred grid is a named placeholder until the writer or a P
     CHECK(made == 2);
 }
 
+TEST_CASE("Surface commit: the vector stage 3 (AVX2) gives the scalar one bit for bit", "[fast][shell]")
+{
+    // Random new and old p around 1/2 (crossings both ways), growth and freeze times with zeros
+    // of both signs, ghosts on and off, every range length 0-40 at every start 0-7: the fields,
+    // growth, freeze time and the crossed flag equal the scalar stage's.
+    const shell::SurfaceCommitRange fast = shell::fastestSurfaceCommit();
+    INFO((fast == &shell::surfaceCommit ? "plain" : "AVX2"));
+    std::mt19937 rng(11);
+    std::uniform_real_distribution<float> u(0.f, 1.f);
+    const size_t n = 64;
+    size_t differ = 0, crossings = 0, grown = 0, frozen = 0, runs = 0;
+    for (const bool ghosts : {false, true})
+        for (size_t begin = 0; begin < 8; ++begin)
+            for (size_t length = 0; length <= 40; ++length) {
+                std::vector<float> p(n), t(n), g(n), f(n), pn(n), tn(n), lat(n);
+                for (size_t i = 0; i < n; ++i) {
+                    p[i] = u(rng);
+                    pn[i] = u(rng) < 0.3f ? p[i] : u(rng); // some unchanged: d = 0 grows nothing
+                    t[i] = u(rng);
+                    tn[i] = u(rng);
+                    g[i] = u(rng) < 0.5f ? (u(rng) < 0.5f ? -0.f : 0.f) : u(rng);
+                    f[i] = u(rng) < 0.5f ? (u(rng) < 0.5f ? -0.f : 0.f) : u(rng);
+                    lat[i] = u(rng);
+                }
+                auto p2 = p, t2 = t, g2 = g, f2 = f;
+                const auto g0 = g;
+                const shell::SurfaceCommit a{p.data(), t.data(), g.data(), f.data(), pn.data(), tn.data(), lat.data(),
+                                             ghosts, 2.5f};
+                const shell::SurfaceCommit b{p2.data(), t2.data(), g2.data(), f2.data(), pn.data(), tn.data(),
+                                             lat.data(), ghosts, 2.5f};
+                const bool c1 = fast(a, begin, begin + length), c2 = shell::surfaceCommit(b, begin, begin + length);
+                differ += c1 != c2 || std::memcmp(p.data(), p2.data(), n * 4) != 0 ||
+                          std::memcmp(t.data(), t2.data(), n * 4) != 0 || std::memcmp(g.data(), g2.data(), n * 4) != 0 ||
+                          std::memcmp(f.data(), f2.data(), n * 4) != 0;
+                crossings += c2;
+                for (size_t i = begin; i < begin + length; ++i) {
+                    grown += g2[i] != g0[i];
+                    frozen += f2[i] == 2.5f;
+                }
+                ++runs;
+            }
+    CHECK(runs == 2 * 8 * 41);
+    CHECK(crossings > 100);
+    CHECK(grown > 100);
+    CHECK(frozen > 100);
+    CHECK(differ == 0);
+}
+
 TEST_CASE("Surface tap sums: the vector passes (AVX2) give the scalar passes bit for bit", "[fast][shell]")
 {
     // Random fields on a sphere's and a tilted plate's surface nodes (taps of every count, a

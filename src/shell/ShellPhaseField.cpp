@@ -562,17 +562,12 @@ void ShellPhaseField::stepSurface(double time, int64_t stepIndex, uint64_t seed,
     // stage 3: the new values become the fields, growth and freeze time recorded, and per leaf
     // whether p crossed 1/2 anywhere in it ([dla] then rescans only those leaves)
     mCrossed.resize(leaves.size(), 0);
+    const SurfaceCommitRange commit = fastestSurfaceCommit();
+    const SurfaceCommit committed{mP.data(),  mT.data(),  mGrowth.data(),      mFreeze.data(),
+                                  mPn.data(), mTn.data(), b.lateralOffsets(), b.hasGhosts(), tNext};
     auto commitOf = [&](uint32_t slot) {
         const ShellBand::Leaf& l = leaves[slot];
-        bool crossed = false;
-        for (size_t i = l.begin; i < l.end; ++i) {
-            const float d = mPn[i] - mP[i];
-            crossed = crossed || ((mPn[i] > 0.5f) != (mP[i] > 0.5f));
-            mP[i] = mPn[i];
-            mT[i] = mTn[i];
-            if (!b.ghost(i)) recordGrowth(mGrowth[i], mFreeze[i], d, mP[i], tNext);
-        }
-        if (crossed) mCrossed[slot] = 1;
+        if (commit(committed, l.begin, l.end)) mCrossed[slot] = 1;
     };
     if (mSlabSweep) {
         // one sweep, the stages a few slabs apart: the taps and frames read by pass 1 are still

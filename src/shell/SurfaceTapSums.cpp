@@ -247,9 +247,50 @@ FV_AVX2 void surfaceUpdate4Avx2(const SurfaceUpdateInputs& in, std::size_t i, co
     store4(tNew, add(add(t0, mul(splat(k.dt), mul(lanes(s, &TapSums::lapT), invH2))), mul(splat(k.latentHeat), dp)));
 }
 
+FV_AVX2 bool surfaceCommitAvx2(const SurfaceCommit& c, std::size_t begin, std::size_t end)
+{
+    // surfaceCommit's comparisons and its one addition in eight lanes, its branches as selects
+    const __m256 half = _mm256_set1_ps(0.5f), zero = _mm256_setzero_ps(), time = _mm256_set1_ps(c.time);
+    const __m256 allLive = _mm256_castsi256_ps(_mm256_set1_epi32(-1));
+    int crossed = 0;
+    std::size_t i = begin;
+    for (; i + 8 <= end; i += 8) {
+        const __m256 now = _mm256_loadu_ps(c.pn + i), before = _mm256_loadu_ps(c.p + i);
+        const __m256 d = _mm256_sub_ps(now, before);
+        const __m256 nowAbove = _mm256_cmp_ps(now, half, _CMP_GT_OQ);
+        crossed |= _mm256_movemask_ps(_mm256_xor_ps(nowAbove, _mm256_cmp_ps(before, half, _CMP_GT_OQ)));
+        _mm256_storeu_ps(c.p + i, now);
+        _mm256_storeu_ps(c.t + i, _mm256_loadu_ps(c.tn + i));
+        // live: not (lateral > 1/2), so a NaN is live as in the scalar test
+        const __m256 live = c.ghosts ? _mm256_cmp_ps(_mm256_loadu_ps(c.lateral + i), half, _CMP_NGT_UQ) : allLive;
+        const __m256 g = _mm256_loadu_ps(c.growth + i), f = _mm256_loadu_ps(c.freeze + i);
+        const __m256 grows = _mm256_and_ps(live, _mm256_cmp_ps(d, zero, _CMP_GT_OQ));
+        _mm256_storeu_ps(c.growth + i, _mm256_blendv_ps(g, _mm256_add_ps(g, d), grows));
+        const __m256 freezes = _mm256_and_ps(live, _mm256_and_ps(_mm256_cmp_ps(f, zero, _CMP_EQ_OQ), nowAbove));
+        _mm256_storeu_ps(c.freeze + i, _mm256_blendv_ps(f, time, freezes));
+    }
+    const bool tail = surfaceCommit(c, i, end);
+    return crossed != 0 || tail;
+}
+
 #endif
 
 } // namespace
+
+bool surfaceCommit(const SurfaceCommit& c, std::size_t begin, std::size_t end)
+{
+    bool crossed = false;
+    for (std::size_t i = begin; i < end; ++i) {
+        const float now = c.pn[i], d = now - c.p[i];
+        crossed = crossed || ((now > 0.5f) != (c.p[i] > 0.5f));
+        c.p[i] = now;
+        c.t[i] = c.tn[i];
+        if (c.ghosts && c.lateral[i] > 0.5f) continue; // a ghost: held at the background
+        if (d > 0.f) c.growth[i] += d;
+        if (c.freeze[i] == 0.f && now > 0.5f) c.freeze[i] = c.time;
+    }
+    return crossed;
+}
 
 void surfaceCoefficients4Plain(const ShellBand& b, const float* P, const float* T, const Anisotropy& an, double invH,
                                std::size_t i, SurfaceCoefficients* C, float* gx, float* gy, FieldSums* sums)
@@ -290,6 +331,14 @@ SurfaceUpdate4 fastestSurfaceUpdate4()
     if (vectorsAllowed()) return &surfaceUpdate4Avx2;
 #endif
     return &surfaceUpdate4Plain;
+}
+
+SurfaceCommitRange fastestSurfaceCommit()
+{
+#ifdef FROSTVDB_HAVE_AVX2_TAPS
+    if (vectorsAllowed()) return &surfaceCommitAvx2;
+#endif
+    return &surfaceCommit;
 }
 
 TapSums4 fastestTapSums4()

@@ -156,6 +156,10 @@ public:
     double halfWidth() const { return mSurface ? (mGhosts ? kGhostReach : kLayerReach) : kHalfWidth; }
     /// Surface nodes: true for a ghost node beyond an open border (see kGhostLateral).
     bool ghost(size_t i) const { return mGhosts && mLateral[i] > 0.5f; }
+    /// Whether the band has ghost nodes at all, and every voxel's lateral offset (loops that
+    /// test ghost() without branches).
+    bool hasGhosts() const { return mGhosts; }
+    const float* lateralOffsets() const { return mLateral.data(); }
     /// Surface nodes: the stencil of node @a i (valid once its leaf is prepared), taps in a fixed
     /// order (neighbour offsets z, y, x ascending), so every sum over it is one fixed sum.
     const SurfaceTap* tapsBegin(size_t i) const { return mTapBegin[i]; }

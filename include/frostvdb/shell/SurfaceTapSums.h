@@ -99,4 +99,20 @@ void surfaceUpdate4Plain(const SurfaceUpdateInputs& in, std::size_t i, const Tap
 /// The AVX2 version (as fastestTapSums4), else the plain one.
 SurfaceUpdate4 fastestSurfaceUpdate4();
 
+/// Stage 3: the update's new values (pn, tn) become the fields p and T; growth sums p's positive
+/// changes and freeze takes @a time where it is 0 and p now exceeds 1/2, except on ghost nodes
+/// (ghosts set and lateral > 1/2, ShellBand::ghost).
+struct SurfaceCommit {
+    float *p = nullptr, *t = nullptr, *growth = nullptr, *freeze = nullptr;
+    const float *pn = nullptr, *tn = nullptr, *lateral = nullptr;
+    bool ghosts = false;
+    float time = 0;
+};
+/// Nodes [begin, end); returns whether p crossed 1/2 at any of them (the reference).
+bool surfaceCommit(const SurfaceCommit& c, std::size_t begin, std::size_t end);
+using SurfaceCommitRange = bool (*)(const SurfaceCommit& c, std::size_t begin, std::size_t end);
+/// The AVX2 version, eight nodes at a time (as fastestTapSums4: the branchy loop was 5 % of the
+/// pane's step), bit for bit surfaceCommit; else surfaceCommit.
+SurfaceCommitRange fastestSurfaceCommit();
+
 } // namespace frostvdb::shell
