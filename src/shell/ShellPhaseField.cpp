@@ -262,6 +262,29 @@ void ShellPhaseField::updateRegion()
     }
     mTouched.clear();
     mDirty = false;
+    // One step reads at most kReach voxels away (see the file comment): every leaf within kReach
+    // of an off-background voxel is stepped; the ring of leaves around those stays at the
+    // background (built, for the stencils' indices).
+    // Surface nodes read their stencil (kTapReach) in each of the two passes.
+    const int kReach = b.surfaceNodes() ? 2 * ShellBand::kTapReach + 1 : 9;
+    // A stepped leaf whose leaves within kReach are all built and stepped (or hold no voxel)
+    // cannot add any: it is marked (mInStepped 2) and never scanned again, as the region only
+    // grows (scanning every stepped voxel each step was 3 % of the pane's run).
+    auto saturated = [&](uint32_t s) {
+        if (mInStepped[s] != 1) return mInStepped[s] == 2;
+        const openvdb::Coord o = leaves[s].origin;
+        const openvdb::Coord lo = leafOrigin(o.offsetBy(-kReach)), hi = leafOrigin(o.offsetBy(kLeafDim - 1 + kReach));
+        for (int x = lo.x(); x <= hi.x(); x += kLeafDim)
+            for (int y = lo.y(); y <= hi.y(); y += kLeafDim)
+                for (int z = lo.z(); z <= hi.z(); z += kLeafDim) {
+                    const int32_t n = b.leafSlot(openvdb::Coord(x, y, z));
+                    if (n < 0) return false; // not built: it may hold voxels
+                    if (leaves[size_t(n)].end > leaves[size_t(n)].begin && !mInStepped[size_t(n)]) return false;
+                }
+        mInStepped[s] = 2;
+        return true;
+    };
+    scan.erase(std::remove_if(scan.begin(), scan.end(), saturated), scan.end());
     const float tol = float(mTolerance), tInf = float(mParams.farTemperature);
     std::vector<openvdb::CoordBBox> off(scan.size());
     tbb::parallel_for(tbb::blocked_range<size_t>(0, scan.size(), 4), [&](const tbb::blocked_range<size_t>& r) {
@@ -271,11 +294,6 @@ void ShellPhaseField::updateRegion()
                 if (std::fabs(mP[i]) > tol || std::fabs(mT[i] - tInf) > tol) off[k].expand(b.coord(i));
         }
     });
-    // One step reads at most kReach voxels away (see the file comment): every leaf within kReach
-    // of an off-background voxel is stepped; the ring of leaves around those stays at the
-    // background (built, for the stencils' indices).
-    // Surface nodes read their stencil (kTapReach) in each of the two passes.
-    const int kReach = b.surfaceNodes() ? 2 * ShellBand::kTapReach + 1 : 9;
     std::vector<openvdb::Coord> stepped;
     for (size_t k = 0; k < scan.size(); ++k) {
         if (off[k].empty()) continue;
