@@ -180,7 +180,8 @@ openvdb::FloatGrid::Ptr frostLevelSetOnNodes(const ShellBand& band, const std::v
                     const double d = std::max(axial, lat - 0.5);
                     if (d >= hw) return;
                     const float v = float(d * h);
-                    if (!acc.isValueOn(c) || v < acc.getValue(c)) acc.setValueOn(c, v);
+                    float old;
+                    if (!acc.probeValue(c, old) || v < old) acc.setValueOn(c, v); // one probe for both
                 };
                 forEachNearLine(box, cp, n, side, stamp);
             }
