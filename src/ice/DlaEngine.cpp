@@ -59,12 +59,76 @@ constexpr int kCoarse = 1 << kCoarseLog2;
 constexpr int kCoarseCap = 48;
 } // namespace
 
-/// Byte values in 8-cell bricks (8x8 on a plane, 8^3 in a box) kept in a flat hash map, only
-/// where some value is below the cap (a missing brick reads as the cap everywhere).
+/// Small domains (at most this many cells, 2048^2 on a plane) find their bricks through a
+/// directory and keep the pyramid's near counts in arrays: a look-up is one or two loads instead
+/// of a hash and a probe (the walkers read a brick each time they cross into one and the pyramid
+/// at every jump far from the ice; the distance passes read a brick at every brick change). Both
+/// take at most 1/64 byte per cell then; larger domains keep the hash maps alone, whose memory
+/// follows the ice, not the domain.
+constexpr int64_t kDenseCells = int64_t(1) << 22;
+
+/// Where the bricks are, for look-ups: tiles of 16 x 16 bricks (one z layer each) over the
+/// domain's bricks, each tile a table of brick pointers allocated when its first brick is made.
+/// Off (covers nothing) until cover() is called.
+struct BrickDirectory {
+    static constexpr int kTileLog2 = 4;
+    static constexpr int kTile = 1 << kTileLog2;
+    int tx = 0, ty = 0, tz = 0; ///< tiles per axis (0: off)
+    std::vector<std::unique_ptr<uint8_t*[]>> tiles;
+
+    /// Covers @a nbx x @a nby x @a nbz bricks.
+    void cover(int64_t nbx, int64_t nby, int64_t nbz)
+    {
+        tx = int((nbx + kTile - 1) >> kTileLog2);
+        ty = int((nby + kTile - 1) >> kTileLog2);
+        tz = int(nbz);
+        clear();
+    }
+    void clear()
+    {
+        tiles.clear();
+        tiles.resize(size_t(tx) * size_t(ty) * size_t(tz));
+    }
+    bool covers(int bx, int by, int bz) const
+    {
+        return unsigned(bx >> kTileLog2) < unsigned(tx) && unsigned(by >> kTileLog2) < unsigned(ty) &&
+               unsigned(bz) < unsigned(tz);
+    }
+    size_t tileOf(int bx, int by, int bz) const
+    {
+        return (size_t(bz) * size_t(ty) + size_t(by >> kTileLog2)) * size_t(tx) + size_t(bx >> kTileLog2);
+    }
+    static size_t inTile(int bx, int by) { return size_t((bx & (kTile - 1)) | (by & (kTile - 1)) << kTileLog2); }
+    /// The brick at (bx, by, bz), covered; null if none.
+    uint8_t* find(int bx, int by, int bz) const
+    {
+        uint8_t* const* t = tiles[tileOf(bx, by, bz)].get();
+        return t ? t[inTile(bx, by)] : nullptr;
+    }
+    /// The pointer slot of a covered brick, its tile made when missing.
+    uint8_t*& slot(int bx, int by, int bz)
+    {
+        auto& t = tiles[tileOf(bx, by, bz)];
+        if (!t) t.reset(new uint8_t*[size_t(kTile * kTile)]());
+        return t[inTile(bx, by)];
+    }
+    size_t bytes() const
+    {
+        size_t b = tiles.size() * sizeof(tiles[0]);
+        for (const auto& t : tiles)
+            if (t) b += sizeof(uint8_t*) * size_t(kTile * kTile);
+        return b;
+    }
+};
+
+/// Byte values in 8-cell bricks (8x8 on a plane, 8^3 in a box), found through the directory
+/// where it covers them and a flat hash map elsewhere, only where some value is below the cap (a
+/// missing brick reads as the cap everywhere).
 struct ByteBricks {
     int brickVolume = 64;
     uint8_t cap = 16;
-    KeyMap<uint8_t*> brickOf;                     ///< brick key -> its cells (stable storage)
+    BrickDirectory directory;                     ///< brick -> its cells, inside the domain's bricks
+    KeyMap<uint8_t*> brickOf;                     ///< brick key -> its cells, outside the directory
     /// The bricks, in chunks of kChunk allocated as they fill (stable addresses), each brick
     /// aligned to a cache line: a walker's read of a brick touches one line, and bricks made
     /// together (near the same ice) sit together.
@@ -77,20 +141,31 @@ struct ByteBricks {
 
     void clearBricks()
     {
+        directory.clear();
         brickOf.clear();
         pool.clear();
         bricks = 0;
     }
-    size_t brickBytes() const { return brickOf.bytes() + pool.size() * kChunk * size_t(brickVolume); }
+    size_t brickBytes() const
+    {
+        return directory.bytes() + brickOf.bytes() + pool.size() * kChunk * size_t(brickVolume);
+    }
     const uint8_t* brick(int bx, int by, int bz) const
     {
+        if (directory.covers(bx, by, bz)) return directory.find(bx, by, bz);
         uint8_t* const* b = brickOf.find(packKey(bx, by, bz));
         return b ? *b : nullptr;
     }
     uint8_t* brickForWrite(int bx, int by, int bz)
     {
-        auto ins = brickOf.insert(packKey(bx, by, bz), nullptr);
-        if (ins.second) {
+        uint8_t** at;
+        if (directory.covers(bx, by, bz)) {
+            at = &directory.slot(bx, by, bz);
+        } else {
+            auto ins = brickOf.insert(packKey(bx, by, bz), nullptr);
+            at = ins.first;
+        }
+        if (!*at) {
             if (bricks == pool.size() * kChunk) {
                 void* chunk = std::aligned_alloc(64, kChunk * size_t(brickVolume));
                 if (!chunk) throw std::bad_alloc();
@@ -99,9 +174,9 @@ struct ByteBricks {
             uint8_t* b = pool.back().get() + (bricks % kChunk) * size_t(brickVolume);
             ++bricks;
             std::fill(b, b + brickVolume, cap);
-            *ins.first = b;
+            *at = b;
         }
-        return *ins.first;
+        return *at;
     }
     int fine(int x, int y, int z) const
     {
@@ -138,12 +213,51 @@ struct DlaEngine::Sparse : ByteBricks {
     /// melt takes its cell out again: the pyramid is always that of the current ice.
     std::vector<KeyMap<uint32_t>> occupied;
     std::vector<KeyMap<uint8_t>> near;
+    /// near[k] as an array over the level's blocks (and one beyond each upper edge) on a small
+    /// domain (kDenseCells); empty where the level uses the map.
+    struct DenseLevel {
+        std::vector<uint8_t> count;
+        int64_t nx = 0, ny = 0, nz = 0;
+        size_t at(int bx, int by, int bz) const { return (size_t(bz) * size_t(ny) + size_t(by)) * size_t(nx) + size_t(bx); }
+        bool inside(int bx, int by, int bz) const { return bx < nx && by < ny && bz < nz; } // (never negative)
+    };
+    std::vector<DenseLevel> nearDense;
+
+    /// The levels' arrays for a domain of @a n cells per axis.
+    void denseLevels(const int64_t n[3])
+    {
+        nearDense.assign(near.size(), DenseLevel{});
+        for (size_t k = 0; k < near.size(); ++k) {
+            const int sh = kBrickLog2 + int(k);
+            DenseLevel& d = nearDense[k];
+            d.nx = ((n[0] - 1) >> sh) + 2;
+            d.ny = ((n[1] - 1) >> sh) + 2;
+            d.nz = dim == 3 ? ((n[2] - 1) >> sh) + 2 : 1;
+            d.count.assign(size_t(d.nx * d.ny * d.nz), 0);
+        }
+    }
+    /// The near count of block (bx, by, bz) at level k, for writing.
+    uint8_t& nearCount(size_t k, int bx, int by, int bz)
+    {
+        DenseLevel& d = nearDense[k];
+        if (!d.count.empty() && d.inside(bx, by, bz)) return d.count[d.at(bx, by, bz)];
+        return *near[k].insert(packKey(bx, by, bz), 0).first;
+    }
+    /// Whether no block of the 3^d neighbourhood of block (bx, by, bz) at level k holds ice.
+    bool nearFree(size_t k, int bx, int by, int bz) const
+    {
+        const DenseLevel& d = nearDense[k];
+        if (!d.count.empty() && d.inside(bx, by, bz)) return d.count[d.at(bx, by, bz)] == 0;
+        const uint8_t* n = near[k].find(packKey(bx, by, bz));
+        return !n || *n == 0;
+    }
 
     void clear()
     {
         clearBricks();
         for (auto& m : occupied) m.clear();
         for (auto& m : near) m.clear();
+        for (auto& d : nearDense) std::fill(d.count.begin(), d.count.end(), uint8_t(0));
         coarse.clearBricks();
         coarseCount.clear();
         coarseGained.clear();
@@ -171,7 +285,7 @@ struct DlaEngine::Sparse : ByteBricks {
                 for (int dy = -1; dy <= 1; ++dy)
                     for (int dx = -1; dx <= 1; ++dx) {
                         if (bx + dx < 0 || by + dy < 0 || bz + dz < 0) continue;
-                        uint8_t& m = *near[k].insert(packKey(bx + dx, by + dy, bz + dz), 0).first;
+                        uint8_t& m = nearCount(k, bx + dx, by + dy, bz + dz);
                         m = uint8_t(int(m) + sign);
                     }
         }
@@ -186,8 +300,7 @@ struct DlaEngine::Sparse : ByteBricks {
         // up while free or down until free (a walker's successive cells mostly keep their level)
         auto freeAt = [&](int k) {
             const int sh = kBrickLog2 + k;
-            const uint8_t* n = near[size_t(k)].find(packKey(x >> sh, y >> sh, z >> sh));
-            return !n || *n == 0;
+            return nearFree(size_t(k), x >> sh, y >> sh, z >> sh);
         };
         const int top = int(near.size()) - 1;
         int lo = std::min(std::max(hint, -1), top);
@@ -257,10 +370,11 @@ size_t DlaEngine::memoryBytes() const
     size_t b = mSparse->brickBytes() + mSparse->coarse.brickBytes() + mSparse->coarseCount.bytes();
     for (auto& m : mSparse->occupied) b += m.bytes();
     for (auto& m : mSparse->near) b += m.bytes();
+    for (auto& d : mSparse->nearDense) b += d.count.size();
     return b;
 }
 
-size_t DlaEngine::brickCount() const { return mSparse->brickOf.size(); }
+size_t DlaEngine::brickCount() const { return mSparse->bricks; }
 
 DlaEngine::DlaEngine(const Domain& domain, const DlaParams& params, uint64_t seed)
     : mDomain(domain), mParams(params), mSeed(hashCounters(seed, 0xD1A)), mNbr(walkerNeighbours(domain)),
@@ -308,6 +422,18 @@ DlaEngine::DlaEngine(const Domain& domain, const DlaParams& params, uint64_t see
     while ((int64_t(kB) << (levels - 1)) < extent) ++levels;
     mSparse->occupied.resize(size_t(levels));
     mSparse->near.resize(size_t(levels));
+    mSparse->nearDense.resize(size_t(levels)); // arrays only on a small domain:
+    if (mNx * mNy * mNz <= kDenseCells) {
+        const int64_t cells[3] = {mNx, mNy, mNz};
+        mSparse->denseLevels(cells);
+        // the brick directories over the domain's cell bricks and block bricks
+        auto bricksOf = [](int64_t n, int log2) { return (n + (int64_t(1) << log2) - 1) >> log2; };
+        mSparse->directory.cover(bricksOf(mNx, kBrickLog2), bricksOf(mNy, kBrickLog2), bricksOf(mNz, kBrickLog2));
+        if (mSparse->coarseOn) {
+            const int b = kCoarseLog2 + kBrickLog2;
+            mSparse->coarse.directory.cover(bricksOf(mNx, b), bricksOf(mNy, b), bricksOf(mNz, b));
+        }
+    }
     mDigits = std::max(1, int(48.0 / std::log2(double(mNbr.size()))));
     // A unit displacement in the lattice plane moves the index by at most this (Chebyshev): 1 on
     // the square lattice, 2/sqrt(3) on the hexagonal one (axial coordinates).

@@ -1666,7 +1666,8 @@ void writeBackSecondOrder(const PlaneLeavesT& planeLeaves, const std::vector<uin
                     if (gv) {
                         const openvdb::Index gs = Accumulators::slot(acc.foldG, pl.origin(), n);
                         gv[gs] = gv[gs] + float(dp);
-                        Accumulators::markOn(*gl, acc.foldG, gs);
+                        // mostly on already: a plain test spares the locked OR of a folded mask
+                        if (!Accumulators::isOn(*gl, acc.foldG, gs)) Accumulators::markOn(*gl, acc.foldG, gs);
                     } else acc.queue(pending).push_back({pl.offsetToGlobalCoord(n), float(dp), true});
                 }
                 if (acc.freeze && pn > 0.5f) {
