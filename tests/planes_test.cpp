@@ -21,6 +21,8 @@
 #include <frostvdb/core/PlaneFold.h>
 #include <frostvdb/core/Random.h>
 #include <frostvdb/core/RegionOfTopology.h>
+#include <frostvdb/io/StreamedGrid.h>
+#include <frostvdb/io/VdbIO.h>
 
 #include <array>
 #include <cstdlib>
@@ -466,11 +468,17 @@ TEST_CASE("A folded grid draws the displacement map of its plane layout byte for
     }
 }
 
-TEST_CASE("A folded field resampled in place exports the bits its unfolded copy exports", "[fast][fold][export]")
+namespace {
+/// A hexagonal 300 x 200 plane away from the origin, for the export tests.
+Domain exportTestDomain()
 {
-    // inactive values off the background, chunks of inactive values only, a domain's edge
     const Lattice hex{LatticeKind::Hexagonal, 3.0 / 64.0};
-    const Domain dom = makePlaneDomain(hex, openvdb::Coord(300, 200, 1), 1e-4, openvdb::Coord(-40, -8, 0));
+    return makePlaneDomain(hex, openvdb::Coord(300, 200, 1), 1e-4, openvdb::Coord(-40, -8, 0));
+}
+/// Scattered values on @a dom: inactive values off the background, chunks of inactive values
+/// only, a domain's edge.
+openvdb::FloatGrid::Ptr scatteredPlaneField(const Domain& dom)
+{
     auto g = openvdb::FloatGrid::create(0.25f);
     g->setName("g");
     g->setTransform(dom.transform()->copy());
@@ -480,7 +488,14 @@ TEST_CASE("A folded field resampled in place exports the bits its unfolded copy 
         if (h >> 60 & 1) g->tree().setValueOn(c, float(h % 1000) * 0.001f);
         else g->tree().setValueOff(c, -float(h % 1000));
     }
-    const auto folded = plane::foldGrid(*g);
+    return g;
+}
+} // namespace
+
+TEST_CASE("A folded field resampled in place exports the bits its unfolded copy exports", "[fast][fold][export]")
+{
+    const Domain dom = exportTestDomain();
+    const auto folded = plane::foldGrid(*scatteredPlaneField(dom));
     auto dress = [](openvdb::FloatGrid& x) {
         x.setName("dressed");
         x.setGridClass(openvdb::GRID_UNKNOWN);
@@ -503,4 +518,31 @@ TEST_CASE("A folded field resampled in place exports the bits its unfolded copy 
             if (std::memcmp(&*it, &static_cast<const float&>(acc.getValue(it.getCoord())), sizeof(float)) != 0) ++differ;
         CHECK(differ == 0);
     }
+}
+
+TEST_CASE("A streamed folded export writes the file of exportFolded's grid", "[fast][fold][export]")
+{
+    const Domain dom = exportTestDomain();
+    const openvdb::FloatGrid::ConstPtr folded = plane::foldGrid(*scatteredPlaneField(dom));
+    auto dress = [](openvdb::FloatGrid& x) { x.setName("dressed"); };
+    const auto eager = exportFolded(*folded, dom, false, dress);
+    const auto streamed = exportFoldedStreamed(folded, dom, false, dress);
+    REQUIRE(dynamic_cast<const StreamedFloatGrid*>(streamed.get()));
+    CHECK(streamed->activeVoxelCount() == eager->activeVoxelCount());
+    CHECK(streamed->memUsage() == eager->memUsage()); // written as file_mem_bytes
+    const std::string dir = tempDir("streamed_export");
+    for (bool half : {false, true}) {
+        INFO("half " << half);
+        writeVdbAtomic(dir + "/eager.vdb", {eager}, openvdb::MetaMap(), half);
+        writeVdbAtomic(dir + "/streamed.vdb", {streamed}, openvdb::MetaMap(), half);
+        // the same bytes but the header's random UUID (36 characters after 21 bytes)
+        const std::string a = fileBytes(dir + "/eager.vdb"), b = fileBytes(dir + "/streamed.vdb");
+        REQUIRE(a.size() == b.size());
+        CHECK(a.substr(0, 21) == b.substr(0, 21));
+        CHECK(a.substr(57) == b.substr(57));
+    }
+    // its values are read by nothing but the writer: the eager grid's are what the file holds
+    const auto back = openvdb::gridPtrCast<openvdb::FloatGrid>(readVdb(dir + "/streamed.vdb")->front());
+    REQUIRE(back);
+    CHECK(back->tree().hasSameTopology(openvdb::gridPtrCast<openvdb::FloatGrid>(eager)->tree()));
 }

@@ -1,6 +1,7 @@
 #include <frostvdb/core/Export.h>
 #include <frostvdb/core/FoldedReader.h>
 #include <frostvdb/core/PlaneFold.h>
+#include <frostvdb/io/StreamedGrid.h>
 #include <frostvdb/io/Png.h>
 
 #include <openvdb/tools/GridTransformer.h>
@@ -56,70 +57,102 @@ openvdb::CoordBBox footprint(const openvdb::CoordBBox& inBox, const openvdb::mat
 /// leaf); @a makeReader: a per-thread reader of the input (getValue, probeValue, isValueOn by
 /// input index), a grid's accessor or a folded plane field's plane-layout view (FoldedReader);
 /// @a like: the input grid whose background and metadata the output takes.
+/// resampleBoxes' plan: the output leaves under the footprints of the input's active voxels
+/// (@a inBoxes: index boxes, each widened by one voxel within its leaf), the zone outside which
+/// no voxel is touched, and the affine map from output index to input index.
+struct ResamplePlan {
+    std::vector<openvdb::Coord> origins; ///< output leaf origins, sorted and unique
+    openvdb::CoordBBox zone;             ///< voxels outside every footprint are never touched
+    openvdb::Vec3d p0, ax, ay, az;       ///< output index c -> input index p0 + A c
+
+    ResamplePlan(const std::vector<openvdb::CoordBBox>& inBoxes, const openvdb::math::Transform& in,
+                 const openvdb::math::Transform& target, bool nearest, int leafDim);
+    openvdb::Vec3d inputIndex(const openvdb::Coord& c) const
+    {
+        return p0 + ax * double(c.x()) + ay * double(c.y()) + az * double(c.z());
+    }
+    /// Whether output voxel @a c is active (in the zone, and an input voxel with a non-zero
+    /// interpolation weight is; Nearest: the voxel it rounds to is), and its input index @a p.
+    template <bool Nearest, typename Reader>
+    bool active(const Reader& acc, const openvdb::Coord& c, openvdb::Vec3d& p) const
+    {
+        if (!zone.isInside(c)) return false;
+        p = inputIndex(c);
+        if (Nearest) return acc.isValueOn(openvdb::Coord::round(p));
+        const openvdb::Coord i0 = openvdb::Coord::floor(p);
+        const openvdb::Vec3d f = p - i0.asVec3d();
+        for (int k = 0; k < 8; ++k) {
+            const double wx = (k & 1) ? f.x() : 1.0 - f.x(), wy = (k & 2) ? f.y() : 1.0 - f.y(),
+                         wz = (k & 4) ? f.z() : 1.0 - f.z();
+            if (wx * wy * wz > 0.0 && acc.isValueOn(i0.offsetBy((k & 1) ? 1 : 0, (k & 2) ? 1 : 0, (k & 4) ? 1 : 0)))
+                return true;
+        }
+        return false;
+    }
+};
+
+ResamplePlan::ResamplePlan(const std::vector<openvdb::CoordBBox>& inBoxes, const openvdb::math::Transform& in,
+                           const openvdb::math::Transform& target, bool nearest, int leafDim)
+{
+    std::vector<openvdb::CoordBBox> boxes(inBoxes.size());
+    tbb::parallel_for(size_t(0), inBoxes.size(), [&](size_t i) {
+        if (!inBoxes[i].empty()) boxes[i] = footprint(inBoxes[i], in, target, nearest);
+    });
+    std::vector<std::vector<openvdb::Coord>> per(boxes.size());
+    tbb::parallel_for(size_t(0), boxes.size(), [&](size_t i) {
+        const auto& b = boxes[i];
+        if (b.empty()) return;
+        const int m = ~(leafDim - 1);
+        for (int x = b.min().x() & m; x <= b.max().x(); x += leafDim)
+            for (int y = b.min().y() & m; y <= b.max().y(); y += leafDim)
+                for (int z = b.min().z() & m; z <= b.max().z(); z += leafDim) per[i].emplace_back(x, y, z);
+    });
+    for (size_t i = 0; i < boxes.size(); ++i) {
+        if (!boxes[i].empty()) zone.expand(boxes[i]);
+        origins.insert(origins.end(), per[i].begin(), per[i].end());
+    }
+    std::vector<std::vector<openvdb::Coord>>().swap(per);
+    std::sort(origins.begin(), origins.end());
+    origins.erase(std::unique(origins.begin(), origins.end()), origins.end());
+    auto map = [&](const openvdb::Vec3d& c) { return in.worldToIndex(target.indexToWorld(c)); };
+    p0 = map(openvdb::Vec3d(0.0));
+    ax = map(openvdb::Vec3d(1, 0, 0)) - p0;
+    ay = map(openvdb::Vec3d(0, 1, 0)) - p0;
+    az = map(openvdb::Vec3d(0, 0, 1)) - p0;
+}
+
+/// Sparse resampling onto an affine target: only output leaves under the footprint of the
+/// input's active leaves and tiles are visited, so the cost follows the active voxels (not the
+/// bounding box, and not the 8^3 node boxes tools::resampleToMatch walks, which for a flat grid
+/// is 8 layers where 1 is active). An output voxel is active when an input voxel with a non-zero
+/// interpolation weight is; its value is the sampler's (BoxSampler: trilinear; PointSampler:
+/// nearest). Each output voxel is a pure function of its position: the result does not depend
+/// on the thread count.
+///
+/// @a boxes: the input's active voxels, as index boxes (each widened by one voxel within its
+/// leaf); @a makeReader: a per-thread reader of the input (getValue, probeValue, isValueOn by
+/// input index), a grid's accessor or a folded plane field's plane-layout view (FoldedReader);
+/// @a like: the input grid whose background and metadata the output takes.
 template <typename GridT, typename Sampler, bool Nearest, typename MakeReader>
 typename GridT::Ptr resampleBoxes(const std::vector<openvdb::CoordBBox>& inBoxes, const MakeReader& makeReader,
                                   const GridT& like, const openvdb::math::Transform& target)
 {
     using TreeT = typename GridT::TreeType;
     using LeafT = typename TreeT::LeafNodeType;
-    const auto& inXf = like.transform();
     auto out = GridT::create(like.background());
     out->setTransform(target.copy());
     for (auto it = like.beginMeta(); it != like.endMeta(); ++it) out->insertMeta(it->first, *it->second);
-
-    // 1. the footprints: output leaf origins
-    std::vector<openvdb::CoordBBox> boxes(inBoxes.size());
-    tbb::parallel_for(size_t(0), inBoxes.size(), [&](size_t i) {
-        if (!inBoxes[i].empty()) boxes[i] = footprint(inBoxes[i], inXf, target, Nearest);
-    });
-    std::vector<std::vector<openvdb::Coord>> origins(boxes.size());
-    tbb::parallel_for(size_t(0), boxes.size(), [&](size_t i) {
-        const auto& b = boxes[i];
-        if (b.empty()) return;
-        const int m = ~int(LeafT::DIM - 1);
-        for (int x = b.min().x() & m; x <= b.max().x(); x += LeafT::DIM)
-            for (int y = b.min().y() & m; y <= b.max().y(); y += LeafT::DIM)
-                for (int z = b.min().z() & m; z <= b.max().z(); z += LeafT::DIM) origins[i].emplace_back(x, y, z);
-    });
-    openvdb::CoordBBox zone; // voxels outside every footprint are never touched
-    std::vector<openvdb::Coord> all;
-    for (size_t i = 0; i < boxes.size(); ++i) {
-        if (!boxes[i].empty()) zone.expand(boxes[i]);
-        all.insert(all.end(), origins[i].begin(), origins[i].end());
-    }
-    std::vector<std::vector<openvdb::Coord>>().swap(origins);
-    std::sort(all.begin(), all.end());
-    all.erase(std::unique(all.begin(), all.end()), all.end());
+    const ResamplePlan plan(inBoxes, like.transform(), target, Nearest, int(LeafT::DIM));
     std::vector<LeafT*> outLeaves;
-    for (const auto& o : all) outLeaves.push_back(out->tree().touchLeaf(o));
-
-    // 2. sample every voxel of those leaves that lies in some footprint's z range
-    // output index -> input index, affine: p = p0 + A c
-    auto map = [&](const openvdb::Vec3d& c) { return inXf.worldToIndex(target.indexToWorld(c)); };
-    const openvdb::Vec3d p0 = map(openvdb::Vec3d(0.0)), ax = map(openvdb::Vec3d(1, 0, 0)) - p0,
-                         ay = map(openvdb::Vec3d(0, 1, 0)) - p0, az = map(openvdb::Vec3d(0, 0, 1)) - p0;
+    for (const auto& o : plan.origins) outLeaves.push_back(out->tree().touchLeaf(o));
+    // sample every voxel of those leaves that is active
     tbb::parallel_for(tbb::blocked_range<size_t>(0, outLeaves.size(), 4), [&](const tbb::blocked_range<size_t>& r) {
         const auto acc = makeReader();
         for (size_t l = r.begin(); l != r.end(); ++l) {
             LeafT& leaf = *outLeaves[l];
             for (openvdb::Index n = 0; n < LeafT::SIZE; ++n) {
-                const openvdb::Coord c = leaf.offsetToGlobalCoord(n);
-                if (!zone.isInside(c)) continue;
-                const openvdb::Vec3d p = p0 + ax * double(c.x()) + ay * double(c.y()) + az * double(c.z());
-                bool on = false;
-                if (Nearest) {
-                    on = acc.isValueOn(openvdb::Coord::round(p));
-                } else {
-                    const openvdb::Coord i0 = openvdb::Coord::floor(p);
-                    const openvdb::Vec3d f = p - i0.asVec3d();
-                    for (int k = 0; k < 8 && !on; ++k) {
-                        const double wx = (k & 1) ? f.x() : 1.0 - f.x(), wy = (k & 2) ? f.y() : 1.0 - f.y(),
-                                     wz = (k & 4) ? f.z() : 1.0 - f.z();
-                        if (wx * wy * wz > 0.0)
-                            on = acc.isValueOn(i0.offsetBy((k & 1) ? 1 : 0, (k & 2) ? 1 : 0, (k & 4) ? 1 : 0));
-                    }
-                }
-                if (!on) continue;
+                openvdb::Vec3d p;
+                if (!plan.template active<Nearest>(acc, leaf.offsetToGlobalCoord(n), p)) continue;
                 typename GridT::ValueType v;
                 Sampler::sample(acc, p, v);
                 leaf.setValueOn(n, v);
@@ -161,11 +194,9 @@ openvdb::GridBase::Ptr resampleSparse(const openvdb::GridBase& base, const openv
 
 using plane::FoldedReader;
 
-/// resampleSparse of plane::unfoldGrid(@a folded) (its metadata and background from @a like),
-/// reading the folded leaves in place: the boxes are the unfolded leaves' (one per 8 x 8 chunk
-/// with an active voxel), the values FoldedReader's.
-openvdb::FloatGrid::Ptr resampleFolded(const openvdb::FloatGrid& folded, const openvdb::FloatGrid& like,
-                                       const openvdb::math::Transform& target)
+/// The boxes resampleSparse takes from plane::unfoldGrid(@a folded): one per 8 x 8 chunk with an
+/// active voxel, the plane leaf's tight active box widened by one voxel within its node box.
+std::vector<openvdb::CoordBBox> foldedBoxes(const openvdb::FloatGrid& folded)
 {
     openvdb::tree::LeafManager<const openvdb::FloatTree> leaves(folded.tree());
     std::vector<openvdb::CoordBBox> boxes(leaves.leafCount() * 8);
@@ -182,8 +213,6 @@ openvdb::FloatGrid::Ptr resampleFolded(const openvdb::FloatGrid& folded, const o
                 if (row) { y0 = std::min(y0, dy); y1 = dy; }
             }
             if (!cols) continue;
-            // the plane leaf's tight active box widened by one voxel within its node box, as
-            // resampleSparse takes it from the unfolded leaf
             const openvdb::Coord lo = plane::planeLeafOfChunk(fo, g);
             openvdb::CoordBBox bb(lo.offsetBy(__builtin_ctzll(cols), y0, 0), lo.offsetBy(63 - __builtin_clzll(cols), y1, 0));
             bb.expand(1);
@@ -191,9 +220,57 @@ openvdb::FloatGrid::Ptr resampleFolded(const openvdb::FloatGrid& folded, const o
             boxes[i * 8 + size_t(g)] = bb;
         }
     });
-    return resampleBoxes<openvdb::FloatGrid, openvdb::tools::BoxSampler, false>(
-        boxes, [&] { return FoldedReader(folded); }, like, target);
+    return boxes;
 }
+
+/// resampleSparse of plane::unfoldGrid(@a folded) (its metadata and background from @a like),
+/// reading the folded leaves in place (FoldedReader).
+openvdb::FloatGrid::Ptr resampleFolded(const openvdb::FloatGrid& folded, const openvdb::FloatGrid& like,
+                                       const openvdb::math::Transform& target)
+{
+    return resampleBoxes<openvdb::FloatGrid, openvdb::tools::BoxSampler, false>(
+        foldedBoxes(folded), [&] { return FoldedReader(folded); }, like, target);
+}
+
+/// resampleFolded followed by a clip to @a clip, as a StreamedFloatGrid (io/StreamedGrid.h): the
+/// topology is made now by the same test (leaves without buffers, only those left with an active
+/// voxel), the values by the same sampler while the grid is written, from @a folded, which the
+/// grid keeps. The file holds the eager grid's bits.
+openvdb::FloatGrid::Ptr streamFolded(const openvdb::FloatGrid::ConstPtr& folded, const openvdb::FloatGrid& like,
+                                     const openvdb::math::Transform& target, const openvdb::CoordBBox& clip)
+{
+    using LeafT = openvdb::FloatTree::LeafNodeType;
+    auto plan = std::make_shared<const ResamplePlan>(foldedBoxes(*folded), like.transform(), target, false, int(LeafT::DIM));
+    std::vector<LeafT::NodeMaskType> masks(plan->origins.size());
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, masks.size(), 16), [&](const tbb::blocked_range<size_t>& r) {
+        const FoldedReader acc(*folded);
+        for (size_t l = r.begin(); l != r.end(); ++l)
+            for (openvdb::Index n = 0; n < LeafT::SIZE; ++n) {
+                const openvdb::Coord c = plan->origins[l] + LeafT::offsetToLocalCoord(n);
+                openvdb::Vec3d p;
+                if (clip.isInside(c) && plan->active<false>(acc, c, p)) masks[l].setOn(n);
+            }
+    });
+    auto tree = std::make_shared<openvdb::FloatTree>(like.background());
+    for (size_t l = 0; l < masks.size(); ++l) {
+        if (masks[l].isOff()) continue;
+        auto* leaf = new LeafT(openvdb::PartialCreate(), plan->origins[l], like.background());
+        leaf->setValueMask(masks[l]);
+        tree->addLeaf(leaf);
+    }
+    auto fill = [folded, plan](const LeafT* const* leaves, size_t count, float* values) {
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, count, 16), [&](const tbb::blocked_range<size_t>& r) {
+            const FoldedReader acc(*folded);
+            for (size_t i = r.begin(); i != r.end(); ++i)
+                for (auto on = leaves[i]->cbeginValueOn(); on; ++on)
+                    openvdb::tools::BoxSampler::sample(acc, plan->inputIndex(on.getCoord()), values[i * LeafT::SIZE + on.pos()]);
+        });
+    };
+    auto out = std::make_shared<StreamedFloatGrid>(tree, like, fill);
+    out->setTransform(target.copy());
+    return out;
+}
+
 template <typename GridT, typename Sampler>
 openvdb::GridBase::Ptr resampleAs(const openvdb::GridBase& base, const openvdb::math::Transform& target)
 {
@@ -301,19 +378,29 @@ void clipSparse(openvdb::GridBase& grid, const openvdb::CoordBBox& box)
 
 namespace {
 
-/// exportGrid's last stage for a grid resampled from a hexagonal domain.
-openvdb::GridBase::Ptr finishResampled(openvdb::GridBase::Ptr r, const Domain& dom)
+/// The box a grid resampled from a flat hexagonal domain is clipped to: a flat domain stays one
+/// voxel thick (the shear's rounding leaves near-background values in the layers above and
+/// below), and nothing lies outside the raster. Infinite for other domains.
+openvdb::CoordBBox exportClip(const Domain& dom)
 {
-    // A flat domain stays one voxel thick: the shear's rounding leaves near-background
-    // values in the layers above and below, and nothing lies outside the raster.
-    if (dom.flat()) {
-        const SquareRaster sr = squareRaster(dom);
-        const int z = dom.bbox().min().z();
-        clipSparse(*r, openvdb::CoordBBox(openvdb::Coord(sr.a0, sr.b0, z), openvdb::Coord(sr.a1, sr.b1, z)));
-    }
+    if (!dom.flat()) return openvdb::CoordBBox::inf();
+    const SquareRaster sr = squareRaster(dom);
+    const int z = dom.bbox().min().z();
+    return openvdb::CoordBBox(openvdb::Coord(sr.a0, sr.b0, z), openvdb::Coord(sr.a1, sr.b1, z));
+}
+
+openvdb::GridBase::Ptr noteResampled(openvdb::GridBase::Ptr r)
+{
     r->insertMeta("frostvdb_lattice", openvdb::StringMetadata(
         "square, resampled (trilinear) from the hexagonal lattice of the simulation"));
     return r;
+}
+
+/// exportGrid's last stage for a grid resampled from a hexagonal domain.
+openvdb::GridBase::Ptr finishResampled(openvdb::GridBase::Ptr r, const Domain& dom)
+{
+    if (dom.flat()) clipSparse(*r, exportClip(dom));
+    return noteResampled(r);
 }
 
 } // namespace
@@ -353,24 +440,54 @@ bool exportsFoldedInPlace(const openvdb::FloatGrid& folded)
            folded.transform() == *s->domain().transform();
 }
 
-openvdb::GridBase::Ptr exportFolded(const openvdb::FloatGrid& folded, const Domain& dom, bool keepLattice,
-                                    const std::function<void(openvdb::FloatGrid&)>& dress)
+namespace {
+
+/// The plane-layout grid a frame holds of @a folded (unfoldGrid's copy, dressed), without its
+/// tree: the metadata, transform and background an export takes.
+openvdb::FloatGrid::Ptr exportShell(const openvdb::FloatGrid& folded, const std::function<void(openvdb::FloatGrid&)>& dress)
 {
-    // the plane-layout grid a frame holds: unfoldGrid's copy, dressed; only its shell (metadata,
-    // transform, background) is made when the resampling can read the folded leaves in place
     auto like = openvdb::gridPtrCast<openvdb::FloatGrid>(folded.copyGridWithNewTree());
     like->removeMeta(plane::kFoldMeta);
     if (dress) dress(*like);
+    return like;
+}
+
+/// Whether exportFolded resamples the folded leaves in place (else it exports the unfolded copy).
+bool resamplesInPlace(const openvdb::FloatGrid& folded, const openvdb::FloatGrid& like, const Domain& dom,
+                      bool keepLattice, const openvdb::math::Transform& target)
+{
+    return plane::isFolded(folded) && dom.lattice().kind() == LatticeKind::Hexagonal && !keepLattice &&
+           like.transform() == *dom.transform() && like.getGridClass() != openvdb::GRID_LEVEL_SET &&
+           like.transform().isLinear() && target.isLinear() && !folded.tree().hasActiveTiles();
+}
+
+/// exportGrid of the unfolded copy (the export when the leaves are not resampled in place).
+openvdb::GridBase::Ptr exportUnfolded(const openvdb::FloatGrid& folded, const Domain& dom, bool keepLattice,
+                                      const std::function<void(openvdb::FloatGrid&)>& dress)
+{
+    auto g = plane::unfoldGrid(folded);
+    if (dress) dress(*g);
+    return exportGrid(g, dom, keepLattice);
+}
+
+} // namespace
+
+openvdb::GridBase::Ptr exportFolded(const openvdb::FloatGrid& folded, const Domain& dom, bool keepLattice,
+                                    const std::function<void(openvdb::FloatGrid&)>& dress)
+{
+    const auto like = exportShell(folded, dress);
     const auto target = squareTransform(dom);
-    const bool direct = plane::isFolded(folded) && dom.lattice().kind() == LatticeKind::Hexagonal && !keepLattice &&
-                        like->transform() == *dom.transform() && like->getGridClass() != openvdb::GRID_LEVEL_SET &&
-                        like->transform().isLinear() && target->isLinear() && !folded.tree().hasActiveTiles();
-    if (!direct) {
-        auto g = plane::unfoldGrid(folded);
-        if (dress) dress(*g);
-        return exportGrid(g, dom, keepLattice);
-    }
+    if (!resamplesInPlace(folded, *like, dom, keepLattice, *target)) return exportUnfolded(folded, dom, keepLattice, dress);
     return finishResampled(resampleFolded(folded, *like, *target), dom);
+}
+
+openvdb::GridBase::Ptr exportFoldedStreamed(const openvdb::FloatGrid::ConstPtr& folded, const Domain& dom,
+                                            bool keepLattice, const std::function<void(openvdb::FloatGrid&)>& dress)
+{
+    const auto like = exportShell(*folded, dress);
+    const auto target = squareTransform(dom);
+    if (!resamplesInPlace(*folded, *like, dom, keepLattice, *target)) return exportUnfolded(*folded, dom, keepLattice, dress);
+    return noteResampled(streamFolded(folded, *like, *target, exportClip(dom)));
 }
 
 openvdb::GridPtrVec exportGrids(const openvdb::GridPtrVec& grids, const Domain& dom, bool keepLattice)

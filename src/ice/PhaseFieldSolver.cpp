@@ -446,6 +446,43 @@ struct StagedValues {
     }
     float* p(size_t li) const { return p0 + li * slots; }
     float* t(size_t li) const { return t0 + li * slots; }
+    /// Folded p and T: the values are staged per region plane leaf (64 slots, row by row:
+    /// slot (y << 3) | x, so the row writer copies runs of 8), not per folded leaf (512): a folded
+    /// leaf the region covers in part stages only its region's chunks. Chunk g of p's folded leaf
+    /// fi is region leaf chunkLeaf[fi * 8 + g] (FoldedLayout::chunkLeaf).
+    const std::vector<uint32_t>* chunkLeaf = nullptr;
+};
+
+/// Folded staging: the slot of a region plane leaf's offset @a n (x * 64 + y * 8).
+inline openvdb::Index rowSlot(openvdb::Index n) { return (((n >> 3) & 7) << 3) | (n >> 6); }
+
+/// Folded staging: per chunk of the folded leaf @a fi, its region leaf's p and T slots (null
+/// where the region has no leaf: the commit never reads them).
+struct ChunkSlots {
+    const float* p[8] = {};
+    const float* t[8] = {};
+    ChunkSlots(const StagedValues& sv, size_t fi)
+    {
+        for (size_t g = 0; g < 8; ++g) {
+            const uint32_t r = (*sv.chunkLeaf)[fi * 8 + g];
+            if (r == ~uint32_t(0)) continue;
+            p[g] = sv.p(r);
+            t[g] = sv.t(r);
+        }
+    }
+    /// folded offset n = (y << 6) | (g << 3) | x: chunk g's slot (y << 3) | x
+    static openvdb::Index slot(openvdb::Index n) { return ((n >> 6) << 3) | (n & 7); }
+    float atP(openvdb::Index n) const { return p[(n >> 3) & 7][slot(n)]; }
+    float atT(openvdb::Index n) const { return t[(n >> 3) & 7][slot(n)]; }
+    /// A full mask word (row y of the folded leaf) is 8 runs of 8, one per chunk.
+    bool copyWord(openvdb::Index w, float* pv, float* tv) const
+    {
+        for (openvdb::Index g = 0; g < 8; ++g) {
+            std::copy_n(p[g] + w * 8, 8, pv + w * 64 + g * 8);
+            std::copy_n(t[g] + w * 8, 8, tv + w * 64 + g * 8);
+        }
+        return true;
+    }
 };
 
 /// truncateToTolerance (core/ActiveRegion.h) done by the commit on a retiring step: the same
@@ -455,6 +492,71 @@ struct FusedTruncation {
     std::atomic<bool> changedP{false}, changedT{false}, emptiedP{false}, emptiedT{false};
 };
 
+/// A leaf's staged values in its own slots (offset >> shift).
+struct LeafSlots {
+    const float *p, *t;
+    int shift;
+    float atP(openvdb::Index n) const { return p[n >> shift]; }
+    float atT(openvdb::Index n) const { return t[n >> shift]; }
+    /// A full mask word's 64 slots are one run only when slots are offsets.
+    bool copyWord(openvdb::Index w, float* pv, float* tv) const
+    {
+        if (shift != 0) return false;
+        std::copy_n(p + w * 64, 64, pv + w * 64);
+        std::copy_n(t + w * 64, 64, tv + w * 64);
+        return true;
+    }
+};
+
+/// commitStaged on one leaf pair from its staged values @a s (LeafSlots or ChunkSlots).
+template <typename Slots>
+void commitLeaf(FloatLeaf& pl, FloatLeaf& tl, const Slots& s, FusedTruncation* trunc)
+{
+    float* pv = pl.buffer().data();
+    float* tv = tl.buffer().data();
+    auto& mask = pl.getValueMask();
+    if (!trunc) {
+        for (openvdb::Index w = 0; w < FloatLeaf::NodeMaskType::WORD_COUNT; ++w) {
+            const uint64_t word = mask.template getWord<uint64_t>(w);
+            if (word == ~uint64_t(0) && s.copyWord(w, pv, tv)) continue; // a full word: runs
+            for (uint64_t bits = word; bits; bits &= bits - 1) {
+                const openvdb::Index n = w * 64 + openvdb::Index(__builtin_ctzll(bits));
+                pv[n] = s.atP(n);
+                tv[n] = s.atT(n);
+            }
+        }
+        return;
+    }
+    // p and T share the region's topology: one walk over the mask, two masks out.
+    auto& tmask = tl.getValueMask();
+    const float tol = trunc->tol, bgP = trunc->bgP, bgT = trunc->bgT;
+    bool anyP = false, anyT = false, offP = false, offT = false;
+    for (openvdb::Index w = 0; w < FloatLeaf::NodeMaskType::WORD_COUNT; ++w) {
+        uint64_t& wp = mask.template getWord<uint64_t>(w);
+        uint64_t& wt = tmask.template getWord<uint64_t>(w);
+        uint64_t clearP = 0, clearT = 0;
+        for (uint64_t bits = wp; bits; bits &= bits - 1) {
+            const int b = __builtin_ctzll(bits);
+            const openvdb::Index n = w * 64 + openvdb::Index(b);
+            const float x = s.atP(n), y = s.atT(n);
+            if (std::fabs(x - bgP) <= tol) { pv[n] = bgP; clearP |= uint64_t(1) << b; }
+            else pv[n] = x;
+            if (std::fabs(y - bgT) <= tol) { tv[n] = bgT; clearT |= uint64_t(1) << b; }
+            else tv[n] = y;
+        }
+        wp &= ~clearP;
+        wt &= ~clearT;
+        anyP = anyP || wp;
+        anyT = anyT || wt;
+        offP = offP || clearP;
+        offT = offT || clearT;
+    }
+    if (offP) trunc->changedP = true;
+    if (offT) trunc->changedT = true;
+    if (!anyP) trunc->emptiedP = true;
+    if (!anyT) trunc->emptiedT = true;
+}
+
 /// Copies the staged values into the leaves' active voxels (the voxels the kernel wrote); with
 /// @a trunc, values within its tolerance of the background are set to it and switched off.
 void commitStaged(openvdb::tree::LeafManager<openvdb::FloatTree>& pLeaves,
@@ -463,61 +565,11 @@ void commitStaged(openvdb::tree::LeafManager<openvdb::FloatTree>& pLeaves,
 {
     tbb::parallel_for(tbb::blocked_range<size_t>(0, pLeaves.leafCount(), 64), [&](const tbb::blocked_range<size_t>& r) {
         for (size_t li = r.begin(); li != r.end(); ++li) {
-            FloatLeaf& pl = pLeaves.leaf(li);
-            FloatLeaf& tl = tLeaves.leaf(li);
-            float* pv = pl.buffer().data();
-            float* tv = tl.buffer().data();
-            const float* sp = sv.p(li);
-            const float* st = sv.t(li);
-            auto& mask = pl.getValueMask();
-            if (!trunc) {
-                for (openvdb::Index w = 0; w < FloatLeaf::NodeMaskType::WORD_COUNT; ++w) {
-                    const uint64_t word = mask.template getWord<uint64_t>(w);
-                    if (word == ~uint64_t(0) && sv.shift == 0) { // a full word: 64 slots in a row
-                        std::copy_n(sp + w * 64, 64, pv + w * 64);
-                        std::copy_n(st + w * 64, 64, tv + w * 64);
-                        continue;
-                    }
-                    for (uint64_t bits = word; bits; bits &= bits - 1) {
-                        const openvdb::Index n = w * 64 + openvdb::Index(__builtin_ctzll(bits));
-                        pv[n] = sp[n >> sv.shift];
-                        tv[n] = st[n >> sv.shift];
-                    }
-                }
-                continue;
-            }
-            // p and T share the region's topology: one walk over the mask, two masks out.
-            auto& tmask = tl.getValueMask();
-            const float tol = trunc->tol, bgP = trunc->bgP, bgT = trunc->bgT;
-            bool anyP = false, anyT = false, offP = false, offT = false;
-            for (openvdb::Index w = 0; w < FloatLeaf::NodeMaskType::WORD_COUNT; ++w) {
-                uint64_t& wp = mask.template getWord<uint64_t>(w);
-                uint64_t& wt = tmask.template getWord<uint64_t>(w);
-                uint64_t clearP = 0, clearT = 0;
-                for (uint64_t bits = wp; bits; bits &= bits - 1) {
-                    const int b = __builtin_ctzll(bits);
-                    const openvdb::Index n = w * 64 + openvdb::Index(b);
-                    const float x = sp[n >> sv.shift], y = st[n >> sv.shift];
-                    if (std::fabs(x - bgP) <= tol) { pv[n] = bgP; clearP |= uint64_t(1) << b; }
-                    else pv[n] = x;
-                    if (std::fabs(y - bgT) <= tol) { tv[n] = bgT; clearT |= uint64_t(1) << b; }
-                    else tv[n] = y;
-                }
-                wp &= ~clearP;
-                wt &= ~clearT;
-                anyP = anyP || wp;
-                anyT = anyT || wt;
-                offP = offP || clearP;
-                offT = offT || clearT;
-            }
-            if (offP) trunc->changedP = true;
-            if (offT) trunc->changedT = true;
-            if (!anyP) trunc->emptiedP = true;
-            if (!anyT) trunc->emptiedT = true;
+            if (sv.chunkLeaf) commitLeaf(pLeaves.leaf(li), tLeaves.leaf(li), ChunkSlots(sv, li), trunc);
+            else commitLeaf(pLeaves.leaf(li), tLeaves.leaf(li), LeafSlots{sv.p(li), sv.t(li), sv.shift}, trunc);
         }
     });
 }
-
 
 /// The kernel over every leaf of the new grids (whose topology is the region), group by group:
 /// gather, pass 1, pass 2. Accumulators and the failure report are optional (benchmarks pass none).
@@ -539,13 +591,14 @@ struct LeafKernel {
     /// Where the cells whose p crossed 1/2 go (null: nobody listens), see setCrossingLog.
     std::vector<openvdb::Coord>* crossings = nullptr;
 
-    /// Folded p and T (core/PlaneFold.h): the kernel walks the region's plane leaves, and
-    /// region leaf li's values are staged in its folded leaf, foldedLeaf[li] of p's leaves.
+    /// Folded p and T (core/PlaneFold.h): the kernel walks the region's plane leaves (region
+    /// leaf li's values staged in its own 64 slots, StagedValues::chunkLeaf); its folded leaf is
+    /// foldedLeaf[li] of p's leaves.
     const std::vector<uint32_t>* foldedLeaf = nullptr;
 
     /// Where leaf @a li's new values go: the staging slots or the leaf buffer itself, and the
     /// shift from a leaf offset to its slot (planes keep one z layer: 64 slots, offset >> 3);
-    /// folded, the slot of plane offset n in the folded leaf of the plane leaf at lo.
+    /// folded, the region leaf's row-by-row slot of plane offset n (rowSlot).
     struct Out {
         float *p, *t;
         int shift;
@@ -553,7 +606,7 @@ struct LeafKernel {
         openvdb::Coord lo;
         openvdb::Index slot(openvdb::Index n) const
         {
-            return fold ? plane::foldedOffset(lo, int(n >> 6), int((n >> 3) & 7)) : n >> shift;
+            return fold ? rowSlot(n) : n >> shift;
         }
         float& atP(openvdb::Index n) const { return p[slot(n)]; }
         float& atT(openvdb::Index n) const { return t[slot(n)]; }
@@ -561,10 +614,7 @@ struct LeafKernel {
     Out out(size_t li, const openvdb::Coord& lo, openvdb::tree::LeafManager<openvdb::FloatTree>& pLeaves,
             openvdb::tree::LeafManager<openvdb::FloatTree>& tLeaves) const
     {
-        if (foldedLeaf) {
-            const size_t fi = (*foldedLeaf)[li];
-            return {staged->p(fi), staged->t(fi), 0, true, lo};
-        }
+        if (foldedLeaf) return {staged->p(li), staged->t(li), 0, true, lo};
         if (staged) return {staged->p(li), staged->t(li), staged->shift, false, lo};
         return {pLeaves.leaf(li).buffer().data(), tLeaves.leaf(li).buffer().data(), 0, false, lo};
     }
@@ -660,9 +710,10 @@ struct LeafKernel {
         return rows;
     }
 
-    /// Writes one plane leaf of a block into folded staging and folded accumulators, a row of 8
-    /// cells at a time: each row is contiguous in the block (pe, te, dp) and in the folded leaf
-    /// (slots (y << 6) | (x & 63)), so its values are copied as runs and its accumulator mask
+    /// Writes one plane leaf of a block into its staging and folded accumulators, a row of 8
+    /// cells at a time: each row is contiguous in the block (pe, te, dp), in the staging (slots
+    /// (y << 3) | x) and in the folded accumulator leaves (slots (y << 6) | (x & 63)), so its
+    /// values are copied as runs and its accumulator mask
     /// bits set by one atomic OR per row (the folded leaf's mask word is shared with the leaves
     /// beside it). @a heatOnly: te holds the heat rows, p' is 0, dp 0. The same values, masks,
     /// bounds reports, queued writes and crossings (in planeLeaf's order) as planeLeaf.
@@ -687,8 +738,8 @@ struct LeafKernel {
             const float* pe = &b.pe[i];
             const float* te = &b.te[i];
             const double* dp = &b.dp[i];
-            float* outP = &o.p[s0];
-            float* outT = &o.t[s0];
+            float* outP = &o.p[y << 3];
+            float* outT = &o.t[y << 3];
             if (heatOnly) std::fill_n(outP, kDim, 0.f);
             else std::copy_n(pe, kDim, outP);
             std::copy_n(te, kDim, outT);
@@ -963,6 +1014,7 @@ struct LeafKernel {
 struct PhaseFieldSolver::FoldedLayout {
     openvdb::MaskGrid::Ptr region;
     std::vector<uint32_t> leafOf;
+    std::vector<uint32_t> chunkLeaf; ///< per folded leaf and chunk g (x >> 3 & 7): its region leaf, or ~0
     uint64_t generation = 0;
     size_t foldedLeaves = 0;
 
@@ -1003,6 +1055,9 @@ struct PhaseFieldSolver::FoldedLayout {
         });
         if (std::find(leafOf.begin(), leafOf.end(), kNone) != leafOf.end())
             throw std::logic_error("FoldedLayout: a region leaf has no folded leaf");
+        chunkLeaf.assign(foldedLeaves * 8, kNone);
+        for (size_t i = 0; i < leafOf.size(); ++i)
+            chunkLeaf[size_t(leafOf[i]) * 8 + size_t((planeLeaves.leaf(i).origin().x() >> 3) & 7)] = uint32_t(i);
     }
     /// A folded leaf origin as its 8 x 64 tile of the plane, in tile units (z 0).
     static openvdb::Coord tableKey(const openvdb::Coord& foldedOrigin)
@@ -1296,8 +1351,9 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
     Failure failure;
     std::optional<StagedValues> staged;
     if (k.scheme == PhaseFieldScheme::Euler) {
-        // folded: one slot per voxel of a folded leaf (512, all of them plane voxels)
-        staged.emplace(mStageP, mStageT, pLeaves.leafCount(), mDomain.flat() && !folded);
+        // folded: 64 slots per region plane leaf, committed into p's folded leaves by chunk
+        staged.emplace(mStageP, mStageT, folded ? regionLeaves->leafCount() : pLeaves.leafCount(), mDomain.flat());
+        if (folded) staged->chunkLeaf = &mFolded->chunkLeaf;
         if (stats)
             stats->stagingPeakBytes = std::max<uint64_t>(stats->stagingPeakBytes,
                                                          (mStageP.capacity() + mStageT.capacity()) * sizeof(float));

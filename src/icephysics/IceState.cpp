@@ -61,11 +61,13 @@ void recordPhaseChange(openvdb::FloatGrid::Accessor& growth, openvdb::FloatGrid:
 
 namespace {
 
-/// exportFolded in the current ExportScope (exportsFoldedInPlace holds).
-openvdb::GridBase::Ptr exportFoldedNow(const openvdb::FloatGrid& folded, const std::function<void(openvdb::FloatGrid&)>& dress)
+/// exportFoldedStreamed in the current ExportScope (exportsFoldedInPlace holds): the writer
+/// makes the grid's values as it writes them.
+openvdb::GridBase::Ptr exportFoldedNow(const openvdb::FloatGrid::ConstPtr& folded,
+                                       const std::function<void(openvdb::FloatGrid&)>& dress)
 {
     const ExportScope* s = ExportScope::current();
-    return exportFolded(folded, s->domain(), s->keepLattice(), dress);
+    return exportFoldedStreamed(folded, s->domain(), s->keepLattice(), dress);
 }
 
 /// p as a fog volume (values in [0,1], background 0, nothing stored where there is no ice), in
@@ -141,7 +143,7 @@ void addIceOutputs(World& world, Frame& frame)
         // made again for the VDB writer: exported from a folded fog copy, in place (the clamp and
         // the pruning commute with the fold: a plane leaf is pruned when its chunk has no active
         // voxel left)
-        if (exportsFoldedInPlace(*p)) return exportFoldedNow(*toFog(p->deepCopy()), nullptr);
+        if (exportsFoldedInPlace(*p)) return exportFoldedNow(toFog(p->deepCopy()), nullptr);
         return iceFog(*p);
     });
     addIceFieldOutputs(world, frame);
@@ -158,7 +160,7 @@ void addIceFieldOutputs(World& world, Frame& frame)
                 g.setGridClass(openvdb::GRID_UNKNOWN);
                 g.setName(out::kIceTemperature.name);
             };
-            if (exportsFoldedInPlace(*T)) return exportFoldedNow(*T, dress);
+            if (exportsFoldedInPlace(*T)) return exportFoldedNow(T, dress);
             auto temperature = plane::unfoldGrid(*T);
             dress(*temperature);
             return temperature;
@@ -178,7 +180,7 @@ void addIceFieldOutputs(World& world, Frame& frame)
             if (exportsFoldedInPlace(*acc)) { // normalised folded (the same active values), exported in place
                 auto growth = acc->deepCopy();
                 normaliseGrowth(*growth);
-                return exportFoldedNow(*growth, nullptr);
+                return exportFoldedNow(growth, nullptr);
             }
             return normalisedGrowth(*acc);
         });
@@ -188,7 +190,7 @@ void addIceFieldOutputs(World& world, Frame& frame)
             // made when something reads it (the VDB writer: exported in place)
             frame.addDeferred(out::kFreezeTime, [f]() -> openvdb::GridBase::Ptr {
                 auto dress = [](openvdb::FloatGrid& g) { g.setName(out::kFreezeTime.name); };
-                if (exportsFoldedInPlace(*f)) return exportFoldedNow(*f, dress);
+                if (exportsFoldedInPlace(*f)) return exportFoldedNow(f, dress);
                 auto freeze = plane::unfoldGrid(*f);
                 dress(*freeze);
                 return freeze;

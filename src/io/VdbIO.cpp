@@ -2,10 +2,12 @@
 #include <frostvdb/io/InputFiles.h>
 #include <frostvdb/base/Error.h>
 #include <frostvdb/io/AtomicFile.h>
+#include <frostvdb/io/StreamedGrid.h>
 
 #include <openvdb/io/Archive.h>
 #include <openvdb/io/GridDescriptor.h>
 #include <openvdb/io/Stream.h>
+#include <openvdb/io/io.h>
 
 #include <atomic>
 #include <cmath>
@@ -63,6 +65,7 @@ bool checkGrid(const openvdb::GridBase& base)
 
 void checkFinite(const openvdb::GridBase& grid)
 {
+    if (dynamic_cast<const StreamedFloatGrid*>(&grid)) return; // checked leaf by leaf as it is written
     checkGrid<openvdb::FloatGrid>(grid) || checkGrid<openvdb::DoubleGrid>(grid) ||
         checkGrid<openvdb::Vec3SGrid>(grid);
 }
@@ -314,9 +317,51 @@ public:
                 throw std::logic_error("writeVdbStreamed: grid names must be distinct and not empty ('" +
                                        grid->getName() + "')");
             openvdb::io::GridDescriptor gd(grid->getName(), grid->type(), grid->saveFloatAsHalf());
-            writeGrid(gd, grid, os, /*seekable=*/true);
+            if (const auto* streamed = dynamic_cast<const StreamedFloatGrid*>(grid.get()))
+                writeStreamedGrid(gd, *streamed, os);
+            else
+                writeGrid(gd, grid, os, /*seekable=*/true);
             openvdb::io::setDataCompression(os, compression()); // per-grid options reset, as Archive::write does
         }
+    }
+
+private:
+    /// Archive::writeGrid (OpenVDB 10.0, seekable) for a StreamedFloatGrid: the same steps and
+    /// bytes, but the `file_delayed_load` metadata from the grid's own values
+    /// (StreamedFloatGrid::delayedLoadMetadata) where OpenVDB would read its empty leaf buffers.
+    /// writeStreamed sets no stream metadata of its own: the grid's is cleared afterwards.
+    void writeStreamedGrid(openvdb::io::GridDescriptor& gd, const StreamedFloatGrid& grid, std::ostream& os) const
+    {
+        // the stream holds the address of this pointer until it is cleared, before the pointer goes
+        auto streamMetadata = std::make_shared<openvdb::io::StreamMetadata>();
+        streamMetadata->setHalfFloat(grid.saveFloatAsHalf());
+        streamMetadata->gridMetadata() = static_cast<const openvdb::MetaMap&>(grid);
+        struct ClearOnExit {
+            std::ostream& os;
+            ~ClearOnExit() { openvdb::io::clearStreamMetadataPtr(os); }
+        } clear{os};
+        openvdb::io::setStreamMetadataPtr(os, streamMetadata, /*transfer=*/false);
+        gd.writeHeader(os);
+        const int64_t offsetPos = int64_t(os.tellp());
+        gd.writeStreamPos(os); // the offsets, written again once known
+        gd.setGridPos(os.tellp());
+        setGridCompression(os, grid);
+        const auto copy = openvdb::ConstPtrCast<openvdb::GridBase>(grid.copyGrid()); // shallow: the metadata written
+        copy->insertMeta(openvdb::GridBase::META_FILE_DELAYED_LOAD, grid.delayedLoadMetadata(compression()));
+        if (openvdb::io::getWriteGridStatsMetadata(os)) {
+            copy->addStatsMetadata();
+            copy->insertMeta(openvdb::GridBase::META_FILE_COMPRESSION,
+                             openvdb::StringMetadata(openvdb::io::compressionToString(openvdb::io::getDataCompression(os))));
+        }
+        copy->writeMeta(os);
+        grid.writeTransform(os);
+        grid.writeTopology(os);
+        gd.setBlockPos(os.tellp());
+        grid.writeBuffers(os);
+        gd.setEndPos(os.tellp());
+        os.seekp(offsetPos, std::ios_base::beg);
+        gd.writeStreamPos(os);
+        gd.seekToEnd(os);
     }
 };
 

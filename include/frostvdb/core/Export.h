@@ -81,6 +81,15 @@ bool exportsFoldedInPlace(const openvdb::FloatGrid& folded);
 openvdb::GridBase::Ptr exportFolded(const openvdb::FloatGrid& folded, const Domain& domain, bool keepLattice,
                                     const std::function<void(openvdb::FloatGrid&)>& dress);
 
+/// exportFolded for the VDB writer: where the folded leaves are resampled in place, the grid is a
+/// StreamedFloatGrid (io/StreamedGrid.h), its topology made now and its values sampled from
+/// @a folded (which it keeps) while the writer writes it, so the exported grid's values (about
+/// 32 bytes per voxel of a plane on the square raster) are never held whole. The file holds
+/// exportFolded's bits; nothing but the writer may read the grid's values. Elsewhere it is
+/// exportFolded's grid.
+openvdb::GridBase::Ptr exportFoldedStreamed(const openvdb::FloatGrid::ConstPtr& folded, const Domain& domain,
+                                            bool keepLattice, const std::function<void(openvdb::FloatGrid&)>& dress);
+
 /// Writes @a growth (values in [0,1]) as a 16-bit greyscale PNG on squareRaster(domain), sampled
 /// in world space (so it works for sheared and resampled grids alike). Flat domains only.
 void writeDisplacementPng(const openvdb::FloatGrid& growth, const Domain& domain, const std::string& path);

@@ -60,7 +60,8 @@ VdbLayout validateVdb(const std::string& path, const std::string& bytes);
 /// One line of at most @a maxChars characters: control characters replaced, the rest cut with "...".
 std::string shortMessage(std::string s, size_t maxChars = 300);
 
-/// Throws SimulationError naming the grid and voxel if any float/vector value is not finite.
+/// Throws SimulationError naming the grid and voxel if any float/vector value is not finite (a
+/// StreamedFloatGrid checks its values itself, as it writes them).
 void checkFinite(const openvdb::GridBase& grid);
 
 /// Writes grids and file metadata atomically. Each grid is checked finite first.
