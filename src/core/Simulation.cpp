@@ -1,4 +1,5 @@
 #include <frostvdb/core/Simulation.h>
+#include <frostvdb/core/FoldedReader.h>
 #include <frostvdb/core/PlaneFold.h>
 
 #include <nlohmann/json.hpp>
@@ -10,6 +11,8 @@
 #include <frostvdb/io/InputFiles.h>
 #include <frostvdb/io/OutputLock.h>
 #include <frostvdb/io/Preview.h>
+#include <openvdb/tools/Interpolation.h>
+#include <openvdb/tools/Count.h>
 #include <frostvdb/io/VdbIO.h>
 
 #include <tbb/global_control.h>
@@ -793,6 +796,35 @@ void Simulation::updateSignalRecord(const std::string& dir, const RunSummary& su
     setSignalRecord(dir + "/" + sum.summaryFile, text[0], text[1], text[2]);
 }
 
+namespace {
+/// What writePreview reads of plane::unfoldGrid(@a g), read from the folded grid in place: its
+/// plane layout's active box (from the chunks), its largest active value (the same values) and
+/// FoldedReader for the samples.
+FlatPreviewSource foldedPreviewSource(const openvdb::FloatGrid::ConstPtr& g)
+{
+    FlatPreviewSource src;
+    for (auto leaf = g->tree().cbeginLeaf(); leaf; ++leaf) {
+        plane::PlaneChunk chunks[8];
+        const int n = plane::chunksOf(*leaf, chunks);
+        for (int i = 0; i < n; ++i) {
+            const plane::PlaneChunk& c = chunks[i];
+            src.bbox.expand(openvdb::CoordBBox(c.origin.offsetBy(__builtin_ctz(c.columns), c.y0, 0),
+                                               c.origin.offsetBy(31 - __builtin_clz(c.columns), c.y1, 0)));
+        }
+    }
+    src.valueMax = openvdb::tools::minMax(g->tree()).max();
+    src.transform = g->transformPtr();
+    src.makeSampler = [g] {
+        return std::function<float(const openvdb::Vec3d&)>([reader = plane::FoldedReader(*g)](const openvdb::Vec3d& p) {
+            float v = 0.f;
+            openvdb::tools::BoxSampler::sample(reader, p, v);
+            return v;
+        });
+    };
+    return src;
+}
+} // namespace
+
 std::string Simulation::writeFramePreview(const Frame& frame, int64_t f, const std::string& dir)
 {
     const std::string png = framePath(dir, mWorld.sceneName, f, "png");
@@ -810,10 +842,13 @@ std::string Simulation::writeFramePreview(const Frame& frame, int64_t f, const s
         throw SceneError(mWorld.sceneLabel, 0, "output.preview_grid",
                          "no float grid named '" + mOutput.previewGrid + "' in the frame");
     if (!pick) return {};
-    // a frame's copy made folded for the PNGs (ice/IceState.cpp): the preview reads the plane
-    // layout (io/ knows no fold); the copy lives while it is drawn, under the VDB writer's peak
-    if (auto g = openvdb::gridPtrCast<openvdb::FloatGrid>(pick); g && plane::isFolded(*g)) pick = plane::unfoldGrid(*g);
-    writePreview(*pick, png);
+    // a frame's copy made folded for the PNGs (ice/IceState.cpp): drawn in place, through the
+    // plane layout's view of it (io/ knows no fold), not through that layout's copy (36 bytes a
+    // voxel: the frame's peak at 16384^2 once the VDB writer streamed its grids)
+    if (auto g = openvdb::gridPtrCast<openvdb::FloatGrid>(pick); g && plane::isFolded(*g))
+        writeFlatPreview(foldedPreviewSource(g), png);
+    else
+        writePreview(*pick, png);
     return png;
 }
 

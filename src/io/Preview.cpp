@@ -22,10 +22,12 @@ openvdb::Vec3f iceRamp(float v)
     return v < 0.5f ? a + (b - a) * (v * 2.f) : b + (c - b) * ((v - 0.5f) * 2.f);
 }
 
-void flatPreview(const openvdb::FloatGrid& grid, const std::string& path, const PreviewOptions& opt,
-                 const openvdb::CoordBBox& bbox)
+/// The top view of a flat field: its active index box @a bbox, its largest active value
+/// @a vmax (or the options'), and a per-thread sampler by index-space point.
+template <typename MakeSampler>
+void flatPreview(const openvdb::math::Transform& xf, const MakeSampler& makeSampler, float dataMax,
+                 const std::string& path, const PreviewOptions& opt, const openvdb::CoordBBox& bbox)
 {
-    const auto& xf = grid.transform();
     // World-space xy bounds of the active index box (corners of a possibly sheared box).
     openvdb::Vec3d lo(1e300), hi(-1e300);
     for (int c = 0; c < 4; ++c) {
@@ -39,18 +41,14 @@ void flatPreview(const openvdb::FloatGrid& grid, const std::string& path, const 
     const int W = opt.width;
     const int H = std::max(1, int(std::lround(W * spanY / spanX)));
     std::vector<float> val(size_t(W) * H);
-    float vmax = opt.valueMax;
-    if (vmax <= 0.f) {
-        vmax = std::max(openvdb::tools::minMax(grid.tree()).max(), 1e-6f);
-    }
+    const float vmax = opt.valueMax > 0.f ? opt.valueMax : std::max(dataMax, 1e-6f);
     tbb::parallel_for(0, H, [&](int y) {
-        auto acc = grid.getConstAccessor();
-        openvdb::tools::GridSampler<openvdb::FloatGrid::ConstAccessor, openvdb::tools::BoxSampler> s(acc, xf);
+        const auto sample = makeSampler(); // GridSampler::wsSample: the sampler at worldToIndex
         const double z = xf.indexToWorld(openvdb::Vec3d(0, 0, bbox.min().z())).z();
         for (int x = 0; x < W; ++x) {
             const double wx = lo.x() + (x + 0.5) / W * spanX;
             const double wy = hi.y() - (y + 0.5) / H * spanY; // row 0 at the top
-            val[size_t(y) * W + x] = s.wsSample(openvdb::Vec3d(wx, wy, z)) / vmax;
+            val[size_t(y) * W + x] = sample(xf.worldToIndex(openvdb::Vec3d(wx, wy, z))) / vmax;
         }
     });
     ImageRGB img(W, H);
@@ -121,8 +119,22 @@ void writePreview(const openvdb::GridBase& base, const std::string& pngPath, con
     if (!grid) throw std::runtime_error("preview: grid '" + base.getName() + "' is not a float grid");
     openvdb::CoordBBox bbox = grid->evalActiveVoxelBoundingBox();
     if (bbox.empty()) bbox = openvdb::CoordBBox(openvdb::Coord(0), openvdb::Coord(7, 7, 0));
-    if (bbox.dim().z() <= 1) flatPreview(*grid, pngPath, opt, bbox);
-    else volumePreview(*grid, pngPath, opt, bbox);
+    if (bbox.dim().z() > 1) return volumePreview(*grid, pngPath, opt, bbox);
+    const float dataMax = opt.valueMax > 0.f ? 0.f : openvdb::tools::minMax(grid->tree()).max();
+    auto makeSampler = [grid] {
+        return [acc = grid->getConstAccessor()](const openvdb::Vec3d& p) {
+            float v = 0.f;
+            openvdb::tools::BoxSampler::sample(acc, p, v);
+            return v;
+        };
+    };
+    flatPreview(grid->transform(), makeSampler, dataMax, pngPath, opt, bbox);
+}
+
+void writeFlatPreview(const FlatPreviewSource& src, const std::string& pngPath, const PreviewOptions& opt)
+{
+    const openvdb::CoordBBox bbox = src.bbox.empty() ? openvdb::CoordBBox(openvdb::Coord(0), openvdb::Coord(7, 7, 0)) : src.bbox;
+    flatPreview(*src.transform, src.makeSampler, src.valueMax, pngPath, opt, bbox);
 }
 
 } // namespace frostvdb

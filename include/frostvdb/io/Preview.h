@@ -4,6 +4,7 @@
 /// a ray-marched image (tools::VolumeRender) for volumes.
 #include <openvdb/openvdb.h>
 
+#include <functional>
 #include <string>
 
 namespace frostvdb {
@@ -19,5 +20,19 @@ struct PreviewOptions {
 /// anything thicker is ray-marched with a light from above. Throws on non-scalar grids.
 void writePreview(const openvdb::GridBase& grid, const std::string& pngPath,
                   const PreviewOptions& options = {});
+
+/// A flat (one layer) scalar field that is not held as a plane-layout FloatGrid (a folded plane
+/// field, core/FoldedReader.h), for writeFlatPreview: what writePreview's top view reads of a grid.
+struct FlatPreviewSource {
+    openvdb::CoordBBox bbox;                        ///< the active voxels' index box (empty: none)
+    float valueMax = 0.f;                           ///< the largest active value
+    openvdb::math::Transform::ConstPtr transform;   ///< index to world
+    /// A sampler per thread: the field's BoxSampler value at an index-space point.
+    std::function<std::function<float(const openvdb::Vec3d&)>()> makeSampler;
+};
+
+/// writePreview's shaded top view of @a source: the same PNG as writePreview of the field's
+/// plane-layout grid, without that grid.
+void writeFlatPreview(const FlatPreviewSource& source, const std::string& pngPath, const PreviewOptions& options = {});
 
 } // namespace frostvdb
