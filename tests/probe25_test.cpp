@@ -979,8 +979,8 @@ TEST_CASE("Probe 25.2: the share of a gas's candidate leaves that hold gas is sa
 TEST_CASE("Probe 25.2: a shell's whole band is held to run.memory_limit, once, at domain.voxel_size",
           "[fast][probe][memory][shell]")
 {
-    // A tilted 0.3 m plate at 1 mm: the whole band is estimated at about 55 MiB (96,930 cells x
-    // 600 bytes).
+    // A tilted 0.3 m plate at 1 mm: the whole band is estimated at about 52 MiB (96,930 cells x
+    // 560 bytes).
     const std::string dir = tempDir("p25_shell_band");
     std::ofstream(dir + "/tilted.obj") << "v -0.15 -0.15 -0.05\nv 0.15 -0.15 -0.05\nv 0.15 0.15 0.07\n"
                                           "v -0.15 0.15 0.07\nf 1 2 3\nf 1 3 4\n";
@@ -991,14 +991,14 @@ TEST_CASE("Probe 25.2: a shell's whole band is held to run.memory_limit, once, a
     };
     const std::string dense = "[region]\ndense = true\n[phase_field]\n";
     for (const std::string& fx : {dense, std::string("[dla]\n"), dense + "[dla]\n"}) {
-        const std::string e = refusalOf(scene(0.05, fx));
+        const std::string e = refusalOf(scene(0.04, fx));
         INFO(fx << ": " << e);
-        CHECK(e.find("domain.voxel_size: needs about 55.5") != std::string::npos);
+        CHECK(e.find("domain.voxel_size: needs about 51.8") != std::string::npos);
         CHECK(e.find("run.memory_limit") != std::string::npos);
         CHECK(e.find("domain.size") == std::string::npos); // the plane's key, not in this scene
     }
-    // [dla] and a dense region build one band: counted once (twice would be 111 MiB, over 102)
-    CHECK(refusalOf(scene(0.1, dense + "[dla]\n")) == "");
+    // [dla] and a dense region build one band: counted once (twice would be 104 MiB, over 92)
+    CHECK(refusalOf(scene(0.09, dense + "[dla]\n")) == "");
 }
 
 TEST_CASE("Probe 25 re-run (session 16): a [dla3d] constraint mesh that is missing is refused in one line, not a crash",

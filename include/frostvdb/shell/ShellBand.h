@@ -254,8 +254,9 @@ public:
     /// (frames no longer publish World's grids): 600 on the pane's 0.29 M cells, 540-580 on the
     /// heroes, 770 on a 0.3 m test plate at 1 mm (peak above the program's own 54 MiB); session
     /// 15 stores frames and closest points as floats, 48 bytes a voxel less; session 18's compact
-    /// band index (BandIndex.h) about 55 less (the pane: 15.7 MiB of index for 0.29 M nodes -> 1).
-    static double surfaceBytesPerCell() { return 600.0; }
+    /// band index (BandIndex.h) about 55 less (the pane: 15.7 MiB of index for 0.29 M nodes -> 1)
+    /// and 560 then keeps the probe's dense plate within 1.5x (1.50 at 600 in a parallel ctest).
+    static double surfaceBytesPerCell() { return 560.0; }
     /// The same for this band's discretisation (closest point: 11.5 band voxels of about 612 bytes).
     double bytesPerSurfaceCell() const { return mSurface ? surfaceBytesPerCell() : 11.5 * 612.0; }
     /// Bytes held by the band (the per-voxel arrays, the index grid, the mesh and its hierarchy).
