@@ -178,27 +178,6 @@ __attribute__((noinline)) FV_AVX2 void eulerRowAvx2(const float* p, const float*
     if (i < i1) eulerRowPlain(p, T, a, cx, cy, gx, gy, gz, i, i1, st, k, melt, chi, pOut, tOut, dpOut);
 }
 
-/// kobayashiEulerHeatOnly on the 4-tap square plane: eulerRowAvx2's T update with dp = 0.
-__attribute__((noinline)) FV_AVX2 void heatRowAvx2(const float* T, std::size_t i0, std::size_t i1,
-                                                   const FlatStencil& st, const KobayashiParams& k, float* tOut)
-{
-    __m256d wL[kTaps];
-    std::ptrdiff_t off[kTaps];
-    for (int q = 0; q < kTaps; ++q) {
-        wL[q] = splat(st.wLap[q]);
-        off[q] = st.off[q];
-    }
-    const __m256d zero = _mm256_setzero_pd(), dt = splat(k.dt), latentZero = mul(splat(k.latentHeat), zero);
-    std::size_t i = i0;
-    for (; i + 4 <= i1; i += 4) {
-        const __m256d t0 = load4(T + i);
-        __m256d lapT = zero;
-        for (int q = 0; q < kTaps; ++q) lapT = add(lapT, mul(wL[q], sub(load4(T + i + off[q]), t0)));
-        store4(tOut + i, add(add(t0, mul(dt, lapT)), latentZero));
-    }
-    if (i < i1) heatRowPlain(T, i, i1, st, k, tOut);
-}
-
 // Hexagonal plane, j = 6 (st.d6): kobayashiAux's and kobayashiEuler's D6 forms on 4 lanes.
 // canonicalSum of 3 terms is the same min/max network; canonicalProduct3 sorts by magnitude,
 // and any order by magnitude gives the scalar product's bits (ties differ only in sign, and the
@@ -330,13 +309,24 @@ __attribute__((noinline)) FV_AVX2 void eulerRowHexAvx2(const float* p, const flo
     if (i < i1) eulerRowPlain(p, T, a, cx, cy, gx, gy, gz, i, i1, st, k, melt, chi, pOut, tOut, dpOut);
 }
 
-/// kobayashiEulerHeatOnly on the hexagonal plane (any anisotropy: the heat step has none).
-__attribute__((noinline)) FV_AVX2 void heatRowHexAvx2(const float* T, std::size_t i0, std::size_t i1,
-                                                      const FlatStencil& st, const KobayashiParams& k, float* tOut)
+/// The square plane's Laplacian of u at i .. i + 3, its taps summed in order (eulerRowAvx2's).
+FV_AVX2 inline __m256d squareLaplacian(const float* u, std::size_t i, const std::ptrdiff_t* off, const __m256d* wL,
+                                       __m256d u0)
 {
-    __m256d wL[kHexTaps];
-    std::ptrdiff_t off[kHexTaps];
-    for (int q = 0; q < kHexTaps; ++q) {
+    __m256d lap = _mm256_setzero_pd();
+    for (int q = 0; q < kTaps; ++q) lap = add(lap, mul(wL[q], sub(load4(u + i + off[q]), u0)));
+    return lap;
+}
+
+/// kobayashiEulerHeatOnly along a row: the Euler rows' T update with dp = 0, the Laplacian summed
+/// by @a Laplacian in its lattice's order (the scalar code's), so square and hexagonal share it.
+template <int Taps, __m256d (*Laplacian)(const float*, std::size_t, const std::ptrdiff_t*, const __m256d*, __m256d)>
+FV_AVX2 inline void heatRowLanes(const float* T, std::size_t i0, std::size_t i1, const FlatStencil& st,
+                                 const KobayashiParams& k, float* tOut)
+{
+    __m256d wL[Taps];
+    std::ptrdiff_t off[Taps];
+    for (int q = 0; q < Taps; ++q) {
         wL[q] = splat(st.wLap[q]);
         off[q] = st.off[q];
     }
@@ -344,9 +334,23 @@ __attribute__((noinline)) FV_AVX2 void heatRowHexAvx2(const float* T, std::size_
     std::size_t i = i0;
     for (; i + 4 <= i1; i += 4) {
         const __m256d t0 = load4(T + i);
-        store4(tOut + i, add(add(t0, mul(dt, hexLaplacian(T, i, off, wL, t0))), latentZero));
+        store4(tOut + i, add(add(t0, mul(dt, Laplacian(T, i, off, wL, t0))), latentZero));
     }
     if (i < i1) heatRowPlain(T, i, i1, st, k, tOut);
+}
+
+/// kobayashiEulerHeatOnly on the 4-tap square plane.
+__attribute__((noinline)) FV_AVX2 void heatRowAvx2(const float* T, std::size_t i0, std::size_t i1,
+                                                   const FlatStencil& st, const KobayashiParams& k, float* tOut)
+{
+    heatRowLanes<kTaps, squareLaplacian>(T, i0, i1, st, k, tOut);
+}
+
+/// kobayashiEulerHeatOnly on the hexagonal plane (any anisotropy: the heat step has none).
+__attribute__((noinline)) FV_AVX2 void heatRowHexAvx2(const float* T, std::size_t i0, std::size_t i1,
+                                                      const FlatStencil& st, const KobayashiParams& k, float* tOut)
+{
+    heatRowLanes<kHexTaps, hexLaplacian>(T, i0, i1, st, k, tOut);
 }
 
 #endif
