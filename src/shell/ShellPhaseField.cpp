@@ -76,12 +76,6 @@ inline double reactionAt(const KobayashiParams& k, const ShellBand& b, const std
     const double chi = noiseChi(k, b, i, seed, stepIndex);
     return p0 * (1.0 - p0) * (p0 - 0.5 + m + k.noise * chi);
 }
-/// The accumulated growth (positive dp) and the time p first exceeded 1/2, after a step.
-inline void recordGrowth(float& growth, float& freeze, float dp, float p, float time)
-{
-    if (dp > 0.f) growth += dp;
-    if (freeze == 0.f && p > 0.5f) freeze = time;
-}
 
 /// The explicit steps' timings: kernel [t0, t1), then the extension (or copy-back) until now.
 inline void addExplicitStats(ShellStepStats* stats, Clock::time_point t0, Clock::time_point t1, uint64_t updates)

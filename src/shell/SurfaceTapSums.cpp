@@ -286,8 +286,7 @@ bool surfaceCommit(const SurfaceCommit& c, std::size_t begin, std::size_t end)
         c.p[i] = now;
         c.t[i] = c.tn[i];
         if (c.ghosts && c.lateral[i] > 0.5f) continue; // a ghost: held at the background
-        if (d > 0.f) c.growth[i] += d;
-        if (c.freeze[i] == 0.f && now > 0.5f) c.freeze[i] = c.time;
+        recordGrowth(c.growth[i], c.freeze[i], d, now, c.time);
     }
     return crossed;
 }

@@ -99,6 +99,13 @@ void surfaceUpdate4Plain(const SurfaceUpdateInputs& in, std::size_t i, const Tap
 /// The AVX2 version (as fastestTapSums4), else the plain one.
 SurfaceUpdate4 fastestSurfaceUpdate4();
 
+/// The accumulated growth (positive dp) and the time p first exceeded 1/2, after a step.
+inline void recordGrowth(float& growth, float& freeze, float dp, float p, float time)
+{
+    if (dp > 0.f) growth += dp;
+    if (freeze == 0.f && p > 0.5f) freeze = time;
+}
+
 /// Stage 3: the update's new values (pn, tn) become the fields p and T; growth sums p's positive
 /// changes and freeze takes @a time where it is 0 and p now exceeds 1/2, except on ghost nodes
 /// (ghosts set and lateral > 1/2, ShellBand::ghost).
