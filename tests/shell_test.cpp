@@ -995,9 +995,10 @@ TEST_CASE("Surface commit: the vector stage 3 (AVX2) gives the scalar one bit fo
 TEST_CASE("Surface tap sums: the vector passes (AVX2) give the scalar passes bit for bit", "[fast][shell]")
 {
     // Random fields on a sphere's and a tilted plate's surface nodes (taps of every count, a
-    // ghost ring on the plate): pass 1's coefficients, gradients and sums of p and T, and pass
-    // 2's sums, of every group of four equal the scalar functions' exactly, including the sign of
-    // zero sums (half the nodes are flat, where every difference is 0).
+    // ghost ring on the plate): pass 1's coefficients, gradients and sums of p and T (with and
+    // without a wind), pass 2's sums, and pass 2 through the update, of every group of four equal
+    // the scalar functions' exactly, including the sign of zero sums (half the nodes are flat,
+    // where every difference is 0).
     TriangleMesh plate = makePlate(40, 20);
     MeshPlacement m;
     m.rotateDegrees = Vec3d(30, 30, 0);
@@ -1022,37 +1023,44 @@ TEST_CASE("Surface tap sums: the vector passes (AVX2) give the scalar passes bit
         }
         INFO((which == 0 ? "sphere" : "plate"));
 
-        // pass 1: the coefficients and sums, j = 6 and j = 4 (flat nodes take the zero-gradient branch)
+        // pass 1: the coefficients and sums, j = 6 and j = 4 (flat nodes take the zero-gradient
+        // branch), without a wind and with one (T's derivatives summed too)
         std::vector<shell::FieldSums> sums(n);
-        for (const double j : {6.0, 4.0}) {
-            KobayashiParams kp;
-            kp.anisotropyMode = j;
-            kp.delta = 0.05;
-            kp.theta0 = j == 4.0 ? 0.3 : 0.0;
-            const Anisotropy an(kp);
-            const shell::SurfaceCoefficients4 fastC = shell::fastestSurfaceCoefficients4(an);
-            INFO((fastC == &shell::surfaceCoefficients4Plain ? "plain" : "AVX2") << ", j = " << j);
-            std::vector<shell::SurfaceCoefficients> c1(n), c2(n);
-            std::vector<float> gu1(n), gv1(n), gu2(n), gv2(n);
-            std::vector<shell::FieldSums> s1(n);
-            size_t coefDiffer = 0, sumsDiffer = 0, flatNodes = 0;
-            for (const auto& leaf : band->leaves())
-                for (size_t i = leaf.begin; i + 4 <= leaf.end; i += 4) {
-                    fastC(*band, P.data(), T.data(), an, 0.5, i, c1.data(), gu1.data(), gv1.data(), s1.data());
-                    for (size_t k = 0; k < 4; ++k) {
-                        shell::surfaceCoefficients(*band, P.data(), T.data(), an, 0.5, i + k, c2.data(), gu2.data(),
-                                                   gv2.data(), sums.data());
-                        coefDiffer += std::memcmp(&c1[i + k], &c2[i + k], sizeof c1[0]) != 0 ||
-                                      std::memcmp(&gu1[i + k], &gu2[i + k], 4) != 0 ||
-                                      std::memcmp(&gv1[i + k], &gv2[i + k], 4) != 0;
-                        sumsDiffer += std::memcmp(&s1[i + k], &sums[i + k], sizeof sums[0]) != 0;
-                        flatNodes += gu2[i + k] == 0.f && gv2[i + k] == 0.f;
+        std::vector<shell::WindSums> winds(n);
+        for (const bool withWind : {false, true})
+            for (const double j : {6.0, 4.0}) {
+                KobayashiParams kp;
+                kp.anisotropyMode = j;
+                kp.delta = 0.05;
+                kp.theta0 = j == 4.0 ? 0.3 : 0.0;
+                const Anisotropy an(kp);
+                const shell::SurfaceCoefficients4 fastC = shell::fastestSurfaceCoefficients4(an);
+                INFO((fastC == &shell::surfaceCoefficients4Plain ? "plain" : "AVX2") << ", j = " << j
+                                                                                     << (withWind ? ", wind" : ""));
+                std::vector<shell::SurfaceCoefficients> c1(n), c2(n);
+                std::vector<float> gu1(n), gv1(n), gu2(n), gv2(n);
+                std::vector<shell::FieldSums> s1(n);
+                std::vector<shell::WindSums> w1(n);
+                size_t coefDiffer = 0, sumsDiffer = 0, flatNodes = 0;
+                for (const auto& leaf : band->leaves())
+                    for (size_t i = leaf.begin; i + 4 <= leaf.end; i += 4) {
+                        fastC(*band, P.data(), T.data(), an, 0.5, i, c1.data(), gu1.data(), gv1.data(), s1.data(),
+                              withWind ? w1.data() : nullptr);
+                        for (size_t k = 0; k < 4; ++k) {
+                            shell::surfaceCoefficients(*band, P.data(), T.data(), an, 0.5, i + k, c2.data(),
+                                                       gu2.data(), gv2.data(), sums.data(), winds.data());
+                            coefDiffer += std::memcmp(&c1[i + k], &c2[i + k], sizeof c1[0]) != 0 ||
+                                          std::memcmp(&gu1[i + k], &gu2[i + k], 4) != 0 ||
+                                          std::memcmp(&gv1[i + k], &gv2[i + k], 4) != 0;
+                            sumsDiffer += std::memcmp(&s1[i + k], &sums[i + k], sizeof sums[0]) != 0 ||
+                                          (withWind && std::memcmp(&w1[i + k], &winds[i + k], sizeof winds[0]) != 0);
+                            flatNodes += gu2[i + k] == 0.f && gv2[i + k] == 0.f;
+                        }
                     }
-                }
-            CHECK(flatNodes > 0);
-            CHECK(coefDiffer == 0);
-            CHECK(sumsDiffer == 0);
-        }
+                CHECK(flatNodes > 0);
+                CHECK(coefDiffer == 0);
+                CHECK(sumsDiffer == 0);
+            }
 
         // pass 2: the sums of the coefficients, with pass 1's sums passed through
         const shell::TapSums4 fast = shell::fastestTapSums4();
@@ -1061,9 +1069,9 @@ TEST_CASE("Surface tap sums: the vector passes (AVX2) give the scalar passes bit
         shell::TapSums four[4];
         for (const auto& leaf : band->leaves())
             for (size_t i = leaf.begin; i + 4 <= leaf.end; i += 4, ++groups) {
-                fast(*band, C.data(), sums.data(), i, four);
+                fast(*band, C.data(), sums.data(), winds.data(), i, four);
                 for (size_t k = 0; k < 4; ++k) {
-                    const shell::TapSums ref = shell::tapSums(*band, C.data(), sums.data(), i + k);
+                    const shell::TapSums ref = shell::tapSums(*band, C.data(), sums.data(), winds.data(), i + k);
                     differ += std::memcmp(&ref, &four[k], sizeof ref) != 0;
                     zeros += ref.lapP == 0.0 && ref.dau == 0.0 && ref.divC == 0.0;
                 }
@@ -1071,6 +1079,41 @@ TEST_CASE("Surface tap sums: the vector passes (AVX2) give the scalar passes bit
         CHECK(groups > 100);
         CHECK(zeros > 0);
         CHECK(differ == 0);
+
+        // pass 2 without wind, the sums kept in lanes through the update (p across [0, 1] and
+        // beyond, T around the melt temperature, with and without a melt map and noise draws)
+        const shell::SurfacePass2 pass2 = shell::fastestSurfacePass2();
+        INFO((pass2 == &shell::surfacePass2Plain ? "plain" : "AVX2"));
+        std::vector<float> Pu(n), Tu(n), gu(n), gv(n), melt(n);
+        for (size_t i = 0; i < n; ++i) {
+            Pu[i] = 0.5f + 0.7f * u(rng);
+            Tu[i] = 0.5f * u(rng);
+            gu[i] = 3.f * u(rng);
+            gv[i] = 3.f * u(rng);
+            melt[i] = 0.5f + 0.5f * u(rng);
+        }
+        KobayashiParams kp;
+        kp.noise = 0.01;
+        size_t updated = 0, updateDiffer = 0;
+        for (const bool withMelt : {false, true}) {
+            const shell::SurfaceUpdateInputs in{Pu.data(), Tu.data(), C.data(), gu.data(), gv.data(),
+                                                withMelt ? melt.data() : nullptr, &kp, 1.0 / 0.03, 1.0 / (0.03 * 0.03)};
+            for (const auto& leaf : band->leaves())
+                for (size_t i = leaf.begin; i + 4 <= leaf.end; i += 4) {
+                    double chi[4];
+                    for (int k = 0; k < 4; ++k) chi[k] = (i / 4) % 2 ? 0.0 : 0.5 * u(rng);
+                    float p4[4], t4[4];
+                    pass2(*band, in, sums.data(), i, chi, p4, t4);
+                    for (size_t k = 0; k < 4; ++k, ++updated) {
+                        float p1, t1;
+                        shell::surfaceUpdate(in, i + k, shell::tapSums(*band, C.data(), sums.data(), nullptr, i + k),
+                                             chi[k], p1, t1);
+                        updateDiffer += std::memcmp(&p1, &p4[k], 4) != 0 || std::memcmp(&t1, &t4[k], 4) != 0;
+                    }
+                }
+        }
+        CHECK(updated > 800);
+        CHECK(updateDiffer == 0);
     }
 }
 
@@ -1099,51 +1142,6 @@ TEST_CASE("Triangle BVH: the closest point among a leaf's candidates is the whol
         differ += f1 != f2 || (f1 && (q1 != q2 || t1 != t2 || d1 != d2));
     }
     CHECK(found > 1000);
-    CHECK(differ == 0);
-}
-
-TEST_CASE("Surface update: four nodes at a time (AVX2) give the scalar update bit for bit", "[fast][shell]")
-{
-    // Random sums and fields (p across [0, 1] and beyond, T around the melt temperature, with and
-    // without a melt map and noise draws): every lane equals surfaceUpdate exactly.
-    std::mt19937 rng(11);
-    std::uniform_real_distribution<float> u(-1.f, 1.f);
-    const size_t n = 4096;
-    std::vector<float> P(n), T(n), gu(n), gv(n), melt(n);
-    std::vector<shell::SurfaceCoefficients> C(n);
-    for (size_t i = 0; i < n; ++i) {
-        P[i] = 0.5f + 0.7f * u(rng);
-        T[i] = 0.5f * u(rng);
-        gu[i] = 3.f * u(rng);
-        gv[i] = 3.f * u(rng);
-        melt[i] = 0.5f + 0.5f * u(rng);
-        C[i] = shell::SurfaceCoefficients{0.0001f * (1.5f + u(rng)), 0.01f * u(rng), 0.01f * u(rng), 0.01f * u(rng)};
-    }
-    KobayashiParams kp;
-    kp.noise = 0.01;
-    const shell::SurfaceUpdate4 fast = shell::fastestSurfaceUpdate4();
-    INFO((fast == &shell::surfaceUpdate4Plain ? "plain" : "AVX2"));
-    size_t differ = 0, lanes = 0;
-    for (const bool withMelt : {false, true}) {
-        const shell::SurfaceUpdateInputs in{P.data(), T.data(), C.data(), gu.data(), gv.data(),
-                                            withMelt ? melt.data() : nullptr, &kp, 1.0 / 0.03, 1.0 / (0.03 * 0.03)};
-        for (size_t i = 0; i + 4 <= n; i += 4) {
-            shell::TapSums s[4];
-            double chi[4];
-            for (int k = 0; k < 4; ++k) {
-                s[k] = shell::TapSums{u(rng), u(rng), u(rng), u(rng), u(rng), u(rng), u(rng)};
-                chi[k] = (i / 4) % 2 ? 0.0 : 0.5 * u(rng);
-            }
-            float p4[4], t4[4];
-            fast(in, i, s, chi, p4, t4);
-            for (size_t k = 0; k < 4; ++k, ++lanes) {
-                float p1, t1;
-                shell::surfaceUpdate(in, i + k, s[k], chi[k], p1, t1);
-                differ += std::memcmp(&p1, &p4[k], 4) != 0 || std::memcmp(&t1, &t4[k], 4) != 0;
-            }
-        }
-    }
-    CHECK(lanes == 2 * n);
     CHECK(differ == 0);
 }
 

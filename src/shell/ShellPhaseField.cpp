@@ -507,16 +507,22 @@ void ShellPhaseField::stepSurface(double time, int64_t stepIndex, uint64_t seed,
     const auto& leaves = b.leaves();
     // stage 1, pass 1: the sums of p and T, the gradient and coefficients (shell/SurfaceTapSums.h)
     const SurfaceCoefficients4 coefficients4 = fastestSurfaceCoefficients4(mAniso);
+    // T's tangential derivatives only where a wind reads them
+    if (mWind.empty()) std::vector<WindSums>().swap(mWindSums);
+    else mWindSums.resize(b.size());
+    WindSums* wind = mWind.empty() ? nullptr : mWindSums.data();
     auto coefficientsOf = [&](uint32_t slot) {
         const ShellBand::Leaf& l = leaves[slot];
         for (size_t i = l.begin; i < l.end; i += 4) {
             if (i + 4 <= l.end) {
-                coefficients4(b, P, T, mAniso, invH, i, mCoef.data(), mGx.data(), mGy.data(), mFieldSums.data());
+                coefficients4(b, P, T, mAniso, invH, i, mCoef.data(), mGx.data(), mGy.data(), mFieldSums.data(), wind);
             } else if (l.end - l.begin >= 4) { // the tail: the leaf's last four again (same values)
-                coefficients4(b, P, T, mAniso, invH, l.end - 4, mCoef.data(), mGx.data(), mGy.data(), mFieldSums.data());
+                coefficients4(b, P, T, mAniso, invH, l.end - 4, mCoef.data(), mGx.data(), mGy.data(),
+                              mFieldSums.data(), wind);
             } else {
                 for (; i < l.end; ++i)
-                    surfaceCoefficients(b, P, T, mAniso, invH, i, mCoef.data(), mGx.data(), mGy.data(), mFieldSums.data());
+                    surfaceCoefficients(b, P, T, mAniso, invH, i, mCoef.data(), mGx.data(), mGy.data(),
+                                        mFieldSums.data(), wind);
             }
         }
     };
@@ -534,7 +540,7 @@ void ShellPhaseField::stepSurface(double time, int64_t stepIndex, uint64_t seed,
             return;
         }
         const double chi = noiseChi(k, b, i, seed, stepIndex);
-        if (mWind.empty()) {
+        if (!wind) {
             surfaceUpdate(inputs, i, s, chi, mPn[i], mTn[i]);
             return;
         }
@@ -545,31 +551,31 @@ void ShellPhaseField::stepSurface(double time, int64_t stepIndex, uint64_t seed,
         surfaceUpdate(inputs, i, s, chi, mPn[i], mTn[i], &windHeat);
     };
     const TapSums4 sums4 = fastestTapSums4();
-    const SurfaceUpdate4 update4 = fastestSurfaceUpdate4();
+    const SurfacePass2 pass2 = fastestSurfacePass2();
     auto updateOf = [&](uint32_t slot) {
         const ShellBand::Leaf& l = leaves[slot];
-        TapSums s[4];
         // a leaf's tail of 1-3 nodes as its last four again (each node's values depend on the
         // fields only, so those written twice are written the same): the vector path's cost
         const size_t vectorEnd = l.end - l.begin >= 4 ? l.end : l.begin;
         for (size_t q = l.begin; q < vectorEnd; q += 4) {
             const size_t i = std::min(q, size_t(l.end) - 4);
-            sums4(b, C, sums, i, s);
-            if (!mWind.empty()) {
+            if (wind) {
+                TapSums s[4];
+                sums4(b, C, sums, wind, i, s);
                 for (size_t n = 0; n < 4; ++n) update(i + n, s[n]);
                 continue;
             }
             double chi[4];
             float pNew[4], tNew[4];
             for (size_t n = 0; n < 4; ++n) chi[n] = noiseChi(k, b, i + n, seed, stepIndex);
-            update4(inputs, i, s, chi, pNew, tNew);
+            pass2(b, inputs, sums, i, chi, pNew, tNew);
             for (size_t n = 0; n < 4; ++n) {
                 const bool ghost = b.ghost(i + n); // beyond an open border: the background
                 mPn[i + n] = ghost ? 0.f : pNew[n];
                 mTn[i + n] = ghost ? tInf : tNew[n];
             }
         }
-        for (size_t i = vectorEnd; i < l.end; ++i) update(i, tapSums(b, C, sums, i));
+        for (size_t i = vectorEnd; i < l.end; ++i) update(i, tapSums(b, C, sums, wind, i));
     };
     // stage 3: the new values become the fields, growth and freeze time recorded, and per leaf
     // whether p crossed 1/2 anywhere in it ([dla] then rescans only those leaves)

@@ -14,7 +14,8 @@
 namespace frostvdb::shell {
 
 void surfaceCoefficients(const ShellBand& b, const float* P, const float* T, const Anisotropy& an, double invH,
-                         std::size_t i, SurfaceCoefficients* C, float* gx, float* gy, FieldSums* sums)
+                         std::size_t i, SurfaceCoefficients* C, float* gx, float* gy, FieldSums* sums,
+                         WindSums* wind)
 {
     const VoxelFrame f = b.frame(i);
     // every sum of p and T in one pass over the taps (each in the taps' order)
@@ -29,7 +30,8 @@ void surfaceCoefficients(const ShellBand& b, const float* P, const float* T, con
         dtu += double(t->du) * dT;
         dtv += double(t->dv) * dT;
     }
-    sums[i] = FieldSums{lapP, lapT, dtu, dtv};
+    sums[i] = FieldSums{lapP, lapT};
+    if (wind) wind[i] = WindSums{dtu, dtv};
     const double gu = su * invH, gv = sv * invH;
     double eps, epsPrime;
     an(gu, gv, eps, epsPrime);
@@ -40,7 +42,8 @@ void surfaceCoefficients(const ShellBand& b, const float* P, const float* T, con
     gy[i] = float(gv);
 }
 
-TapSums tapSums(const ShellBand& b, const SurfaceCoefficients* C, const FieldSums* sums, std::size_t i)
+TapSums tapSums(const ShellBand& b, const SurfaceCoefficients* C, const FieldSums* sums, const WindSums* wind,
+                std::size_t i)
 {
     const VoxelFrame f = b.frame(i);
     const double a0 = C[i].a, x0 = C[i].cx, y0 = C[i].cy, z0 = C[i].cz;
@@ -61,7 +64,8 @@ TapSums tapSums(const ShellBand& b, const SurfaceCoefficients* C, const FieldSum
     // div C = t . SU + b . SV (each dot in Vec3d::dot's order)
     const double divC = openvdb::Vec3d(sux, suy, suz).dot(f.tangent) + openvdb::Vec3d(svx, svy, svz).dot(f.bitangent);
     const FieldSums& s = sums[i];
-    return TapSums{s.lapP, s.lapT, dau, dav, divC, s.dtu, s.dtv};
+    const WindSums w = wind ? wind[i] : WindSums{};
+    return TapSums{s.lapP, s.lapT, dau, dav, divC, w.dtu, w.dtv};
 }
 
 void surfaceUpdate(const SurfaceUpdateInputs& in, std::size_t i, const TapSums& s, double chi, float& pNew,
@@ -79,10 +83,11 @@ void surfaceUpdate(const SurfaceUpdateInputs& in, std::size_t i, const TapSums& 
     tNew = float(t0v + k.dt * heat + k.latentHeat * dp);
 }
 
-void surfaceUpdate4Plain(const SurfaceUpdateInputs& in, std::size_t i, const TapSums s[4], const double chi[4],
-                         float pNew[4], float tNew[4])
+void surfacePass2Plain(const ShellBand& b, const SurfaceUpdateInputs& in, const FieldSums* sums, std::size_t i,
+                       const double chi[4], float pNew[4], float tNew[4])
 {
-    for (std::size_t n = 0; n < 4; ++n) surfaceUpdate(in, i + n, s[n], chi[n], pNew[n], tNew[n]);
+    for (std::size_t n = 0; n < 4; ++n)
+        surfaceUpdate(in, i + n, tapSums(b, in.C, sums, nullptr, i + n), chi[n], pNew[n], tNew[n]);
 }
 
 namespace {
@@ -120,8 +125,8 @@ FV_AVX2 inline __m256d tapWeights(const SurfaceTap* t)
     return _mm256_cvtps_pd(_mm_blend_ps(_mm_loadu_ps(reinterpret_cast<const float*>(t)), _mm_setzero_ps(), 1));
 }
 
-/// Pass 1's sums of node i: (0, lap p, du p, dv p) and (0, lap T, du T, dv T), each lane the
-/// scalar code's sum in the taps' order.
+/// Pass 1's sums of node i with the wind's: (0, lap p, du p, dv p) and (0, lap T, du T, dv T),
+/// each lane the scalar code's sum in the taps' order.
 FV_AVX2 inline void fieldSums(const ShellBand& b, const float* P, const float* T, std::size_t i, __m256d& onP,
                               __m256d& onT)
 {
@@ -137,8 +142,33 @@ FV_AVX2 inline void fieldSums(const ShellBand& b, const float* P, const float* T
     onT = st;
 }
 
-FV_AVX2 void tapSums4Avx2(const ShellBand& b, const SurfaceCoefficients* C, const FieldSums* sums, std::size_t i,
-                          TapSums out[4])
+/// Pass 1's sums of node i without the wind's, in one vector: (lap T, lap p, du p, dv p). A tap's
+/// weights as (lap, lap, du, dv) times the differences (T_j - T_i, p_j - p_i, p_j - p_i, p_j - p_i):
+/// each lane the scalar code's products and sum, in the taps' order, at half fieldSums' work.
+/// (T_j, p_j, p_j, p_j), widened exactly.
+FV_AVX2 inline __m256d tpppAt(const float* P, const float* T, std::size_t j)
+{
+    return _mm256_cvtps_pd(_mm_blend_ps(_mm_broadcast_ss(P + j), _mm_load_ss(T + j), 1));
+}
+
+FV_AVX2 inline __m256d fieldSumsNoWind(const ShellBand& b, const float* P, const float* T, std::size_t i)
+{
+    const __m256d base = tpppAt(P, T, i);
+    __m256d s = _mm256_setzero_pd();
+    for (const SurfaceTap* t = b.tapsBegin(i); t != b.tapsEnd(i); ++t) {
+        const __m128 raw = _mm_loadu_ps(reinterpret_cast<const float*>(t)); // (node bits, lap, du, dv)
+        const __m256d w = _mm256_cvtps_pd(_mm_shuffle_ps(raw, raw, _MM_SHUFFLE(3, 2, 1, 1)));
+        s = add(s, mul(w, sub(tpppAt(P, T, std::size_t(t->node)), base)));
+    }
+    return s;
+}
+
+/// Pass 2's sums of four nodes' coefficients: grad eps^2 = (dau, dav) and div C, per lane.
+struct CoefficientLanes {
+    __m256d dau, dav, divC;
+};
+
+FV_AVX2 inline CoefficientLanes coefficientSums4(const ShellBand& b, const SurfaceCoefficients* C, std::size_t i)
 {
     static_assert(sizeof(SurfaceTap) == 16 && sizeof(SurfaceCoefficients) == 16, "four floats each");
     // per node: the taps' differences (da, dx, dy, dz) times du and times dv, in the taps' order
@@ -161,28 +191,41 @@ FV_AVX2 void tapSums4Avx2(const ShellBand& b, const SurfaceCoefficients* C, cons
                           lanes(f, &FrameFloats::tangent, 2)};
     const __m256d bt[3] = {lanes(f, &FrameFloats::bitangent, 0), lanes(f, &FrameFloats::bitangent, 1),
                            lanes(f, &FrameFloats::bitangent, 2)};
-    const __m256d divC = add(dot(onU[1], onU[2], onU[3], t), dot(onV[1], onV[2], onV[3], bt));
+    return {onU[0], onV[0], add(dot(onU[1], onU[2], onU[3], t), dot(onV[1], onV[2], onV[3], bt))};
+}
+
+FV_AVX2 void tapSums4Avx2(const ShellBand& b, const SurfaceCoefficients* C, const FieldSums* sums,
+                          const WindSums* wind, std::size_t i, TapSums out[4])
+{
+    const CoefficientLanes c = coefficientSums4(b, C, i);
     alignas(32) double v[3][4];
-    _mm256_store_pd(v[0], onU[0]);
-    _mm256_store_pd(v[1], onV[0]);
-    _mm256_store_pd(v[2], divC);
+    _mm256_store_pd(v[0], c.dau);
+    _mm256_store_pd(v[1], c.dav);
+    _mm256_store_pd(v[2], c.divC);
     for (std::size_t k = 0; k < 4; ++k) {
         const FieldSums& s = sums[i + k];
-        out[k] = TapSums{s.lapP, s.lapT, v[0][k], v[1][k], v[2][k], s.dtu, s.dtv};
+        const WindSums w = wind ? wind[i + k] : WindSums{};
+        out[k] = TapSums{s.lapP, s.lapT, v[0][k], v[1][k], v[2][k], w.dtu, w.dtv};
     }
 }
 
 FV_AVX2 void surfaceCoefficients4Avx2(const ShellBand& b, const float* P, const float* T, const Anisotropy& an,
                                       double invH, std::size_t i, SurfaceCoefficients* C, float* gx, float* gy,
-                                      FieldSums* sums)
+                                      FieldSums* sums, WindSums* wind)
 {
-    static_assert(sizeof(FieldSums) == 32, "four doubles");
-    __m256d onP[4];
+    static_assert(sizeof(FieldSums) == 16 && sizeof(WindSums) == 16, "two doubles each");
+    __m256d onP[4]; // (lap T or 0, lap p, du p, dv p) per node
     for (std::size_t k = 0; k < 4; ++k) {
+        if (!wind) {
+            onP[k] = fieldSumsNoWind(b, P, T, i + k);
+            // (lap p, lap T): lanes 1 and 0 swapped
+            _mm_storeu_pd(&sums[i + k].lapP, _mm_permute_pd(_mm256_castpd256_pd128(onP[k]), 0x1));
+            continue;
+        }
         __m256d onT;
         fieldSums(b, P, T, i + k, onP[k], onT);
-        // (lap p, lap T, du T, dv T): lap p swapped down from lane 1 into onT's unused lane 0
-        _mm256_storeu_pd(&sums[i + k].lapP, _mm256_blend_pd(onT, _mm256_permute_pd(onP[k], 0x1), 0x1));
+        _mm_storeu_pd(&sums[i + k].lapP, _mm_unpackhi_pd(_mm256_castpd256_pd128(onP[k]), _mm256_castpd256_pd128(onT)));
+        _mm_storeu_pd(&wind[i + k].dtu, _mm256_extractf128_pd(onT, 1));
     }
     transpose4(onP); // du p and dv p across the four nodes in onP[2] and onP[3]
     const __m256d su = onP[2], sv = onP[3];
@@ -217,25 +260,17 @@ FV_AVX2 void surfaceCoefficients4Avx2(const ShellBand& b, const float* P, const 
     _mm_storeu_ps(gy + i, _mm256_cvtpd_ps(gv));
 }
 
-/// One member of four TapSums, lane k from s[k].
-FV_AVX2 inline __m256d lanes(const TapSums s[4], double TapSums::*m)
+/// surfaceUpdate's operations, in its order, on four lanes of sums.
+FV_AVX2 void surfaceUpdateLanes(const SurfaceUpdateInputs& in, std::size_t i, __m256d lapP, __m256d lapT,
+                                const CoefficientLanes& cs, const double chi[4], float pNew[4], float tNew[4])
 {
-    return _mm256_set_pd(s[3].*m, s[2].*m, s[1].*m, s[0].*m);
-}
-
-FV_AVX2 void surfaceUpdate4Avx2(const SurfaceUpdateInputs& in, std::size_t i, const TapSums s[4], const double chi[4],
-                                float pNew[4], float tNew[4])
-{
-    // surfaceUpdate's operations, in its order, on four lanes
     const KobayashiParams& k = *in.k;
     const __m256d p0 = load4(in.P + i), t0 = load4(in.T + i);
     const __m256d a0 = _mm256_set_pd(in.C[i + 3].a, in.C[i + 2].a, in.C[i + 1].a, in.C[i].a);
     const __m256d invH = splat(in.invH), invH2 = splat(in.invH2);
-    const __m256d div =
-        add(add(mul(mul(a0, lanes(s, &TapSums::lapP)), invH2),
-                mul(add(mul(lanes(s, &TapSums::dau), load4(in.gu + i)), mul(lanes(s, &TapSums::dav), load4(in.gv + i))),
-                    invH)),
-            mul(lanes(s, &TapSums::divC), invH));
+    const __m256d div = add(add(mul(mul(a0, lapP), invH2),
+                                mul(add(mul(cs.dau, load4(in.gu + i)), mul(cs.dav, load4(in.gv + i))), invH)),
+                            mul(cs.divC, invH));
     const __m256d melt = in.melt ? load4(in.melt + i) : splat(1.0);
     const __m256d Te = add(splat(k.farTemperature), mul(melt, splat(k.meltTemperature - k.farTemperature)));
     const __m256d m = mul(splat(k.alpha / M_PI), atanCephes4(mul(splat(k.gamma), sub(Te, t0))));
@@ -244,7 +279,17 @@ FV_AVX2 void surfaceUpdate4Avx2(const SurfaceUpdateInputs& in, std::size_t i, co
                                                             mul(splat(k.noise), _mm256_loadu_pd(chi))));
     const __m256d dp = mul(splat(k.dt / k.tau), add(div, reaction));
     store4(pNew, add(p0, dp));
-    store4(tNew, add(add(t0, mul(splat(k.dt), mul(lanes(s, &TapSums::lapT), invH2))), mul(splat(k.latentHeat), dp)));
+    store4(tNew, add(add(t0, mul(splat(k.dt), mul(lapT, invH2))), mul(splat(k.latentHeat), dp)));
+}
+
+FV_AVX2 void surfacePass2Avx2(const ShellBand& b, const SurfaceUpdateInputs& in, const FieldSums* sums,
+                              std::size_t i, const double chi[4], float pNew[4], float tNew[4])
+{
+    // the four nodes' (lap p, lap T) pairs: (p0, T0, p1, T1) and (p2, T2, p3, T3), into lanes
+    const __m256d s01 = _mm256_loadu_pd(&sums[i].lapP), s23 = _mm256_loadu_pd(&sums[i + 2].lapP);
+    const __m256d lapP = _mm256_permute4x64_pd(_mm256_unpacklo_pd(s01, s23), 0xD8); // (0, 2, 1, 3) -> in order
+    const __m256d lapT = _mm256_permute4x64_pd(_mm256_unpackhi_pd(s01, s23), 0xD8);
+    surfaceUpdateLanes(in, i, lapP, lapT, coefficientSums4(b, in.C, i), chi, pNew, tNew);
 }
 
 FV_AVX2 bool surfaceCommitAvx2(const SurfaceCommit& c, std::size_t begin, std::size_t end)
@@ -292,9 +337,10 @@ bool surfaceCommit(const SurfaceCommit& c, std::size_t begin, std::size_t end)
 }
 
 void surfaceCoefficients4Plain(const ShellBand& b, const float* P, const float* T, const Anisotropy& an, double invH,
-                               std::size_t i, SurfaceCoefficients* C, float* gx, float* gy, FieldSums* sums)
+                               std::size_t i, SurfaceCoefficients* C, float* gx, float* gy, FieldSums* sums,
+                               WindSums* wind)
 {
-    for (std::size_t k = 0; k < 4; ++k) surfaceCoefficients(b, P, T, an, invH, i + k, C, gx, gy, sums);
+    for (std::size_t k = 0; k < 4; ++k) surfaceCoefficients(b, P, T, an, invH, i + k, C, gx, gy, sums, wind);
 }
 
 namespace {
@@ -318,18 +364,18 @@ SurfaceCoefficients4 fastestSurfaceCoefficients4(const Anisotropy& an)
     return &surfaceCoefficients4Plain;
 }
 
-void tapSums4Plain(const ShellBand& b, const SurfaceCoefficients* C, const FieldSums* sums, std::size_t i,
-                   TapSums out[4])
+void tapSums4Plain(const ShellBand& b, const SurfaceCoefficients* C, const FieldSums* sums, const WindSums* wind,
+                   std::size_t i, TapSums out[4])
 {
-    for (std::size_t k = 0; k < 4; ++k) out[k] = tapSums(b, C, sums, i + k);
+    for (std::size_t k = 0; k < 4; ++k) out[k] = tapSums(b, C, sums, wind, i + k);
 }
 
-SurfaceUpdate4 fastestSurfaceUpdate4()
+SurfacePass2 fastestSurfacePass2()
 {
 #ifdef FROSTVDB_HAVE_AVX2_TAPS
-    if (vectorsAllowed()) return &surfaceUpdate4Avx2;
+    if (vectorsAllowed()) return &surfacePass2Avx2;
 #endif
-    return &surfaceUpdate4Plain;
+    return &surfacePass2Plain;
 }
 
 SurfaceCommitRange fastestSurfaceCommit()

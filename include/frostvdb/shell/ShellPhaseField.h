@@ -199,6 +199,7 @@ private:
     std::vector<float> mA, mCx, mCy, mCz, mGx, mGy, mGz;
     std::vector<SurfaceCoefficients> mCoef; ///< surface nodes: pass 1's coefficients (shell/SurfaceTapSums.h)
     std::vector<FieldSums> mFieldSums;      ///< surface nodes: pass 1's sums of p and T, read by pass 2
+    std::vector<WindSums> mWindSums;        ///< surface nodes under a wind: pass 1's derivatives of T
     std::vector<openvdb::Vec3f> mWind; ///< tangential wind per voxel (empty: none)
     openvdb::Vec3d mWindWorld{0.0};
     bool mActive = false, mDirty = true;

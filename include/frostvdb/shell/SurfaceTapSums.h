@@ -33,22 +33,29 @@ struct SurfaceCoefficients {
 struct FieldSums {
     double lapP = 0; ///< lap on p
     double lapT = 0; ///< lap on T
-    double dtu = 0;  ///< du on T (the wind's advection)
-    double dtv = 0;  ///< dv on T
 };
 
-/// Pass 1 at node @a i: the taps' sums on p and T (each in the taps' order) into sums[i]; g =
-/// (dp/dt, dp/db) = (sum du dp, sum dv dp) / h, eps and eps' of its angle, C = eps eps' (n x g) =
-/// eps eps' (g_u b - g_v t) as a world vector; writes c[i] and g[i] = (gu, gv).
+/// Pass 1's sums of T's tangential derivatives, which only the wind's advection reads (kept apart
+/// so that a step without wind neither computes nor stores them).
+struct WindSums {
+    double dtu = 0; ///< du on T
+    double dtv = 0; ///< dv on T
+};
+
+/// Pass 1 at node @a i: the taps' sums on p and T (each in the taps' order) into sums[i] (and
+/// wind[i] unless @a wind is null); g = (dp/dt, dp/db) = (sum du dp, sum dv dp) / h, eps and eps'
+/// of its angle, C = eps eps' (n x g) = eps eps' (g_u b - g_v t) as a world vector; writes c[i]
+/// and g[i] = (gu, gv).
 void surfaceCoefficients(const ShellBand& band, const float* p, const float* T, const Anisotropy& an, double invH,
-                         std::size_t i, SurfaceCoefficients* c, float* gu, float* gv, FieldSums* sums);
+                         std::size_t i, SurfaceCoefficients* c, float* gu, float* gv, FieldSums* sums,
+                         WindSums* wind);
 /// Nodes i .. i + 3, bit for bit surfaceCoefficients of each.
 using SurfaceCoefficients4 = void (*)(const ShellBand& band, const float* p, const float* T, const Anisotropy& an,
                                       double invH, std::size_t i, SurfaceCoefficients* c, float* gu, float* gv,
-                                      FieldSums* sums);
+                                      FieldSums* sums, WindSums* wind);
 void surfaceCoefficients4Plain(const ShellBand& band, const float* p, const float* T, const Anisotropy& an,
                                double invH, std::size_t i, SurfaceCoefficients* c, float* gu, float* gv,
-                               FieldSums* sums);
+                               FieldSums* sums, WindSums* wind);
 /// The AVX2 version for an integer anisotropy mode (as fastestTapSums4), else the plain one.
 SurfaceCoefficients4 fastestSurfaceCoefficients4(const Anisotropy& an);
 
@@ -60,14 +67,16 @@ struct TapSums {
     double lapP = 0, lapT = 0, dau = 0, dav = 0, divC = 0, dtu = 0, dtv = 0;
 };
 
-/// Node @a i's sums (the reference): pass 2's on @a C, and sums[i] from pass 1.
-TapSums tapSums(const ShellBand& band, const SurfaceCoefficients* C, const FieldSums* sums, std::size_t i);
+/// Node @a i's sums (the reference): pass 2's on @a C, and sums[i] and wind[i] from pass 1 (dtu
+/// and dtv 0 where @a wind is null).
+TapSums tapSums(const ShellBand& band, const SurfaceCoefficients* C, const FieldSums* sums, const WindSums* wind,
+                std::size_t i);
 /// Nodes i .. i + 3 (band indices), bit for bit tapSums of each.
-using TapSums4 = void (*)(const ShellBand& band, const SurfaceCoefficients* C, const FieldSums* sums, std::size_t i,
-                          TapSums out[4]);
+using TapSums4 = void (*)(const ShellBand& band, const SurfaceCoefficients* C, const FieldSums* sums,
+                          const WindSums* wind, std::size_t i, TapSums out[4]);
 /// tapSums of each of the four, one after the other.
-void tapSums4Plain(const ShellBand& band, const SurfaceCoefficients* C, const FieldSums* sums, std::size_t i,
-                   TapSums out[4]);
+void tapSums4Plain(const ShellBand& band, const SurfaceCoefficients* C, const FieldSums* sums, const WindSums* wind,
+                   std::size_t i, TapSums out[4]);
 /// The AVX2 version when the CPU has it and FROSTVDB_NO_VECTOR_ROWS is not set (read at every
 /// call, once per step, so a test compares both in one process), else tapSums4Plain.
 TapSums4 fastestTapSums4();
@@ -91,13 +100,14 @@ struct SurfaceUpdateInputs {
 /// added to lap T / h^2; null without wind (nothing is added, so no zero changes its sign).
 void surfaceUpdate(const SurfaceUpdateInputs& in, std::size_t i, const TapSums& s, double chi, float& pNew,
                    float& tNew, const double* windHeat = nullptr);
-/// Nodes i .. i + 3, bit for bit surfaceUpdate of each.
-using SurfaceUpdate4 = void (*)(const SurfaceUpdateInputs& in, std::size_t i, const TapSums s[4],
-                                const double chi[4], float pNew[4], float tNew[4]);
-void surfaceUpdate4Plain(const SurfaceUpdateInputs& in, std::size_t i, const TapSums s[4], const double chi[4],
-                         float pNew[4], float tNew[4]);
+/// Pass 2 without wind for nodes i .. i + 3: their tapSums and surfaceUpdate, bit for bit (the
+/// vector version keeps the sums in lanes from the taps to the update).
+using SurfacePass2 = void (*)(const ShellBand& band, const SurfaceUpdateInputs& in, const FieldSums* sums,
+                              std::size_t i, const double chi[4], float pNew[4], float tNew[4]);
+void surfacePass2Plain(const ShellBand& band, const SurfaceUpdateInputs& in, const FieldSums* sums, std::size_t i,
+                       const double chi[4], float pNew[4], float tNew[4]);
 /// The AVX2 version (as fastestTapSums4), else the plain one.
-SurfaceUpdate4 fastestSurfaceUpdate4();
+SurfacePass2 fastestSurfacePass2();
 
 /// The accumulated growth (positive dp) and the time p first exceeded 1/2, after a step.
 inline void recordGrowth(float& growth, float& freeze, float dp, float p, float time)
