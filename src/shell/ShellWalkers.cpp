@@ -202,6 +202,17 @@ void SurfacePointIndex::forgetClearances()
     mPendingInserts.clear();
     mPendingErases.clear();
     for (size_t s = 0; s < mClearBucket.size(); ++s) mClear[s].store(-1.f, std::memory_order_relaxed);
+    for (size_t k = 0; k < mClearBlockRanges.size(); ++k) {
+        mClearBlockMax[k].store(-1.f, std::memory_order_relaxed);
+        mClearBlockDirty[k].store(0, std::memory_order_relaxed);
+    }
+}
+
+void SurfacePointIndex::raiseBlockMax(size_t k, float v) const
+{
+    float m = mClearBlockMax[k].load(std::memory_order_relaxed);
+    while (v > m && !mClearBlockMax[k].compare_exchange_weak(m, v, std::memory_order_relaxed)) {
+    }
 }
 
 void SurfacePointIndex::addNear(int k, const Coord& b, int32_t delta)
@@ -257,6 +268,7 @@ void SurfacePointIndex::enableClearance(size_t count, const std::function<Vec3d(
     mClearBlocks = std::make_shared<CountTree>(0);
     mClearBucket.clear();
     mClearBlockRanges.clear();
+    mClearBlockOf.clear();
     openvdb::tree::ValueAccessor<CountTree, false> slots(*mClearSlots), blocks(*mClearBlocks);
     for (size_t k = 0; k < keys.size(); ++k) {
         const Coord b = unpackBucket(keys[k].second);
@@ -268,8 +280,11 @@ void SurfacePointIndex::enableClearance(size_t count, const std::function<Vec3d(
             mClearBlockRanges.emplace_back(s, s);
         }
         mClearBlockRanges.back().second = s + 1;
+        mClearBlockOf.push_back(int32_t(mClearBlockRanges.size()) - 1);
     }
     mClear.reset(new std::atomic<float>[mClearBucket.size()]);
+    mClearBlockMax.reset(new std::atomic<float>[mClearBlockRanges.size()]);
+    mClearBlockDirty.reset(new std::atomic<uint8_t>[mClearBlockRanges.size()]);
     forgetClearances();
 }
 
@@ -284,8 +299,13 @@ template<typename F> void SurfacePointIndex::forEachClearanceNear(const Vec3d& q
             for (int x = lo.x(); x <= hi.x(); ++x) {
                 const int32_t at = blocks.getValue(Coord(x, y, z)) - 1;
                 if (at < 0) continue;
-                // the block's box: none of its buckets is nearer
-                if (boxDistance2(Coord(x, y, z), q, blockSize) >= cap2) continue;
+                // the block's box: none of its buckets is nearer, or q is farther than every
+                // clearance known in it (an insert there lowers none, an erase forgets none)
+                const float most = mClearBlockMax[size_t(at)].load(std::memory_order_relaxed);
+                if (most < 0.f) continue;
+                const double d2 = boxDistance2(Coord(x, y, z), q, blockSize);
+                // (compared as f's distances are: rounded to float, which keeps their order)
+                if (d2 >= cap2 || float(std::sqrt(d2)) > most) continue;
                 const auto [begin, end] = mClearBlockRanges[size_t(at)];
                 for (int32_t s = begin; s < end; ++s) {
                     const float v = mClear[size_t(s)].load(std::memory_order_relaxed);
@@ -305,7 +325,9 @@ void SurfacePointIndex::flushClearances() const
     tbb::parallel_for(tbb::blocked_range<size_t>(0, mPendingErases.size(), 64), [&](const auto& r) {
         for (size_t i = r.begin(); i < r.end(); ++i)
             forEachClearanceNear(mPendingErases[i], [&](size_t s, float v, float d) {
-                if (d <= v) mClear[s].store(-1.f, std::memory_order_relaxed);
+                if (d > v) return;
+                mClear[s].store(-1.f, std::memory_order_relaxed);
+                mClearBlockDirty[size_t(mClearBlockOf[s])].store(1, std::memory_order_relaxed);
             });
     });
     // Then the inserts still present (one erased again since is not ice): each known clearance
@@ -319,13 +341,26 @@ void SurfacePointIndex::flushClearances() const
             const auto& v = mBuckets[size_t(slot)];
             if (std::find(v.begin(), v.end(), q) == v.end()) continue;
             forEachClearanceNear(q, [&](size_t s, float known, float d) {
+                if (!(d < known)) return;
                 while (d < known && !mClear[s].compare_exchange_weak(known, d, std::memory_order_relaxed)) {
                 }
+                mClearBlockDirty[size_t(mClearBlockOf[s])].store(1, std::memory_order_relaxed);
             });
         }
     });
     mPendingInserts.clear();
     mPendingErases.clear();
+    // the maxima of the blocks whose values fell, exact again (the skips above then stay tight)
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, mClearBlockRanges.size(), 256), [&](const auto& r) {
+        for (size_t k = r.begin(); k < r.end(); ++k) {
+            if (!mClearBlockDirty[k].load(std::memory_order_relaxed)) continue;
+            mClearBlockDirty[k].store(0, std::memory_order_relaxed);
+            float most = -1.f;
+            for (int32_t s = mClearBlockRanges[k].first; s < mClearBlockRanges[k].second; ++s)
+                most = std::max(most, mClear[size_t(s)].load(std::memory_order_relaxed));
+            mClearBlockMax[k].store(most, std::memory_order_relaxed);
+        }
+    });
 }
 
 double SurfacePointIndex::clearance(const Coord& b, CountAccessor& slots, CountAccessor& clearSlots) const
@@ -362,6 +397,7 @@ double SurfacePointIndex::clearance(const Coord& b, CountAccessor& slots, CountA
             }
     const float value = float(std::sqrt(best2));
     mClear[size_t(s)].store(value, std::memory_order_relaxed);
+    raiseBlockMax(size_t(mClearBlockOf[size_t(s)]), value);
     return double(value);
 }
 

@@ -138,6 +138,16 @@ private:
     std::vector<openvdb::Coord> mClearBucket;
     std::unique_ptr<std::atomic<float>[]> mClear;
     std::vector<std::pair<int32_t, int32_t>> mClearBlockRanges;
+    /// Per block: at least its largest known clearance (-1: none known), so that a point farther
+    /// from the block's box changes none of its buckets and their scan is skipped (raised when a
+    /// clearance is computed, brought down to the exact maximum after each flush where values
+    /// fell); and the block of each clearance slot.
+    std::unique_ptr<std::atomic<float>[]> mClearBlockMax;
+    std::vector<int32_t> mClearBlockOf;
+    /// Blocks whose clearances a flush lowered or forgot (their maximum is computed again).
+    std::unique_ptr<std::atomic<uint8_t>[]> mClearBlockDirty;
+    /// Raises block @a k's maximum to at least @a v.
+    void raiseBlockMax(size_t k, float v) const;
     /// Points inserted and erased since the last flushClearances() (mutable: flushed by const
     /// queries in serial code, before any parallel walk reads the clearances).
     mutable std::vector<openvdb::Vec3d> mPendingInserts, mPendingErases;
