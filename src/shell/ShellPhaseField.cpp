@@ -511,18 +511,17 @@ void ShellPhaseField::stepSurface(double time, int64_t stepIndex, uint64_t seed,
     if (mWind.empty()) std::vector<WindSums>().swap(mWindSums);
     else mWindSums.resize(b.size());
     WindSums* wind = mWind.empty() ? nullptr : mWindSums.data();
+    SurfaceCoefficients* coef = mCoef.data();
+    float *gx = mGx.data(), *gy = mGy.data();
     auto coefficientsOf = [&](uint32_t slot) {
         const ShellBand::Leaf& l = leaves[slot];
         for (size_t i = l.begin; i < l.end; i += 4) {
             if (i + 4 <= l.end) {
-                coefficients4(b, P, T, mAniso, invH, i, mCoef.data(), mGx.data(), mGy.data(), mFieldSums.data(), wind);
+                coefficients4(b, P, T, mAniso, invH, i, coef, gx, gy, mFieldSums.data(), wind);
             } else if (l.end - l.begin >= 4) { // the tail: the leaf's last four again (same values)
-                coefficients4(b, P, T, mAniso, invH, l.end - 4, mCoef.data(), mGx.data(), mGy.data(),
-                              mFieldSums.data(), wind);
+                coefficients4(b, P, T, mAniso, invH, l.end - 4, coef, gx, gy, mFieldSums.data(), wind);
             } else {
-                for (; i < l.end; ++i)
-                    surfaceCoefficients(b, P, T, mAniso, invH, i, mCoef.data(), mGx.data(), mGy.data(),
-                                        mFieldSums.data(), wind);
+                for (; i < l.end; ++i) surfaceCoefficients(b, P, T, mAniso, invH, i, coef, gx, gy, mFieldSums.data(), wind);
             }
         }
     };
@@ -531,8 +530,7 @@ void ShellPhaseField::stepSurface(double time, int64_t stepIndex, uint64_t seed,
     const float tNext = float(time);
     const float tInf = float(k.farTemperature);
     // stage 2, pass 2: the sums of the coefficients, node i's update (shell/SurfaceTapSums.h)
-    const SurfaceUpdateInputs inputs{P, T, C, mGx.data(), mGy.data(), mMelt.empty() ? nullptr : mMelt.data(), &k, invH,
-                                     invH2};
+    const SurfaceUpdateInputs inputs{P, T, C, gx, gy, mMelt.empty() ? nullptr : mMelt.data(), &k, invH, invH2};
     auto update = [&](size_t i, const TapSums& s) {
         if (b.ghost(i)) { // beyond an open border: the background, as outside a plane
             mPn[i] = 0.f;
