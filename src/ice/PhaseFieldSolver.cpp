@@ -22,6 +22,7 @@
 #include <optional>
 #include <cmath>
 #include <cstdlib>
+#include <cstring>
 #include <string>
 #include <mutex>
 #include <sstream>
@@ -453,6 +454,14 @@ struct StagedValues {
     const std::vector<uint32_t>* chunkLeaf = nullptr;
 };
 
+/// Copies @a N floats: a memcpy of constant size, inlined as vector moves (std::copy_n of a few
+/// floats compiled to calls to memmove: 9 % of `bench scale 4096`'s samples, perf).
+template <size_t N>
+inline void copyFloats(const float* src, float* dst)
+{
+    std::memcpy(dst, src, N * sizeof(float));
+}
+
 /// Folded staging: the slot of a region plane leaf's offset @a n (x * 64 + y * 8).
 inline openvdb::Index rowSlot(openvdb::Index n) { return (((n >> 3) & 7) << 3) | (n >> 6); }
 
@@ -478,8 +487,8 @@ struct ChunkSlots {
     bool copyWord(openvdb::Index w, float* pv, float* tv) const
     {
         for (openvdb::Index g = 0; g < 8; ++g) {
-            std::copy_n(p[g] + w * 8, 8, pv + w * 64 + g * 8);
-            std::copy_n(t[g] + w * 8, 8, tv + w * 64 + g * 8);
+            copyFloats<8>(p[g] + w * 8, pv + w * 64 + g * 8);
+            copyFloats<8>(t[g] + w * 8, tv + w * 64 + g * 8);
         }
         return true;
     }
@@ -502,8 +511,8 @@ struct LeafSlots {
     bool copyWord(openvdb::Index w, float* pv, float* tv) const
     {
         if (shift != 0) return false;
-        std::copy_n(p + w * 64, 64, pv + w * 64);
-        std::copy_n(t + w * 64, 64, tv + w * 64);
+        copyFloats<64>(p + w * 64, pv + w * 64);
+        copyFloats<64>(t + w * 64, tv + w * 64);
         return true;
     }
 };
@@ -742,8 +751,8 @@ struct LeafKernel {
             float* outP = &o.p[y << 3];
             float* outT = &o.t[y << 3];
             if (heatOnly) std::fill_n(outP, kDim, 0.f);
-            else std::copy_n(pe, kDim, outP);
-            std::copy_n(te, kDim, outT);
+            else copyFloats<kDim>(pe, outP);
+            copyFloats<kDim>(te, outT);
             unsigned bad = 0, grew = 0, iced = 0, flips = 0;
             for (int x = 0; x < kDim; ++x) {
                 const float pn = heatOnly ? 0.f : pe[x];
