@@ -3,6 +3,7 @@
 // and rebuilds exactly as often as asked.
 #include "test_util.h"
 
+#include <frostvdb/core/PlaneFold.h>
 #include <frostvdb/core/ActiveRegion.h>
 #include <frostvdb/ice/PhaseFieldSolver.h>
 
@@ -232,10 +233,14 @@ TEST_CASE("A region grown around written cells covers the region a full rebuild 
     auto grown = buildActiveRegion({d.p.get(), d.T.get()}, rs, 2, d.dom, steps);
     const std::vector<openvdb::Coord> cells{{3, 40, 0}, {27, 27, 0}, {47, 0, 0}, {16, 15, 0}};
     for (const auto& c : cells) d.p->tree().setValue(c, 1.f);
+    const auto folded = plane::foldTopology(*grown); // the folded fields' region grows folded
     const auto before = grown->tree().leafCount();
     CHECK(growActiveRegion(*grown, cells, radius, d.dom));
     CHECK(grown->tree().leafCount() > before);
     CHECK_FALSE(growActiveRegion(*grown, cells, radius, d.dom)); // already there: nothing added
+    CHECK(growActiveRegion(*folded, cells, radius, d.dom));
+    CHECK_FALSE(growActiveRegion(*folded, cells, radius, d.dom));
+    CHECK(folded->tree().hasSameTopology(plane::foldTopology(*grown)->tree()));
     const auto rebuilt = buildActiveRegion({d.p.get(), d.T.get()}, rs, 2, d.dom, steps);
     const auto g = voxelsOf(*grown);
     for (const auto& v : voxelsOf(*rebuilt)) CHECK(g.count(v) == 1);

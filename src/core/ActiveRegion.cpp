@@ -151,45 +151,82 @@ bool anyActiveTile(const std::vector<const GridT*>& fields)
     return false;
 }
 
-/// Edits the plane region @a region into the leaves marked in @a table (leaf units, nx x ny from
-/// (lx0, ly0)): its leaves not marked are removed, marked leaves it lacks are added whole and
-/// clipped to the support, as a fresh build makes them (its leaves are whole already: every
-/// region path makes whole leaves). Lists both in @a edit.
-void editPlaneRegion(openvdb::MaskGrid& region, std::vector<uint8_t>& table, int lx0, int ly0, int nx, int ny,
-                     int zLeaf, const Domain& domain, RegionEdit& edit)
-{
-    auto floorDiv = [](int v) { return v >= 0 ? v / kLeafDim : -((-v + kLeafDim - 1) / kLeafDim); };
-    constexpr uint8_t kHeld = 2; // marked and already in the region
-    edit.removed.clear();
-    edit.added.clear();
-    for (auto it = region.tree().cbeginLeaf(); it; ++it) {
-        const int x = floorDiv(it->origin().x()) - lx0, y = floorDiv(it->origin().y()) - ly0;
-        uint8_t* t = it->origin().z() == zLeaf && x >= 0 && y >= 0 && x < nx && y < ny
-                         ? &table[size_t(y) * size_t(nx) + size_t(x)] : nullptr;
-        if (t && *t) *t = kHeld;
-        else edit.removed.push_back(it->origin());
-    }
-    removeLeaves(region.tree(), edit.removed);
-    openvdb::MaskTree added(false);
+/// The plane leaves marked in a leaf table (leaf units, nx x ny from (lx0, ly0), layer zLeaf).
+struct LeafTable {
+    std::vector<uint8_t> marks;
+    int lx0, ly0, nx, ny, zLeaf;
+    uint8_t* at(const openvdb::Coord& origin)
     {
-        openvdb::tree::ValueAccessor<openvdb::MaskTree> acc(added);
-        for (int y = 0; y < ny; ++y)
-            for (int x = 0; x < nx; ++x)
-                if (table[size_t(y) * size_t(nx) + size_t(x)] == 1)
-                    acc.touchLeaf(openvdb::Coord((lx0 + x) * kLeafDim, (ly0 + y) * kLeafDim, zLeaf));
+        auto floorDiv = [](int v) { return v >= 0 ? v / kLeafDim : -((-v + kLeafDim - 1) / kLeafDim); };
+        const int x = floorDiv(origin.x()) - lx0, y = floorDiv(origin.y()) - ly0;
+        if (origin.z() != zLeaf || x < 0 || y < 0 || x >= nx || y >= ny) return nullptr;
+        return &marks[size_t(y) * size_t(nx) + size_t(x)];
     }
-    fillLeaves(added, domain);
-    domain.clipToSupport(added);
-    for (auto it = added.cbeginLeaf(); it; ++it) edit.added.push_back(it->origin());
-    if (!edit.added.empty()) region.tree().topologyUnion(added);
+};
+
+/// Folds into @a folded the table's leaves whose mark @a keep accepts, each a whole plane leaf
+/// clipped to the support as a fresh plane build makes it (fillLeaves, clipToSupport), through
+/// a transient plane-layout tree of 16 leaf rows at a time (a plane-layout tree's internal nodes
+/// cost about 2 bytes a plane cell: a whole region's were 15x the folded mask); lists them in
+/// @a added.
+template <typename Keep>
+void foldMarkedLeaves(const LeafTable& t, const Keep& keep, const Domain& domain, openvdb::MaskTree& folded,
+                      std::vector<openvdb::Coord>* added)
+{
+    constexpr int kBand = 16;
+    for (int y0 = 0; y0 < t.ny; y0 += kBand) {
+        openvdb::MaskTree band(false);
+        {
+            openvdb::tree::ValueAccessor<openvdb::MaskTree> acc(band);
+            for (int y = y0; y < std::min(y0 + kBand, t.ny); ++y)
+                for (int x = 0; x < t.nx; ++x)
+                    if (keep(t.marks[size_t(y) * size_t(t.nx) + size_t(x)]))
+                        acc.touchLeaf(openvdb::Coord((t.lx0 + x) * kLeafDim, (t.ly0 + y) * kLeafDim, t.zLeaf));
+        }
+        if (band.leafCount() == 0) continue;
+        fillLeaves(band, domain);
+        domain.clipToSupport(band);
+        if (added)
+            for (auto it = band.cbeginLeaf(); it; ++it) added->push_back(it->origin());
+        plane::foldLeavesInto(folded, band);
+    }
 }
 
-/// The plane region computed leaf by leaf, the same set of whole leaves the voxel dilation
-/// gives (a leaf is in when one of its cells lies within `iterations` of a source voxel: L1
-/// for the 4-neighbour dilation, Chebyshev for the hexagonal 3x3 one), without building or
-/// dilating a voxel mask: each source leaf marks the neighbour leaves its voxels reach. Cost
-/// follows the fields' leaves. Returns @a previous itself when the leaf set is unchanged.
-/// Null when the reach spans more than two leaves (the voxel dilation handles that).
+/// The leaf table's region as a folded mask (plane::foldTopology of the plane region): @a previous
+/// itself when its plane leaves are the marked ones; with @a edit, @a previous edited in place
+/// into it (the plane leaves it lost and gained listed), else a new grid.
+openvdb::MaskGrid::Ptr foldedRegionOf(LeafTable& t, const Domain& domain, const openvdb::MaskGrid::Ptr& previous,
+                                      RegionEdit* edit)
+{
+    constexpr uint8_t kHeld = 2; // marked and already in the region
+    std::vector<openvdb::Coord> gone;
+    size_t held = 0;
+    if (previous) {
+        for (auto it = previous->tree().cbeginLeaf(); it; ++it)
+            for (int g = 0; g < 8; ++g) {
+                if (!plane::chunkRows(it->getValueMask(), g)) continue;
+                const openvdb::Coord lo = plane::planeLeafOfChunk(it->origin(), g);
+                uint8_t* m = t.at(lo);
+                if (m && *m) { *m = kHeld; ++held; }
+                else gone.push_back(lo);
+            }
+    }
+    size_t marked = 0;
+    for (uint8_t m : t.marks) marked += m != 0;
+    if (previous && gone.empty() && held == marked) return previous; // the same plane leaves
+    if (edit && previous) {
+        plane::clearFoldedChunks(previous->tree(), gone);
+        foldMarkedLeaves(t, [](uint8_t m) { return m == 1; }, domain, previous->tree(), &edit->added);
+        edit->removed = std::move(gone);
+        return previous;
+    }
+    auto region = openvdb::MaskGrid::create(false);
+    region->setTransform(domain.transform()->copy());
+    plane::markFolded(*region);
+    foldMarkedLeaves(t, [](uint8_t m) { return m != 0; }, domain, region->tree(), nullptr);
+    return region;
+}
+
 /// A field's plane leaves as the leaf-level region path reads them: per plane leaf its origin
 /// and, per x, the active y's of the plane layer (bit y). A plane-layout tree gives one per
 /// leaf; a folded tree (core/PlaneFold.h) one per 8 x 8 chunk of each folded leaf, so the
@@ -317,9 +354,9 @@ openvdb::MaskGrid::Ptr planeRegionByLeaves(const std::vector<const GridT*>& fiel
             }
         }
     }
-    if (edit && previous) {
-        editPlaneRegion(*previous, table, lx0, ly0, nx, ny, zLeaf, domain, *edit);
-        return previous;
+    if (folded) {
+        LeafTable t{std::move(table), lx0, ly0, nx, ny, zLeaf};
+        return foldedRegionOf(t, domain, previous, edit);
     }
     size_t marked = 0;
     for (uint8_t t : table) marked += t;
@@ -411,21 +448,23 @@ openvdb::MaskGrid::Ptr buildActiveRegionOfFolded(const std::vector<const openvdb
                                                  int steps, const openvdb::MaskGrid::Ptr& previous, RegionEdit* edit)
 {
     if (edit) *edit = RegionEdit{};
-    if (settings.dense) // the whole support: the fields are not read
-        return regionOf(std::vector<const openvdb::MaskGrid*>{}, settings, reach, domain, steps, previous);
-    if (domain.flat() && !anyActiveTile(folded)) {
+    if (previous && !plane::isFolded(*previous)) throw std::logic_error("buildActiveRegionOfFolded: a plane-layout previous region");
+    if (!settings.dense && domain.flat() && !anyActiveTile(folded)) {
         const int iterations = std::max(1, steps) * (reach + settings.frontTravel);
         const bool hex = domain.lattice().kind() == LatticeKind::Hexagonal;
         if (auto r = planeRegionByLeaves(folded, iterations, hex, domain, previous, true, edit)) return r;
     }
-    // a reach beyond the leaf-level path, or active tiles: through the plane-layout topology
+    // dense, a reach beyond the leaf-level path, or active tiles: the plane-layout region, folded
     std::vector<openvdb::MaskGrid::Ptr> held;
     std::vector<const openvdb::MaskGrid*> topologies;
-    for (const auto* f : folded) {
-        held.push_back(plane::unfoldTopology(*f));
-        topologies.push_back(held.back().get());
-    }
-    return regionOf(topologies, settings, reach, domain, steps, previous);
+    if (!settings.dense) // the whole support: the fields are not read
+        for (const auto* f : folded) {
+            held.push_back(plane::unfoldTopology(*f));
+            topologies.push_back(held.back().get());
+        }
+    auto region = plane::foldTopology(*regionOf(topologies, settings, reach, domain, steps, nullptr));
+    if (previous && region->tree().hasSameTopology(previous->tree())) return previous;
+    return region;
 }
 
 bool growActiveRegion(openvdb::MaskGrid& region, const std::vector<openvdb::Coord>& cells, int radius,
@@ -434,7 +473,13 @@ bool growActiveRegion(openvdb::MaskGrid& region, const std::vector<openvdb::Coor
     if (cells.empty()) return false;
     const openvdb::CoordBBox& dom = domain.bbox();
     const bool flat = domain.flat();
+    const bool folded = plane::isFolded(region); // then a plane leaf is in when its chunk has a cell
     openvdb::tree::ValueAccessor<const openvdb::MaskTree> racc(region.tree());
+    auto inRegion = [&](const openvdb::Coord& o) {
+        if (!folded) return racc.probeConstLeaf(o) != nullptr;
+        const MaskLeaf* fl = racc.probeConstLeaf(plane::foldedLeafOrigin(o));
+        return fl && plane::chunkRows(fl->getValueMask(), (o.x() >> 3) & 7) != 0;
+    };
     openvdb::MaskTree added(false);
     openvdb::tree::ValueAccessor<openvdb::MaskTree> aacc(added);
     const int m = ~(kLeafDim - 1);
@@ -447,14 +492,15 @@ bool growActiveRegion(openvdb::MaskGrid& region, const std::vector<openvdb::Coor
             for (int y = box.min().y() & m; y <= box.max().y(); y += kLeafDim)
                 for (int z = box.min().z() & m; z <= box.max().z(); z += kLeafDim) {
                     const openvdb::Coord o(x, y, z);
-                    if (!racc.probeConstLeaf(o) && !aacc.probeConstLeaf(o)) aacc.touchLeaf(o);
+                    if (!aacc.probeConstLeaf(o) && !inRegion(o)) aacc.touchLeaf(o);
                 }
     }
     if (added.leafCount() == 0) return false;
     fillLeaves(added, domain); // whole leaves, as the rebuild makes them
     domain.clipToSupport(added);
     if (added.leafCount() == 0) return false;
-    region.tree().topologyUnion(added);
+    if (folded) plane::foldLeavesInto(region.tree(), added);
+    else region.tree().topologyUnion(added);
     return true;
 }
 

@@ -144,34 +144,56 @@ openvdb::MaskGrid::Ptr foldTopology(const openvdb::MaskGrid& planeRegion)
     return out;
 }
 
-void refoldTopology(openvdb::MaskGrid& folded, const openvdb::MaskGrid& planeRegion,
-                    const std::vector<openvdb::Coord>& removed, const std::vector<openvdb::Coord>& added)
+void foldLeavesInto(openvdb::MaskTree& folded, const openvdb::MaskTree& planeLeaves)
 {
-    auto& tree = folded.tree();
-    std::vector<openvdb::Coord> emptied; // folded leaves none of whose eight plane leaves is left
+    openvdb::tree::ValueAccessor<openvdb::MaskTree> acc(folded);
+    for (auto it = planeLeaves.cbeginLeaf(); it; ++it) {
+        requireLayer0(it->origin(), "foldLeavesInto");
+        foldLeafInto(*it, acc.touchLeaf(foldedLeafOrigin(it->origin()))->getValueMask());
+    }
+}
+
+void clearFoldedChunks(openvdb::MaskTree& folded, const std::vector<openvdb::Coord>& planeLeafOrigins)
+{
+    std::vector<openvdb::Coord> emptied; // folded leaves none of whose chunks has a cell left
     {
-        openvdb::tree::ValueAccessor<openvdb::MaskTree> acc(tree);
-        openvdb::tree::ValueAccessor<const openvdb::MaskTree> plane(planeRegion.tree());
-        for (const openvdb::Coord& lo : removed) {
-            const openvdb::Coord fo = foldedLeafOrigin(lo);
-            MaskLeaf* fl = acc.probeLeaf(fo);
-            if (!fl) continue; // its byte went with an earlier removal's leaf
+        openvdb::tree::ValueAccessor<openvdb::MaskTree> acc(folded);
+        for (const openvdb::Coord& lo : planeLeafOrigins) {
+            MaskLeaf* fl = acc.probeLeaf(foldedLeafOrigin(lo));
+            if (!fl) continue;
+            auto& mask = fl->getValueMask();
             const int g = lo.x() & 63;
-            for (int dy = 0; dy < 8; ++dy) fl->getValueMask().template getWord<uint64_t>(openvdb::Index(dy)) &= ~(uint64_t(0xff) << g);
-            bool left = false;
-            for (int c = 0; c < 8 && !left; ++c) left = plane.probeConstLeaf(plane::planeLeafOfChunk(fo, c)) != nullptr;
-            if (!left) emptied.push_back(fo);
-        }
-        for (const openvdb::Coord& lo : added) {
-            requireLayer0(lo, "refoldTopology");
-            const MaskLeaf* pl = plane.probeConstLeaf(lo);
-            if (!pl) throw std::logic_error("refoldTopology: an added leaf is not in the plane region");
-            foldLeafInto(*pl, acc.touchLeaf(foldedLeafOrigin(lo))->getValueMask());
+            for (int dy = 0; dy < 8; ++dy) mask.template getWord<uint64_t>(openvdb::Index(dy)) &= ~(uint64_t(0xff) << g);
+            if (mask.isOff()) emptied.push_back(fl->origin());
         }
     }
     std::sort(emptied.begin(), emptied.end());
     emptied.erase(std::unique(emptied.begin(), emptied.end()), emptied.end());
-    removeLeaves(tree, emptied);
+    removeLeaves(folded, emptied);
+}
+
+PlaneLeaves::PlaneLeaves(const openvdb::MaskGrid& foldedRegion, Order order)
+{
+    if (order == Order::Plane) { // the plane-layout tree's order: read from a transient copy of it
+        const auto planeRegion = unfoldTopology(foldedRegion);
+        mLeaves.reserve(planeRegion->tree().leafCount());
+        for (auto it = planeRegion->tree().cbeginLeaf(); it; ++it) {
+            uint64_t rows = 0;
+            for (int x = 0; x < 8; ++x)
+                rows |= (it->getValueMask().template getWord<uint64_t>(openvdb::Index(x)) & 0x0101010101010101ull) << x;
+            mLeaves.push_back({it->origin(), rows});
+        }
+        return;
+    }
+    size_t chunks = 0;
+    for (auto it = foldedRegion.tree().cbeginLeaf(); it; ++it)
+        for (int g = 0; g < 8; ++g) chunks += chunkRows(it->getValueMask(), g) != 0;
+    mLeaves.reserve(chunks);
+    for (auto it = foldedRegion.tree().cbeginLeaf(); it; ++it) {
+        if (!isFoldedLeafOrigin(it->origin())) throw std::logic_error("PlaneLeaves: a folded region has a leaf off its layers");
+        for (int g = 0; g < 8; ++g)
+            if (const uint64_t rows = chunkRows(it->getValueMask(), g)) mLeaves.push_back({planeLeafOfChunk(it->origin(), g), rows});
+    }
 }
 
 template <typename GridT>
@@ -243,6 +265,7 @@ void upgradeLegacyFold(openvdb::GridBase& g)
 }
 
 template openvdb::MaskGrid::Ptr unfoldTopology<openvdb::FloatGrid>(const openvdb::FloatGrid&);
+template openvdb::MaskGrid::Ptr unfoldTopology<openvdb::MaskGrid>(const openvdb::MaskGrid&);
 
 template openvdb::FloatGrid::Ptr unfoldGrid<openvdb::FloatGrid>(const openvdb::FloatGrid&);
 template openvdb::Int32Grid::Ptr unfoldGrid<openvdb::Int32Grid>(const openvdb::Int32Grid&);

@@ -141,7 +141,7 @@ public:
                                                       {"region_growths", double(mStats.regionGrowths)},
                                                       {"voxel_updates", double(mStats.voxelUpdates)},
                                                       {"region_mib", mSolver ? mSolver->regionBytes() / 1048576.0 : 0.0},
-                                                      {"folded_region_mib", mSolver ? mSolver->foldedRegionBytes() / 1048576.0 : 0.0},
+                                                      {"region_view_mib", mSolver ? mSolver->regionViewBytes() / 1048576.0 : 0.0},
                                                       {"staging_peak_mib", mStats.stagingPeakBytes / 1048576.0}};
         if (secondOrder()) {
             const double n = double(std::max<int64_t>(1, mStats.solves));

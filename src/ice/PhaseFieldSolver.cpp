@@ -22,6 +22,7 @@
 #include <optional>
 #include <cmath>
 #include <cstdlib>
+#include <cstring>
 #include <string>
 #include <mutex>
 #include <sstream>
@@ -453,6 +454,14 @@ struct StagedValues {
     const std::vector<uint32_t>* chunkLeaf = nullptr;
 };
 
+/// Copies @a N floats: a memcpy of constant size, inlined as vector moves (std::copy_n of a few
+/// floats compiled to a call to memmove per row, objdump).
+template <size_t N>
+inline void copyFloats(const float* src, float* dst)
+{
+    std::memcpy(dst, src, N * sizeof(float));
+}
+
 /// Folded staging: the slot of a region plane leaf's offset @a n (x * 64 + y * 8).
 inline openvdb::Index rowSlot(openvdb::Index n) { return (((n >> 3) & 7) << 3) | (n >> 6); }
 
@@ -478,8 +487,8 @@ struct ChunkSlots {
     bool copyWord(openvdb::Index w, float* pv, float* tv) const
     {
         for (openvdb::Index g = 0; g < 8; ++g) {
-            std::copy_n(p[g] + w * 8, 8, pv + w * 64 + g * 8);
-            std::copy_n(t[g] + w * 8, 8, tv + w * 64 + g * 8);
+            copyFloats<8>(p[g] + w * 8, pv + w * 64 + g * 8);
+            copyFloats<8>(t[g] + w * 8, tv + w * 64 + g * 8);
         }
         return true;
     }
@@ -502,8 +511,8 @@ struct LeafSlots {
     bool copyWord(openvdb::Index w, float* pv, float* tv) const
     {
         if (shift != 0) return false;
-        std::copy_n(p + w * 64, 64, pv + w * 64);
-        std::copy_n(t + w * 64, 64, tv + w * 64);
+        copyFloats<64>(p + w * 64, pv + w * 64);
+        copyFloats<64>(t + w * 64, tv + w * 64);
         return true;
     }
 };
@@ -704,6 +713,7 @@ struct LeafKernel {
     template <typename LeafT>
     static uint64_t activeRows(const LeafT& leaf, int zb)
     {
+        if constexpr (std::is_same_v<LeafT, plane::PlaneLeafView>) return leaf.rows; // held as rows
         uint64_t rows = 0;
         for (int x = 0; x < kDim; ++x)
             rows |= ((leaf.getValueMask().template getWord<uint64_t>(openvdb::Index(x)) >> zb) & 0x0101010101010101ull) << x;
@@ -741,8 +751,8 @@ struct LeafKernel {
             float* outP = &o.p[y << 3];
             float* outT = &o.t[y << 3];
             if (heatOnly) std::fill_n(outP, kDim, 0.f);
-            else std::copy_n(pe, kDim, outP);
-            std::copy_n(te, kDim, outT);
+            else copyFloats<kDim>(pe, outP);
+            copyFloats<kDim>(te, outT);
             unsigned bad = 0, grew = 0, iced = 0, flips = 0;
             for (int x = 0; x < kDim; ++x) {
                 const float pn = heatOnly ? 0.f : pe[x];
@@ -879,11 +889,11 @@ struct LeafKernel {
         if (mAcc) gatherRect(*mAcc, b, go, z0, rect, b.melt);
     }
 
-    /// The kernel over the region's leaves: p's own leaves, or with folded p and T the region
-    /// mask's plane leaves (@a regionLeaves: the same leaves, order and masks p has unfolded).
+    /// The kernel over the region's leaves: p's own leaves, or with folded p and T the folded
+    /// region's plane leaves (@a regionLeaves: the leaves and masks p has unfolded).
     void run(openvdb::tree::LeafManager<openvdb::FloatTree>& pLeaves,
              openvdb::tree::LeafManager<openvdb::FloatTree>& tLeaves, const LeafGroups& groups,
-             const openvdb::tree::LeafManager<const openvdb::MaskTree>* regionLeaves = nullptr) const
+             const plane::PlaneLeaves* regionLeaves = nullptr) const
     {
         if (regionLeaves) runOn(*regionLeaves, pLeaves, tLeaves, groups);
         else runOn(pLeaves, pLeaves, tLeaves, groups);
@@ -1008,32 +1018,26 @@ struct LeafKernel {
 
 } // namespace
 
-/// Folded p and T (core/PlaneFold.h) on the current region: the region's folded topology (what
-/// p and T are matched to) and, per region leaf in LeafManager order, the index of its folded
-/// leaf among p's leaves (the folded region's leaf order, once p is matched to it).
+/// Folded p and T (core/PlaneFold.h) on the current region (a folded mask, what p and T are
+/// matched to): its plane leaves, which the kernels walk, and per plane leaf, in that order, the
+/// index of its folded leaf among p's leaves (the region's folded leaf order, once p is matched
+/// to it). Made once per region generation, from the folded region alone.
 struct PhaseFieldSolver::FoldedLayout {
-    openvdb::MaskGrid::Ptr region;
+    plane::PlaneLeaves leaves;
     std::vector<uint32_t> leafOf;
-    std::vector<uint32_t> chunkLeaf; ///< per folded leaf and chunk g (x >> 3 & 7): its region leaf, or ~0
+    std::vector<uint32_t> chunkLeaf; ///< per folded leaf and chunk g (x >> 3 & 7): its plane leaf, or ~0
     uint64_t generation = 0;
     size_t foldedLeaves = 0;
 
-    FoldedLayout(const openvdb::MaskGrid& planeRegion, uint64_t gen)
-        : region(plane::foldTopology(planeRegion)), generation(gen)
+    FoldedLayout(const openvdb::MaskGrid& region, uint64_t gen, plane::PlaneLeaves::Order order)
+        : leaves(region, order), generation(gen)
     {
-        number(planeRegion);
+        number(region);
     }
-    /// The layout of the plane region edited in place by @a edit (this one's region when it was).
-    void refold(const openvdb::MaskGrid& planeRegion, const RegionEdit& edit, uint64_t gen)
+    /// leafOf, chunkLeaf and foldedLeaves for the folded region.
+    void number(const openvdb::MaskGrid& region)
     {
-        plane::refoldTopology(*region, planeRegion, edit.removed, edit.added);
-        generation = gen;
-        number(planeRegion);
-    }
-    /// leafOf and foldedLeaves for the current folded region.
-    void number(const openvdb::MaskGrid& planeRegion)
-    {
-        openvdb::tree::LeafManager<const openvdb::MaskTree> folded(region->tree()), planeLeaves(planeRegion.tree());
+        openvdb::tree::LeafManager<const openvdb::MaskTree> folded(region.tree());
         foldedLeaves = folded.leafCount();
         // A folded leaf holds plane rows y .. y+7, columns x .. x+63: the key (y >> 3, x >> 6)
         // in a dense table over the folded leaves' box numbers them, read by every plane leaf.
@@ -1046,10 +1050,10 @@ struct PhaseFieldSolver::FoldedLayout {
             return size_t(key.y() - box.min().y()) * size_t(dim.x()) + size_t(key.x() - box.min().x());
         };
         for (size_t i = 0; i < foldedLeaves; ++i) indexAt[slot(tableKey(folded.leaf(i).origin()))] = uint32_t(i);
-        leafOf.assign(planeLeaves.leafCount(), kNone);
+        leafOf.assign(leaves.leafCount(), kNone);
         tbb::parallel_for(tbb::blocked_range<size_t>(0, leafOf.size(), 1024), [&](const tbb::blocked_range<size_t>& r) {
             for (size_t i = r.begin(); i != r.end(); ++i) {
-                const openvdb::Coord key = tableKey(plane::foldedLeafOrigin(planeLeaves.leaf(i).origin()));
+                const openvdb::Coord key = tableKey(plane::foldedLeafOrigin(leaves.leaf(i).origin()));
                 if (box.isInside(key)) leafOf[i] = indexAt[slot(key)];
             }
         });
@@ -1057,22 +1061,36 @@ struct PhaseFieldSolver::FoldedLayout {
             throw std::logic_error("FoldedLayout: a region leaf has no folded leaf");
         chunkLeaf.assign(foldedLeaves * 8, kNone);
         for (size_t i = 0; i < leafOf.size(); ++i)
-            chunkLeaf[size_t(leafOf[i]) * 8 + size_t((planeLeaves.leaf(i).origin().x() >> 3) & 7)] = uint32_t(i);
+            chunkLeaf[size_t(leafOf[i]) * 8 + size_t((leaves.leaf(i).origin().x() >> 3) & 7)] = uint32_t(i);
     }
     /// A folded leaf origin as its 8 x 64 tile of the plane, in tile units (z 0).
     static openvdb::Coord tableKey(const openvdb::Coord& foldedOrigin)
     {
         return openvdb::Coord(foldedOrigin.x() >> 3, plane::planeX(foldedOrigin.y(), foldedOrigin.z()) >> 6, 0);
     }
+    uint64_t bytes() const { return leaves.bytes() + (leafOf.capacity() + chunkLeaf.capacity()) * sizeof(uint32_t); }
 };
 
 uint64_t PhaseFieldSolver::regionBytes() const { return mRegionMask ? mRegionMask->memUsage() : 0; }
-uint64_t PhaseFieldSolver::foldedRegionBytes() const { return mFolded ? mFolded->region->memUsage() : 0; }
+uint64_t PhaseFieldSolver::regionViewBytes() const { return mFolded ? mFolded->bytes() : 0; }
 
 const PhaseFieldSolver::FoldedLayout& PhaseFieldSolver::foldedLayout()
 {
-    if (!mFolded || mFolded->generation != mGeneration) mFolded = std::make_unique<FoldedLayout>(*mRegionMask, mGeneration);
+    if (!mFolded || mFolded->generation != mGeneration) {
+        mFolded.reset(); // the last one's memory first
+        // the second-order scheme numbers its rows in the plane-layout tree's leaf order
+        const auto order = mParams.scheme == PhaseFieldScheme::SecondOrder ? plane::PlaneLeaves::Order::Plane
+                                                                           : plane::PlaneLeaves::Order::Folded;
+        mFolded = std::make_unique<FoldedLayout>(*mRegionMask, mGeneration, order);
+    }
     return *mFolded;
+}
+
+void PhaseFieldSolver::layRegionOut(bool folded)
+{
+    if (!mRegionMask || plane::isFolded(*mRegionMask) == folded) return;
+    mRegionMask = folded ? plane::foldTopology(*mRegionMask) : plane::unfoldTopology(*mRegionMask);
+    ++mGeneration; // the same cells in another tree: cached groups and layouts are stale
 }
 
 void PhaseFieldSolver::rebuildRegionOf(openvdb::FloatGrid& p, openvdb::FloatGrid& T, bool ours,
@@ -1085,8 +1103,8 @@ void PhaseFieldSolver::rebuildRegionOf(openvdb::FloatGrid& p, openvdb::FloatGrid
         inputGeneration = 0;
     }
     const int k = mCadence.begin(mRegionMask && !ours);
-    // Folded fields: the standing region is edited into the new one when nobody else holds it
-    // (a checkpoint may), and its folded layout with it.
+    // Folded fields: the standing (folded) region is edited into the new one when nobody else
+    // holds it (a checkpoint may).
     RegionEdit edit;
     const bool editable = plane::isFolded(p) && mRegionMask && mRegionMask.use_count() == 1;
     auto region = rebuildRegion(p, T, k, editable ? &edit : nullptr);
@@ -1095,10 +1113,8 @@ void PhaseFieldSolver::rebuildRegionOf(openvdb::FloatGrid& p, openvdb::FloatGrid
     const uint64_t voxels = region == mRegionMask && !edited ? mRegionVoxels : region->tree().activeVoxelCount();
     if (voxels == mDomain.voxelCount()) mCadence.filledDomain(); // regionFillsDomain, from the count at hand
     if (edited) {
-        const bool layoutCurrent = mFolded && mFolded->generation == mGeneration && mFolded->region.use_count() == 1;
         ++mGeneration; // a new topology: cached groups and layouts are stale
         mRegionVoxels = voxels;
-        if (layoutCurrent) mFolded->refold(*mRegionMask, edit, mGeneration);
     } else if (!mRegionMask || (region != mRegionMask && !region->tree().hasSameTopology(mRegionMask->tree()))) {
         ++mGeneration; // a new topology: cached groups and layouts are stale
         mRegionMask = region;
@@ -1112,7 +1128,7 @@ openvdb::MaskGrid::Ptr PhaseFieldSolver::rebuildRegion(const openvdb::FloatGrid&
 {
     if (!plane::isFolded(p))
         return buildActiveRegion({&p, &T}, mRegion, kHalo, mDomain, steps, mRegionMask);
-    // folded p and T: the same plane-layout region, read from their folded leaves chunk by chunk
+    // folded p and T: the same region, folded, read from their folded leaves chunk by chunk
     return buildActiveRegionOfFolded({&p, &T}, mRegion, kHalo, mDomain, steps, mRegionMask, edit);
 }
 
@@ -1188,7 +1204,7 @@ openvdb::FloatGrid::Ptr PhaseFieldSolver::outputGrid(openvdb::FloatGrid::Ptr& sp
         spare->background() == like.background() && plane::isFolded(*spare) == folded)
         g = spare;
     spare.reset();
-    const openvdb::MaskGrid& topology = folded ? *foldedLayout().region : *mRegionMask;
+    const openvdb::MaskGrid& topology = *mRegionMask; // in the fields' layout (layRegionOut)
     if (!g) {
         g = openvdb::FloatGrid::create(like.background());
         g->tree().topologyUnion(topology.tree());
@@ -1295,6 +1311,9 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
                                 PhaseFieldStepStats* stats)
 {
     auto t0 = Clock::now();
+    const bool folded = plane::isFolded(*p); // then the region is folded and its plane leaves drive the kernel
+    if (folded != plane::isFolded(*T)) throw std::logic_error("PhaseFieldSolver: p and T differ in layout");
+    layRegionOut(folded);
     // The region is kept for k steps while the fields are what this solver last returned; any
     // other writer (walkers sticking, heat advection) forces a rebuild, as every step did before.
     const bool ours = mRegionMask && inputsAreOurs(*p, *T);
@@ -1314,11 +1333,9 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
     // so the fields exist once; the second-order scheme writes new grids (it keeps the start
     // values as history anyway).
     const bool inPlace = mParams.scheme == PhaseFieldScheme::Euler;
-    const bool folded = plane::isFolded(*p); // then the region's plane leaves drive the kernel
-    if (folded != plane::isFolded(*T)) throw std::logic_error("PhaseFieldSolver: p and T differ in layout");
     openvdb::FloatGrid::Ptr pNew, tNew;
     if (inPlace) {
-        prepareInPlace(*p, *T, folded ? *foldedLayout().region : *mRegionMask, inputGeneration != mGeneration, ours);
+        prepareInPlace(*p, *T, *mRegionMask, inputGeneration != mGeneration, ours);
         pNew = p;
         tNew = T;
         mSpareP.reset();
@@ -1330,8 +1347,7 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
 
     openvdb::tree::LeafManager<openvdb::FloatTree> pLeaves(pNew->tree());
     openvdb::tree::LeafManager<openvdb::FloatTree> tLeaves(tNew->tree());
-    std::optional<openvdb::tree::LeafManager<const openvdb::MaskTree>> regionLeaves;
-    if (folded) regionLeaves.emplace(mRegionMask->tree());
+    const plane::PlaneLeaves* regionLeaves = folded ? &foldedLayout().leaves : nullptr;
     if (!mGroups || mGroupsGeneration != mGeneration) {
         mGroups = folded ? std::make_unique<LeafGroups>(*regionLeaves, true)
                          : std::make_unique<LeafGroups>(pLeaves, mDomain.flat());
@@ -1364,10 +1380,9 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
                 throw std::logic_error("PhaseFieldSolver: folded p or T does not have the region's topology");
             kernel.foldedLeaf = &mFolded->leafOf;
         }
-        kernel.run(pLeaves, tLeaves, *mGroups, folded ? &*regionLeaves : nullptr);
+        kernel.run(pLeaves, tLeaves, *mGroups, regionLeaves);
     } else {
-        stepSecondOrder(*p, *T, pLeaves, tLeaves, acc, stepIndex, tNext, seed, failure, stats,
-                        folded ? &*regionLeaves : nullptr);
+        stepSecondOrder(*p, *T, pLeaves, tLeaves, acc, stepIndex, tNext, seed, failure, stats, regionLeaves);
     }
     if (stats) stats->kernelSeconds += since(t0);
     if (failure.any) {
@@ -1751,7 +1766,7 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
                                        openvdb::tree::LeafManager<openvdb::FloatTree>& tLeaves,
                                        Accumulators& acc, int64_t stepIndex, double tNext, uint64_t seed,
                                        Failure& failure, PhaseFieldStepStats* stats,
-                                       const openvdb::tree::LeafManager<const openvdb::MaskTree>* regionLeaves)
+                                       const plane::PlaneLeaves* regionLeaves)
 {
     const KobayashiParams& k = mParams;
     const bool plane = mDomain.flat();
@@ -1761,7 +1776,8 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
     if (!mLayout || mLayoutGeneration != mGeneration) {
         // last step's layout lends its arrays (the systems that refer to it only lend theirs below)
         if (folded) { // rows by the region's plane leaves, as unfolded p's would be: a transient plane tree
-            openvdb::FloatTree planeTopology(mRegionMask->tree(), 0.f, openvdb::TopologyCopy());
+            const auto planeRegion = plane::unfoldTopology(*mRegionMask);
+            openvdb::FloatTree planeTopology(planeRegion->tree(), 0.f, openvdb::TopologyCopy());
             openvdb::tree::LeafManager<openvdb::FloatTree> planeLeaves(planeTopology);
             mLayout = std::make_unique<SlotLayout>(planeLeaves, stencil, plane, mLayout.get());
         } else {
@@ -1837,7 +1853,7 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
             g->tree().topologyUnion(pLeaves.tree()); // p's layout, folded or not
             if (folded) plane::markFolded(*g);
         } else if (mLastInGeneration != mGeneration) {
-            matchTopology(*g, folded ? *foldedLayout().region : *mRegionMask);
+            matchTopology(*g, *mRegionMask);
         }
         return g;
     };

@@ -106,8 +106,8 @@ int runOne(int n, int rebuildEvery, const BenchArgs& args, const std::string& re
                 detail["phase_field.kernel"], detail["phase_field.truncate"]);
     std::printf("| - region rebuilds / grown around walker writes (counts) | %.0f / %.0f |\n",
                 detail["phase_field.region_rebuilds"], detail["phase_field.region_growths"]);
-    std::printf("| - memory at the end (MiB): region mask / its folded twin / Euler staging at its peak | %.1f / %.1f / %.1f |\n",
-                detail["phase_field.region_mib"], detail["phase_field.folded_region_mib"],
+    std::printf("| - memory at the end (MiB): region mask (folded with folded fields) / its plane-leaf view / Euler staging at its peak | %.1f / %.1f / %.1f |\n",
+                detail["phase_field.region_mib"], detail["phase_field.region_view_mib"],
                 detail["phase_field.staging_peak_mib"]);
     for (auto& [k, v] : eff)
         if (k != "dla" && k != "phase_field") std::printf("| %s | %.2f |\n", k.c_str(), v);

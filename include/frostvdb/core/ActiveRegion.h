@@ -33,7 +33,7 @@ openvdb::MaskGrid::Ptr buildActiveRegion(const std::vector<const openvdb::FloatG
 /// around a cell (a box holds any lattice's reach of that many steps), as buildActiveRegion
 /// would have included them had the cells held their values at the build. Leaves already in
 /// the region are whole, so a cell inside one adds nothing. Cost: the cells, not the region.
-/// Returns true when leaves were added.
+/// Returns true when leaves were added. A folded @a region (core/PlaneFold.h) is grown folded.
 bool growActiveRegion(openvdb::MaskGrid& region, const std::vector<openvdb::Coord>& cells, int radius,
                       const Domain& domain);
 

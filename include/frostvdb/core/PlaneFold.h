@@ -171,13 +171,65 @@ typename GridT::Ptr foldGrid(const GridT& planeGrid);
 /// The folded topology of a plane-layout mask @a planeRegion (active voxels only): what a
 /// folded field matched to that region has (matchTopology on the result gives it).
 openvdb::MaskGrid::Ptr foldTopology(const openvdb::MaskGrid& planeRegion);
-/// @a folded, foldTopology of a plane region that has since lost the plane leaves at @a removed
-/// and gained those at @a added (core/RegionOfTopology.h, RegionEdit), edited to be
-/// foldTopology(@a planeRegion) node for node: only the changed leaves' folded leaves are touched.
-void refoldTopology(openvdb::MaskGrid& folded, const openvdb::MaskGrid& planeRegion,
-                    const std::vector<openvdb::Coord>& removed, const std::vector<openvdb::Coord>& added);
+/// ORs the layer-0 cells of every leaf of the plane-layout mask @a planeLeaves into their folded
+/// leaves in @a folded (touched even when a leaf holds no cell, as foldTopology does).
+void foldLeavesInto(openvdb::MaskTree& folded, const openvdb::MaskTree& planeLeaves);
+/// Clears the chunks of the plane leaves at @a planeLeafOrigins in the folded mask @a folded and
+/// removes the folded leaves left empty (core/RemoveLeaves.h), so the tree is node for node the
+/// one foldTopology gives of the plane region without those leaves.
+void clearFoldedChunks(openvdb::MaskTree& folded, const std::vector<openvdb::Coord>& planeLeafOrigins);
+/// The cells of the plane leaf stored as chunk @a g of a folded leaf's value mask @a words
+/// (8 words, one per row): byte dy, bit dx.
+inline uint64_t chunkRows(const openvdb::util::NodeMask<3>& words, int g)
+{
+    uint64_t rows = 0;
+    for (int dy = 0; dy < 8; ++dy)
+        rows |= ((words.template getWord<uint64_t>(openvdb::Index(dy)) >> (g * 8)) & 0xffu) << (dy * 8);
+    return rows;
+}
+
+/// A plane leaf of a folded region read as the kernels read a plane-layout mask leaf: its origin,
+/// its plane-layout value mask words (word x, bit y << 3: layer 0) and offsets' coordinates.
+struct PlaneLeafView {
+    openvdb::Coord o;
+    uint64_t rows = 0; ///< byte y, bit x
+
+    const openvdb::Coord& origin() const { return o; }
+    struct Mask {
+        uint64_t rows;
+        template <typename WordT>
+        WordT getWord(openvdb::Index x) const
+        {
+            return WordT((rows >> x) & 0x0101010101010101ull);
+        }
+    };
+    Mask getValueMask() const { return {rows}; }
+    openvdb::Coord offsetToGlobalCoord(openvdb::Index n) const
+    {
+        return o + openvdb::Coord(int(n >> 6), int((n >> 3) & 7), int(n & 7));
+    }
+};
+
+/// The plane leaves of a folded region (a chunk of a folded leaf with a cell), with a
+/// LeafManager's interface (leafCount, leaf): what the kernels walk instead of a plane-layout
+/// region mask, 24 bytes a leaf against a mask leaf's 100 and its nodes. Order::Folded lists them
+/// folded leaf by folded leaf; Order::Plane in the plane-layout tree's leaf order (made through a
+/// transient plane-layout mask: the second-order scheme numbers its rows in that order).
+class PlaneLeaves {
+public:
+    enum class Order { Folded, Plane };
+    PlaneLeaves(const openvdb::MaskGrid& foldedRegion, Order order);
+    size_t leafCount() const { return mLeaves.size(); }
+    const PlaneLeafView& leaf(size_t i) const { return mLeaves[i]; }
+    uint64_t bytes() const { return mLeaves.capacity() * sizeof(PlaneLeafView); }
+
+private:
+    std::vector<PlaneLeafView> mLeaves;
+};
+
 /// The plane-layout topology (active voxels only) of a folded grid: what the region rebuild
 /// reads of a folded p or T (core/ActiveRegion.h). Active tiles are expanded.
+/// A folded region is a MaskGrid (instantiated for FloatGrid and MaskGrid).
 template <typename GridT>
 openvdb::MaskGrid::Ptr unfoldTopology(const GridT& folded);
 

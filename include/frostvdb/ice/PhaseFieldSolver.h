@@ -46,6 +46,9 @@ struct PhaseFieldStepStats {
 
 struct LeafGroups;
 struct RegionEdit;
+namespace plane {
+class PlaneLeaves;
+}
 
 class PhaseFieldSolver {
 public:
@@ -97,10 +100,10 @@ public:
         std::vector<float>().swap(mStageT);
     }
 
-    /// Bytes held by the region's trees now (the plane-layout mask; its folded twin when the
-    /// fields are folded), for `bench scale`'s account of the memory.
+    /// Bytes held by the region now, for `bench scale`'s account of the memory: its mask (folded
+    /// when the fields are), and with folded fields the plane-leaf view the kernels walk.
     uint64_t regionBytes() const;
-    uint64_t foldedRegionBytes() const;
+    uint64_t regionViewBytes() const;
 
     /// The melt map (field `melt`, values in [0,1]); null for none. Not owned.
     void setMeltMap(const openvdb::FloatGrid* melt) { mMelt = melt; }
@@ -152,20 +155,23 @@ private:
                          openvdb::tree::LeafManager<openvdb::FloatTree>& pLeaves,
                          openvdb::tree::LeafManager<openvdb::FloatTree>& tLeaves,
                          Accumulators& acc, int64_t stepIndex, double tNext, uint64_t seed, Failure& failure,
-                         PhaseFieldStepStats* stats,
-                         const openvdb::tree::LeafManager<const openvdb::MaskTree>* regionLeaves);
+                         PhaseFieldStepStats* stats, const plane::PlaneLeaves* regionLeaves);
     /// True when @a p and @a T are, unchanged, the grids this solver returned last step.
     bool inputsAreOurs(const openvdb::FloatGrid& p, const openvdb::FloatGrid& T) const;
     /// The region rebuild of a step: truncation when out of turn, the new region and its
     /// generation (@a inputGeneration is reset when the inputs were truncated).
     void rebuildRegionOf(openvdb::FloatGrid& p, openvdb::FloatGrid& T, bool ours, uint64_t& inputGeneration,
                          PhaseFieldStepStats* stats);
-    /// The region built from @a p and @a T (their plane-layout topology when folded) for @a steps;
-    /// with @a edit (folded fields), the standing region edited in place (RegionOfTopology.h).
+    /// The region built from @a p and @a T for @a steps, in their layout (folded fields give a
+    /// folded region); with @a edit (folded fields), the standing region edited in place
+    /// (RegionOfTopology.h).
     openvdb::MaskGrid::Ptr rebuildRegion(const openvdb::FloatGrid& p, const openvdb::FloatGrid& T, int steps,
                                          RegionEdit* edit = nullptr) const;
-    /// Folded p and T: the current region's folded layout (made once per region generation).
+    /// Folded p and T: the current region's plane leaves and numbering (made once per region generation).
     const FoldedLayout& foldedLayout();
+    /// Gives the standing region the fields' layout (a checkpoint or a layout change of the fields
+    /// may leave it in the other): the same cells, so the same bits.
+    void layRegionOut(bool folded);
     /// An output grid with the region's topology, reusing @a spare when nobody else holds it.
     openvdb::FloatGrid::Ptr outputGrid(openvdb::FloatGrid::Ptr& spare, uint64_t spareGeneration,
                                        openvdb::FloatGrid& like);
@@ -177,7 +183,7 @@ private:
     // Region cadence (see ActiveRegion.h). A generation numbers each distinct region topology;
     // a grid tagged with the current generation has exactly the region's topology (0: unknown).
     RegionCadence mCadence;
-    openvdb::MaskGrid::Ptr mRegionMask;
+    openvdb::MaskGrid::Ptr mRegionMask; ///< in the fields' layout: folded with folded p and T
     uint64_t mGeneration = 0, mRegionVoxels = 0;
     const openvdb::FloatGrid *mOutP = nullptr, *mOutT = nullptr; ///< what the last step returned
     uint64_t mPrintP = 0, mPrintT = 0, mOutGeneration = 0;      ///< their fingerprints, topology
