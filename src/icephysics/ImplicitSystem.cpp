@@ -249,16 +249,30 @@ std::vector<size_t> SlotLayout::numberRows(const LeafManagerT& topology, const s
     return firstRow;
 }
 
-/// Neighbour rows. A tap that stays inside the leaf is a fixed slot offset; only taps that cross
-/// the leaf's faces go through the 27-leaf table.
+/// Neighbour rows. Where each tap of each leaf offset lands is the same for every leaf: which of
+/// the 27 leaves around (the leaf itself in the middle) and which slot of it, tabled once; a
+/// voxel's neighbour row is then that leaf's slot row.
 template <typename LeafManagerT>
 void SlotLayout::linkNeighbours(const LeafManagerT& topology, const Stencil& stencil)
 {
     const LeafTable leafTable(topology);
     const int slotShift = plane ? 3 : 0;
     const int32_t n = int32_t(rows);
-    std::vector<openvdb::Coord> tapOffset(static_cast<size_t>(taps));
-    for (int q = 0; q < taps; ++q) tapOffset[size_t(q)] = stencil.taps[size_t(q)].offset;
+    struct TapTarget {
+        uint8_t leaf; ///< nbIndex of the leaf the tap lands in
+        uint16_t slot;
+    };
+    std::vector<TapTarget> target(size_t(512) * size_t(taps));
+    for (openvdb::Index off = 0; off < 512; ++off) {
+        const int x = int(off >> 6), y = int((off >> 3) & 7), z = int(off & 7);
+        for (int q = 0; q < taps; ++q) {
+            const openvdb::Coord& t = stencil.taps[size_t(q)].offset;
+            const int i = x + t.x(), j = y + t.y(), k = z + t.z();
+            auto side = [](int v) { return v < 0 ? -1 : (v > 7 ? 1 : 0); };
+            const openvdb::Index noff = openvdb::Index(((i & 7) << 6) | ((j & 7) << 3) | (k & 7));
+            target[size_t(off) * taps + q] = {uint8_t(nbIndex(side(i), side(j), side(k))), uint16_t(noff >> slotShift)};
+        }
+    }
     tbb::parallel_for(tbb::blocked_range<size_t>(0, topology.leafCount(), 16), [&](const tbb::blocked_range<size_t>& r) {
         int32_t nbLeaf[27];
         for (size_t li = r.begin(); li != r.end(); ++li) {
@@ -268,22 +282,11 @@ void SlotLayout::linkNeighbours(const LeafManagerT& topology, const Stencil& ste
                     for (int dx = -1; dx <= 1; ++dx) nbLeaf[nbIndex(dx, dy, dz)] = leafTable.at(o + openvdb::Coord(dx, dy, dz));
             const int32_t* own = &slotRow[li * size_t(slots)];
             forActive(topology, li, [&](openvdb::Index off, const openvdb::Coord&) {
-                const int x = int(off >> 6), y = int((off >> 3) & 7), z = int(off & 7);
-                const size_t row = size_t(own[off >> slotShift]);
-                int32_t* out = &neighbours[row * size_t(taps)];
+                int32_t* out = &neighbours[size_t(own[off >> slotShift]) * size_t(taps)];
+                const TapTarget* tt = &target[size_t(off) * taps];
                 for (int q = 0; q < taps; ++q) {
-                    const openvdb::Coord& t = tapOffset[size_t(q)];
-                    const int i = x + t.x(), j = y + t.y(), k = z + t.z();
-                    const openvdb::Index noff = openvdb::Index(((i & 7) << 6) | ((j & 7) << 3) | (k & 7));
-                    int32_t nr;
-                    if (((i | j | k) & ~7) == 0) {
-                        nr = own[noff >> slotShift];
-                    } else {
-                        const int ox = i < 0 ? -1 : (i > 7 ? 1 : 0), oy = j < 0 ? -1 : (j > 7 ? 1 : 0),
-                                  oz = k < 0 ? -1 : (k > 7 ? 1 : 0);
-                        const int32_t nl = nbLeaf[nbIndex(ox, oy, oz)];
-                        nr = nl < 0 ? -1 : slotRow[size_t(nl) * size_t(slots) + (noff >> slotShift)];
-                    }
+                    const int32_t nl = nbLeaf[tt[q].leaf];
+                    const int32_t nr = nl < 0 ? -1 : slotRow[size_t(nl) * size_t(slots) + tt[q].slot];
                     out[q] = nr >= 0 ? nr : n;
                 }
             });
