@@ -368,7 +368,7 @@ bool DlaEffect::countHit(int64_t cell, uint32_t listedStamp, std::vector<int64_t
 void DlaEffect::updateHitCounts(const openvdb::FloatGrid& p, openvdb::Int32Grid& hits, std::vector<int64_t>& touched,
                                 int64_t step)
 {
-    std::sort(touched.begin(), touched.end()); // each cell once (see hit); sorted for the accessor
+    std::sort(touched.begin(), touched.end()); // each cell once (countHit); sorted for the accessor
     // dla_hits may be folded (core/PlaneFold.h): cells are plane cells, leaves stored leaves
     const bool fold = plane::isFolded(hits);
     auto stored = [fold](const openvdb::Coord& c) { return fold ? plane::fold(c) : c; };
