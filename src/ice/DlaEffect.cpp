@@ -194,14 +194,7 @@ void DlaEffect::initialize(World& world)
     if (mParams.hits > 1) {
         // counts in a flat hash map while walking (a VDB probe per stick costs more than the walk
         // near the ice); the field dla_hits is refreshed from them at the end of every step
-        mHitCount.clear();
-        if (auto g = world.fields.get<openvdb::Int32Grid>(kDlaHits)) {
-            const bool fold = plane::isFolded(*g);
-            for (auto it = g->cbeginValueOn(); it; ++it) {
-                const openvdb::Coord c = fold ? plane::unfold(it.getCoord()) : it.getCoord();
-                if (world.domain.contains(c)) *mHitCount.insert(uint64_t(mEngine->index(c))).first = *it;
-            }
-        }
+        loadHitCounts(world);
     }
     mStats.tableSeconds += since(t0);
     mEngine->sync(*world.fields.get<openvdb::FloatGrid>(kPhase));
@@ -348,19 +341,42 @@ int64_t DlaEffect::resumeStart(const WalkEnd& e, const Domain& domain, int64_t s
     return start;
 }
 
+void DlaEffect::loadHitCounts(const World& world)
+{
+    mHitCount.clear();
+    if (auto g = world.fields.get<openvdb::Int32Grid>(kDlaHits)) {
+        const bool fold = plane::isFolded(*g);
+        for (auto it = g->cbeginValueOn(); it; ++it) {
+            const openvdb::Coord c = fold ? plane::unfold(it.getCoord()) : it.getCoord();
+            if (world.domain.contains(c)) mHitCount.insert(uint64_t(mEngine->index(c))).first->count = *it;
+        }
+    }
+}
+
+bool DlaEffect::countHit(int64_t cell, uint32_t listedStamp, std::vector<int64_t>& touched)
+{
+    HitCount& h = *mHitCount.insert(uint64_t(cell)).first;
+    if (h.listed != listedStamp) { // the first stick at this cell this step
+        h.listed = listedStamp;
+        touched.push_back(cell);
+    }
+    if (++h.count < mParams.hits) return false;
+    h.count = 0;
+    return true;
+}
+
 void DlaEffect::updateHitCounts(const openvdb::FloatGrid& p, openvdb::Int32Grid& hits, std::vector<int64_t>& touched,
                                 int64_t step)
 {
-    std::sort(touched.begin(), touched.end());
-    touched.erase(std::unique(touched.begin(), touched.end()), touched.end());
+    std::sort(touched.begin(), touched.end()); // each cell once (countHit); sorted for the accessor
     // dla_hits may be folded (core/PlaneFold.h): cells are plane cells, leaves stored leaves
     const bool fold = plane::isFolded(hits);
     auto stored = [fold](const openvdb::Coord& c) { return fold ? plane::fold(c) : c; };
     auto hAcc = hits.getAccessor();
     std::vector<openvdb::Coord> emptied; // stored leaves where a count went back to 0 (the cell froze)
     for (int64_t cell : touched) {
-        const int32_t* found = mHitCount.find(uint64_t(cell));
-        const int32_t n = found ? *found : 0;
+        const HitCount* found = mHitCount.find(uint64_t(cell));
+        const int32_t n = found ? found->count : 0;
         const openvdb::Coord c = stored(mEngine->coord(cell));
         if (n > 0) hAcc.setValue(c, n);
         else {
@@ -386,7 +402,7 @@ void DlaEffect::updateHitCounts(const openvdb::FloatGrid& p, openvdb::Int32Grid&
         }
         for (const auto& c : underIce) {
             hAcc.setValueOff(stored(c), 0);
-            if (int32_t* n = mHitCount.find(uint64_t(mEngine->index(c)))) *n = 0;
+            if (HitCount* n = mHitCount.find(uint64_t(mEngine->index(c)))) n->count = 0;
             emptied.push_back(stored(c) & ~(openvdb::Int32Tree::LeafNodeType::DIM - 1));
         }
     }
@@ -401,9 +417,9 @@ void DlaEffect::updateHitCounts(const openvdb::FloatGrid& p, openvdb::Int32Grid&
     // The map keeps a slot for every cell ever hit (zeroed when it froze): rebuilt from the
     // live counts when those are under a quarter of it, so it follows the front as well.
     if (sweep && mHitCount.size() > 4 * hits.activeVoxelCount() + 4096) {
-        KeyMap<int32_t> fresh;
+        KeyMap<HitCount> fresh;
         for (auto it = hits.cbeginValueOn(); it; ++it)
-            *fresh.insert(uint64_t(mEngine->index(fold ? plane::unfold(it.getCoord()) : it.getCoord()))).first = *it;
+            fresh.insert(uint64_t(mEngine->index(fold ? plane::unfold(it.getCoord()) : it.getCoord()))).first->count = *it;
         mHitCount = std::move(fresh);
     }
 }
@@ -444,6 +460,7 @@ void DlaEffect::step(World& world, const StepInfo& info)
     if (T && sh.temperatureEvolves && mHeat != 0) tAcc = std::make_unique<openvdb::FloatGrid::Accessor>(T->getAccessor());
     const bool counting = hitsGrid && mParams.hits > 1;
     std::vector<int64_t> touched;
+    const uint32_t listedStamp = uint32_t(info.step + 1);
     // the cells written in p (and T at the same cell) for whoever keeps state about them
     std::vector<openvdb::Coord>* editsP = world.state<FieldEdits>().sink(kPhase.name);
     std::vector<openvdb::Coord>* editsT = tAcc ? world.state<FieldEdits>().sink(kTemperature.name) : nullptr;
@@ -466,16 +483,7 @@ void DlaEffect::step(World& world, const StepInfo& info)
     };
     auto hit = [&](int64_t cell) {
         ++mStats.stuck;
-        if (!counting) {
-            freezeCell(cell);
-            return;
-        }
-        int32_t& n = *mHitCount.insert(uint64_t(cell), 0).first;
-        touched.push_back(cell);
-        if (++n >= mParams.hits) {
-            n = 0;
-            freezeCell(cell);
-        }
+        if (!counting || countHit(cell, listedStamp, touched)) freezeCell(cell);
     };
     auto account = [this](const WalkEnd& e) { accountWalk(mStats, e); };
 
@@ -597,14 +605,7 @@ void DlaEffect::loadState(World& world, const StateReader& in)
     mEngine->sync(*world.fields.get<openvdb::FloatGrid>(kPhase));
     world.state<FieldEdits>().crossingCells(kPhase.name).clear(); // all of p was read
     if (mParams.hits > 1) {
-        mHitCount.clear();
-        if (auto g = world.fields.get<openvdb::Int32Grid>(kDlaHits)) {
-            const bool fold = plane::isFolded(*g);
-            for (auto it = g->cbeginValueOn(); it; ++it) {
-                const openvdb::Coord c = fold ? plane::unfold(it.getCoord()) : it.getCoord();
-                if (world.domain.contains(c)) *mHitCount.insert(uint64_t(mEngine->index(c))).first = *it;
-            }
-        }
+        loadHitCounts(world);
     }
     mSteamSource.reset(); // rebuilt from the restored density at the next step
 }

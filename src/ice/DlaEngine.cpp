@@ -964,12 +964,15 @@ int64_t DlaEngine::release(int64_t step, uint64_t walker, WalkerRng& rng, const 
     return -1;
 }
 
-/// One walk in progress: position (offsets from the origin), the brick it reads from.
+/// One walk in progress: position (offsets from the origin), the brick it reads from and the
+/// directory tile that brick was found in.
 struct DlaEngine::Walker {
     const Sparse& S;
     int x = 0, y = 0, z = 0;
     int bx = -1, by = -1, bz = -1;
     const uint8_t* brick = nullptr;
+    size_t tileIndex = ~size_t(0);
+    const uint8_t* const* tile = nullptr;
     explicit Walker(const Sparse& s) : S(s) {}
     int fine(int i, int j, int k)
     {
@@ -978,9 +981,22 @@ struct DlaEngine::Walker {
             bx = ci;
             by = cj;
             bz = ck;
-            brick = S.brick(ci, cj, ck);
+            brick = brickAt(ci, cj, ck);
         }
         return brick ? brick[cellInBrick(i, j, k)] : S.cap;
+    }
+    /// The brick at (ci, cj, ck). Inside the directory the walker keeps the tile it is in (walks
+    /// never make bricks or tiles), so a brick change within a tile is one load.
+    const uint8_t* brickAt(int ci, int cj, int ck)
+    {
+        const BrickDirectory& d = S.directory;
+        if (!d.covers(ci, cj, ck)) return S.brick(ci, cj, ck);
+        const size_t t = d.tileOf(ci, cj, ck);
+        if (t != tileIndex) {
+            tileIndex = t;
+            tile = d.tiles[t].get();
+        }
+        return tile ? tile[BrickDirectory::inTile(ci, cj)] : nullptr;
     }
     /// The block distance of the block holding cell (i, j) (planes).
     int cbx = -1, cby = -1;

@@ -1689,8 +1689,10 @@ int64_t clipAndAddLatentHeat(const KobayashiParams& k, ImplicitSystem& ps, Impli
 /// p = 1/2 listed.
 /// @a planeLeaves: p's leaves, or with folded fields the region's plane leaves, whose voxels are
 /// written in their folded leaves (@a foldedLeaf[li] of pLeaves, at plane::foldedOffset).
+/// Leaves are visited in @a order (the layout's: each leaf's rows follow the last one's).
 template <typename PlaneLeavesT>
-void writeBackSecondOrder(const PlaneLeavesT& planeLeaves, const std::vector<uint32_t>* foldedLeaf,
+void writeBackSecondOrder(const PlaneLeavesT& planeLeaves, const std::vector<size_t>& order,
+                          const std::vector<uint32_t>* foldedLeaf,
                           openvdb::tree::LeafManager<openvdb::FloatTree>& pLeaves,
                           openvdb::tree::LeafManager<openvdb::FloatTree>& tLeaves,
                           openvdb::tree::LeafManager<openvdb::FloatTree>& dpLeaves,
@@ -1700,10 +1702,11 @@ void writeBackSecondOrder(const PlaneLeavesT& planeLeaves, const std::vector<uin
                           std::vector<openvdb::Coord>* crossings)
 {
     tbb::enumerable_thread_specific<std::vector<openvdb::Coord>> crossed;
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, planeLeaves.leafCount(), 16), [&](const tbb::blocked_range<size_t>& r) {
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, order.size(), 16), [&](const tbb::blocked_range<size_t>& r) {
         std::vector<Accumulators::Pending>* pending = nullptr;
         std::vector<openvdb::Coord>* cross = crossings ? &crossed.local() : nullptr;
-        for (size_t li = r.begin(); li != r.end(); ++li) {
+        for (size_t q = r.begin(); q != r.end(); ++q) {
+            const size_t li = order[q];
             const auto& pl = planeLeaves.leaf(li);
             const size_t fi = foldedLeaf ? (*foldedLeaf)[li] : li;
             float* pv = pLeaves.leaf(fi).buffer().data();
@@ -1772,18 +1775,20 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
     const bool plane = mDomain.flat();
     const Stencil stencil = mDomain.stencil();
     const bool folded = regionLeaves != nullptr; // rows by the region's plane leaves
+    // Gauss-Seidel's rows are numbered group by group (the kernel's blocks), as the assembly
+    // writes them; BiCGSTAB's stay in leaf order (its dot products sum in row order).
+    const bool groupOrder = !k.useBiCGSTAB;
     // The layout depends only on the region's topology: built once per region.
-    if (!mLayout || mLayoutGeneration != mGeneration) {
+    if (!mLayout || mLayoutGeneration != mGeneration || mLayoutGroupOrder != groupOrder) {
         // last step's layout lends its arrays (the systems that refer to it only lend theirs below)
-        if (folded) { // rows by the region's plane leaves, as unfolded p's would be: a transient plane tree
-            const auto planeRegion = plane::unfoldTopology(*mRegionMask);
-            openvdb::FloatTree planeTopology(planeRegion->tree(), 0.f, openvdb::TopologyCopy());
-            openvdb::tree::LeafManager<openvdb::FloatTree> planeLeaves(planeTopology);
-            mLayout = std::make_unique<SlotLayout>(planeLeaves, stencil, plane, mLayout.get());
+        const std::vector<size_t>* order = groupOrder ? &mGroups->leaves : nullptr;
+        if (folded) { // rows by the region's plane leaves (in the plane tree's order), as unfolded p's would be
+            mLayout = std::make_unique<SlotLayout>(*regionLeaves, stencil, plane, mLayout.get(), order);
         } else {
-            mLayout = std::make_unique<SlotLayout>(pLeaves, stencil, plane, mLayout.get());
+            mLayout = std::make_unique<SlotLayout>(pLeaves, stencil, plane, mLayout.get(), order);
         }
         mLayoutGeneration = mGeneration;
+        mLayoutGroupOrder = groupOrder;
     }
     const SlotLayout& layout = *mLayout;
     const int z0 = mDomain.bbox().min().z();
@@ -1862,10 +1867,10 @@ void PhaseFieldSolver::stepSecondOrder(const openvdb::FloatGrid& p, const openvd
     openvdb::tree::LeafManager<openvdb::FloatTree> dpLeaves(lastDp->tree()), dtLeaves(lastDt->tree());
     const float tn1 = float(tNext);
     if (folded)
-        writeBackSecondOrder(*regionLeaves, &foldedLayout().leafOf, pLeaves, tLeaves, dpLeaves, dtLeaves, layout, ps,
+        writeBackSecondOrder(*regionLeaves, mGroups->leaves, &foldedLayout().leafOf, pLeaves, tLeaves, dpLeaves, dtLeaves, layout, ps,
                              ts, p0, T0, acc, failure, tn1, mCrossings);
     else
-        writeBackSecondOrder(pLeaves, nullptr, pLeaves, tLeaves, dpLeaves, dtLeaves, layout, ps, ts, p0, T0, acc,
+        writeBackSecondOrder(pLeaves, mGroups->leaves, nullptr, pLeaves, tLeaves, dpLeaves, dtLeaves, layout, ps, ts, p0, T0, acc,
                              failure, tn1, mCrossings);
     mLastInP = lastDp;
     mLastInT = lastDt;

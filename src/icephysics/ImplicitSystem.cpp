@@ -1,5 +1,7 @@
 #include <frostvdb/icephysics/ImplicitSystem.h>
 
+#include <frostvdb/core/PlaneFold.h>
+
 #include <Eigen/Sparse>
 
 #include <tbb/blocked_range.h>
@@ -133,7 +135,8 @@ inline int nbIndex(int dx, int dy, int dz) { return (dz + 1) * 9 + (dy + 1) * 3 
 struct LeafTable {
     openvdb::Coord lo{std::numeric_limits<int>::max()}, hi{std::numeric_limits<int>::min()}, dim{0};
     std::vector<int32_t> table;
-    explicit LeafTable(openvdb::tree::LeafManager<openvdb::FloatTree>& topology)
+    template <typename LeafManagerT>
+    explicit LeafTable(const LeafManagerT& topology)
     {
         const size_t nLeaves = topology.leafCount();
         for (size_t i = 0; i < nLeaves; ++i) {
@@ -156,63 +159,61 @@ struct LeafTable {
         return table[cell(l)];
     }
 };
+
+/// The active voxels of leaf @a li, word by word over its value mask (the value iterator and its
+/// coordinates cost more than the work done per voxel here): f(offset, coordinate).
+template <typename LeafManagerT, typename F>
+inline void forActive(const LeafManagerT& topology, size_t li, F&& f)
+{
+    const auto& leaf = topology.leaf(li);
+    const auto& mask = leaf.getValueMask();
+    for (openvdb::Index w = 0; w < openvdb::FloatTree::LeafNodeType::NodeMaskType::WORD_COUNT; ++w)
+        for (uint64_t bits = mask.template getWord<uint64_t>(w); bits; bits &= bits - 1) {
+            const openvdb::Index off = w * 64 + openvdb::Index(__builtin_ctzll(bits));
+            f(off, leaf.offsetToGlobalCoord(off));
+        }
+}
 } // namespace
 
-SlotLayout::SlotLayout(openvdb::tree::LeafManager<openvdb::FloatTree>& topology, const Stencil& stencil,
-                       bool flat, SlotLayout* recycle)
+SlotLayout::SlotLayout(const openvdb::tree::LeafManager<openvdb::FloatTree>& topology, const Stencil& stencil,
+                       bool flat, SlotLayout* recycle, const std::vector<size_t>* leafOrder)
     : plane(flat), slots(flat ? 64 : 512)
+{
+    build(topology, stencil, recycle, leafOrder);
+}
+
+SlotLayout::SlotLayout(const openvdb::tree::LeafManager<const openvdb::MaskTree>& topology, const Stencil& stencil,
+                       bool flat, SlotLayout* recycle, const std::vector<size_t>* leafOrder)
+    : plane(flat), slots(flat ? 64 : 512)
+{
+    build(topology, stencil, recycle, leafOrder);
+}
+
+SlotLayout::SlotLayout(const plane::PlaneLeaves& topology, const Stencil& stencil, bool flat, SlotLayout* recycle,
+                       const std::vector<size_t>* leafOrder)
+    : plane(flat), slots(flat ? 64 : 512)
+{
+    build(topology, stencil, recycle, leafOrder);
+}
+
+template <typename LeafManagerT>
+void SlotLayout::build(const LeafManagerT& topology, const Stencil& stencil, SlotLayout* recycle,
+                       const std::vector<size_t>* leafOrder)
 {
     if (recycle) {
         slotRow.swap(recycle->slotRow);
         neighbours.swap(recycle->neighbours);
     }
-    const size_t nLeaves = topology.leafCount();
     colours = stencil.hexagonal ? 3 : 2;
     taps = int(stencil.taps.size());
     for (const auto& t : stencil.taps) weights.push_back(t.wLap);
-
-    // Rows: colour by colour, each in leaf order, then voxel order (prefix sums over the leaves'
-    // active counts per colour).
-    auto colourOf = [this](const openvdb::Coord& c) {
-        return colours == 2 ? uint8_t((c.x() + c.y() + c.z()) & 1) : uint8_t(((c.x() + 2 * c.y() + c.z()) % 3 + 3) % 3);
-    };
-    // The active voxels of leaf li, word by word over its value mask (the value iterator and
-    // its coordinates cost more than the work done per voxel here): f(offset, coordinate).
-    auto forActive = [&](size_t li, auto&& f) {
-        const auto& leaf = topology.leaf(li);
-        const auto& mask = leaf.getValueMask();
-        for (openvdb::Index w = 0; w < openvdb::FloatTree::LeafNodeType::NodeMaskType::WORD_COUNT; ++w)
-            for (uint64_t bits = mask.template getWord<uint64_t>(w); bits; bits &= bits - 1) {
-                const openvdb::Index off = w * 64 + openvdb::Index(__builtin_ctzll(bits));
-                f(off, leaf.offsetToGlobalCoord(off));
-            }
-    };
-    std::vector<size_t> firstRow(nLeaves * size_t(colours), 0); // per leaf and colour
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, nLeaves, 16), [&](const tbb::blocked_range<size_t>& r) {
-        for (size_t li = r.begin(); li != r.end(); ++li)
-            forActive(li, [&](openvdb::Index, const openvdb::Coord& c) { ++firstRow[li * colours + colourOf(c)]; });
-    });
-    colourStart.assign(size_t(colours) + 1, 0);
-    {
-        size_t row = 0;
-        for (int c = 0; c < colours; ++c) {
-            colourStart[size_t(c)] = row;
-            for (size_t li = 0; li < nLeaves; ++li) {
-                const size_t count = firstRow[li * colours + c];
-                firstRow[li * colours + c] = row;
-                row += count;
-            }
-        }
-        colourStart[size_t(colours)] = row;
-    }
-    const size_t n = colourStart[size_t(colours)];
-    rows = n;
+    const std::vector<size_t> firstRow = numberRows(topology, leafOrder);
+    rows = colourStart[size_t(colours)];
     // sized only: each leaf's slots are set to -1 by the leaf's own task below, and every
     // neighbour entry is written
+    const size_t nLeaves = topology.leafCount();
     slotRow.resize(nLeaves * size_t(slots));
-    neighbours.resize(n * size_t(taps));
-
-    const LeafTable leafTable(topology);
+    neighbours.resize(rows * size_t(taps));
 
     // slot of leaf offset off: the offset itself in a box, its (x, y) part on a plane (one z)
     const int slotShift = plane ? 3 : 0;
@@ -222,18 +223,66 @@ SlotLayout::SlotLayout(openvdb::tree::LeafManager<openvdb::FloatTree>& topology,
             for (int c = 0; c < colours; ++c) next[c] = firstRow[li * colours + c];
             int32_t* slot = &slotRow[li * size_t(slots)];
             std::fill(slot, slot + slots, -1);
-            forActive(li, [&](openvdb::Index off, const openvdb::Coord& c) {
-                const uint8_t k = colourOf(c);
-                const size_t row = next[k]++;
-                slot[off >> slotShift] = int32_t(row);
+            forActive(topology, li, [&](openvdb::Index off, const openvdb::Coord& c) {
+                slot[off >> slotShift] = int32_t(next[colourOf(c)]++);
             });
         }
     });
-    // Neighbour rows. A tap that stays inside the leaf is a fixed slot offset; only taps that
-    // cross the leaf's faces go through the 27-leaf table.
-    std::vector<openvdb::Coord> tapOffset(static_cast<size_t>(taps));
-    for (int q = 0; q < taps; ++q) tapOffset[size_t(q)] = stencil.taps[size_t(q)].offset;
+    linkNeighbours(topology, stencil);
+}
+
+/// Rows: colour by colour, each leaf by leaf in @a leafOrder (or leaf order), then voxel order
+/// (prefix sums over the leaves' active counts per colour). Sets colourStart; returns each leaf's
+/// first row per colour.
+template <typename LeafManagerT>
+std::vector<size_t> SlotLayout::numberRows(const LeafManagerT& topology, const std::vector<size_t>* leafOrder)
+{
+    const size_t nLeaves = topology.leafCount();
+    std::vector<size_t> firstRow(nLeaves * size_t(colours), 0); // per leaf and colour
     tbb::parallel_for(tbb::blocked_range<size_t>(0, nLeaves, 16), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t li = r.begin(); li != r.end(); ++li)
+            forActive(topology, li, [&](openvdb::Index, const openvdb::Coord& c) { ++firstRow[li * colours + colourOf(c)]; });
+    });
+    colourStart.assign(size_t(colours) + 1, 0);
+    size_t row = 0;
+    for (int c = 0; c < colours; ++c) {
+        colourStart[size_t(c)] = row;
+        for (size_t q = 0; q < nLeaves; ++q) {
+            const size_t li = leafOrder ? (*leafOrder)[q] : q;
+            const size_t count = firstRow[li * colours + c];
+            firstRow[li * colours + c] = row;
+            row += count;
+        }
+    }
+    colourStart[size_t(colours)] = row;
+    return firstRow;
+}
+
+/// Neighbour rows. Where each tap of each leaf offset lands is the same for every leaf: which of
+/// the 27 leaves around (the leaf itself in the middle) and which slot of it, tabled once; a
+/// voxel's neighbour row is then that leaf's slot row.
+template <typename LeafManagerT>
+void SlotLayout::linkNeighbours(const LeafManagerT& topology, const Stencil& stencil)
+{
+    const LeafTable leafTable(topology);
+    const int slotShift = plane ? 3 : 0;
+    const int32_t n = int32_t(rows);
+    struct TapTarget {
+        uint8_t leaf; ///< nbIndex of the leaf the tap lands in
+        uint16_t slot;
+    };
+    std::vector<TapTarget> target(size_t(512) * size_t(taps));
+    for (openvdb::Index off = 0; off < 512; ++off) {
+        const int x = int(off >> 6), y = int((off >> 3) & 7), z = int(off & 7);
+        for (int q = 0; q < taps; ++q) {
+            const openvdb::Coord& t = stencil.taps[size_t(q)].offset;
+            const int i = x + t.x(), j = y + t.y(), k = z + t.z();
+            auto side = [](int v) { return v < 0 ? -1 : (v > 7 ? 1 : 0); };
+            const openvdb::Index noff = openvdb::Index(((i & 7) << 6) | ((j & 7) << 3) | (k & 7));
+            target[size_t(off) * taps + q] = {uint8_t(nbIndex(side(i), side(j), side(k))), uint16_t(noff >> slotShift)};
+        }
+    }
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, topology.leafCount(), 16), [&](const tbb::blocked_range<size_t>& r) {
         int32_t nbLeaf[27];
         for (size_t li = r.begin(); li != r.end(); ++li) {
             const openvdb::Coord o = topology.leaf(li).origin() >> 3;
@@ -241,24 +290,13 @@ SlotLayout::SlotLayout(openvdb::tree::LeafManager<openvdb::FloatTree>& topology,
                 for (int dy = -1; dy <= 1; ++dy)
                     for (int dx = -1; dx <= 1; ++dx) nbLeaf[nbIndex(dx, dy, dz)] = leafTable.at(o + openvdb::Coord(dx, dy, dz));
             const int32_t* own = &slotRow[li * size_t(slots)];
-            forActive(li, [&](openvdb::Index off, const openvdb::Coord&) {
-                const int x = int(off >> 6), y = int((off >> 3) & 7), z = int(off & 7);
-                const size_t row = size_t(own[off >> slotShift]);
-                int32_t* out = &neighbours[row * size_t(taps)];
+            forActive(topology, li, [&](openvdb::Index off, const openvdb::Coord&) {
+                int32_t* out = &neighbours[size_t(own[off >> slotShift]) * size_t(taps)];
+                const TapTarget* tt = &target[size_t(off) * taps];
                 for (int q = 0; q < taps; ++q) {
-                    const openvdb::Coord& t = tapOffset[size_t(q)];
-                    const int i = x + t.x(), j = y + t.y(), k = z + t.z();
-                    const openvdb::Index noff = openvdb::Index(((i & 7) << 6) | ((j & 7) << 3) | (k & 7));
-                    int32_t nr;
-                    if (((i | j | k) & ~7) == 0) {
-                        nr = own[noff >> slotShift];
-                    } else {
-                        const int ox = i < 0 ? -1 : (i > 7 ? 1 : 0), oy = j < 0 ? -1 : (j > 7 ? 1 : 0),
-                                  oz = k < 0 ? -1 : (k > 7 ? 1 : 0);
-                        const int32_t nl = nbLeaf[nbIndex(ox, oy, oz)];
-                        nr = nl < 0 ? -1 : slotRow[size_t(nl) * size_t(slots) + (noff >> slotShift)];
-                    }
-                    out[q] = nr >= 0 ? nr : int32_t(n);
+                    const int32_t nl = nbLeaf[tt[q].leaf];
+                    const int32_t nr = nl < 0 ? -1 : slotRow[size_t(nl) * size_t(slots) + tt[q].slot];
+                    out[q] = nr >= 0 ? nr : n;
                 }
             });
         }

@@ -326,7 +326,18 @@ private:
     std::unique_ptr<DlaEngine> mEngine;
     DlaStats mStats;
     openvdb::GridBase::ConstPtr mSteamSource; ///< the density grid the steam map was built from
-    KeyMap<int32_t> mHitCount; ///< dla_hits by cell while stepping (hits > 1), sparse
+    /// A cell's hits while stepping, and the step that last listed it as touched (step + 1; 0:
+    /// never), so each cell is listed once a step however many walkers stick at it.
+    struct HitCount {
+        int32_t count = 0;
+        uint32_t listed = 0;
+    };
+    KeyMap<HitCount> mHitCount; ///< dla_hits by cell while stepping (hits > 1), sparse
+    /// mHitCount from the dla_hits field (initialisation and a restored checkpoint).
+    void loadHitCounts(const World& world);
+    /// One more walker stuck at @a cell (listed in @a touched at its first stick of the step,
+    /// stamped @a listedStamp); true when the count reaches n, which starts it again.
+    bool countHit(int64_t cell, uint32_t listedStamp, std::vector<int64_t>& touched);
     std::vector<double> mSteamCdf;
     std::vector<int64_t> mSteamCells;
     double mSteamSum = 0;

@@ -204,6 +204,7 @@ private:
     uint64_t mGroupsGeneration = 0;
     std::unique_ptr<SlotLayout> mLayout;      ///< the implicit systems' rows (second order)
     uint64_t mLayoutGeneration = 0;
+    bool mLayoutGroupOrder = false; ///< mLayout's rows are numbered by mGroups (else leaf order)
     /// Last step's implicit systems and start values, kept for their arrays (see ImplicitSystem).
     std::unique_ptr<ImplicitSystem> mSystemP, mSystemT;
     std::vector<double> mStartP, mStartT;

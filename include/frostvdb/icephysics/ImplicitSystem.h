@@ -40,6 +40,10 @@
 
 namespace frostvdb {
 
+namespace plane {
+class PlaneLeaves;
+}
+
 enum class LinearSolverKind { GaussSeidel, BiCGSTAB };
 
 struct SolveReport {
@@ -49,17 +53,28 @@ struct SolveReport {
 };
 
 /// Where the unknowns live: the active voxels of a topology numbered as rows (colour by colour,
-/// each colour in leaf order, then voxel order), each row's neighbour rows (the extra row n
-/// stands for every neighbour outside the topology). A colour's rows are one contiguous range,
-/// so a sweep streams through the row data instead of striding over the other colours' rows
-/// (rows of one colour only read the others', so the numbering changes no result). Built once
-/// per region topology, shared by the p and T systems.
+/// each colour leaf by leaf in a given order, then voxel order), each row's neighbour rows (the
+/// extra row n stands for every neighbour outside the topology). A colour's rows are one
+/// contiguous range, so a sweep streams through the row data instead of striding over the other
+/// colours' rows (rows of one colour only read the others', so the numbering changes no
+/// Gauss-Seidel result). The phase field passes its kernel's leaf groups as the order: a group's
+/// rows of a colour are then one run, written as a run by the group's assembly and swept with
+/// their neighbours close by. Built once per region topology, shared by the p and T systems.
 class SlotLayout {
 public:
     /// @a recycle: last step's layout, whose arrays are taken over (the neighbour table is
     /// then not zero-filled and its pages not faulted in again; every entry is written).
-    SlotLayout(openvdb::tree::LeafManager<openvdb::FloatTree>& topology, const Stencil& stencil, bool plane,
-               SlotLayout* recycle = nullptr);
+    /// @a leafOrder: every leaf index once, the order rows are numbered in (null: leaf order).
+    SlotLayout(const openvdb::tree::LeafManager<openvdb::FloatTree>& topology, const Stencil& stencil, bool plane,
+               SlotLayout* recycle = nullptr, const std::vector<size_t>* leafOrder = nullptr);
+    /// The same rows from a mask's leaves (a region's plane leaves: no float topology copy needed,
+    /// the leaves' origins and value masks are all a layout reads).
+    SlotLayout(const openvdb::tree::LeafManager<const openvdb::MaskTree>& topology, const Stencil& stencil,
+               bool plane, SlotLayout* recycle = nullptr, const std::vector<size_t>* leafOrder = nullptr);
+    /// The same rows from a folded region's plane-leaf view (plane::PlaneLeaves in the plane
+    /// tree's order: the leaves and leaf indices the kernels and the write-back walk).
+    SlotLayout(const plane::PlaneLeaves& topology, const Stencil& stencil, bool plane, SlotLayout* recycle = nullptr,
+               const std::vector<size_t>* leafOrder = nullptr);
 
     size_t rowCount() const { return rows; }
     /// Row of active voxel @a c of leaf @a leaf.
@@ -85,6 +100,20 @@ public:
                                           ///< nothing reads them)
     std::vector<int32_t> neighbours;      ///< taps per row: neighbour row, or rowCount() outside
     std::vector<size_t> colourStart;      ///< colour c owns rows [colourStart[c], colourStart[c+1])
+
+private:
+    /// Red-black on the square lattice, (i + 2j + k) mod 3 on the hexagonal one.
+    uint8_t colourOf(const openvdb::Coord& c) const
+    {
+        return colours == 2 ? uint8_t((c.x() + c.y() + c.z()) & 1) : uint8_t(((c.x() + 2 * c.y() + c.z()) % 3 + 3) % 3);
+    }
+    template <typename LeafManagerT>
+    void build(const LeafManagerT& topology, const Stencil& stencil, SlotLayout* recycle,
+               const std::vector<size_t>* leafOrder);
+    template <typename LeafManagerT>
+    std::vector<size_t> numberRows(const LeafManagerT& topology, const std::vector<size_t>* leafOrder);
+    template <typename LeafManagerT>
+    void linkNeighbours(const LeafManagerT& topology, const Stencil& stencil);
 };
 
 class ImplicitSystem {
