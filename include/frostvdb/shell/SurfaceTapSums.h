@@ -8,7 +8,7 @@
 ///    here, where the taps are loaded anyway;
 ///  - pass 2 sums du (C_j - C_i) and dv (C_j - C_i) over the four coefficients (eps^2 and C's
 ///    three components), which give grad eps^2 and div C;
-///  - the update.
+///  - the update (without wind, fused with pass 2: the sums stay in lanes from the taps on).
 /// The vector versions (AVX2) run one node at a time with a tap's weights or a coefficient's
 /// components across the four lanes: no transposes per tap and no padding taps, where four nodes
 /// across the lanes needed three 4 x 4 transposes and two gathers per tap and padded every node
