@@ -175,26 +175,20 @@ inline void forActive(const LeafManagerT& topology, size_t li, F&& f)
 }
 } // namespace
 
-SlotLayout::SlotLayout(const openvdb::tree::LeafManager<openvdb::FloatTree>& topology, const Stencil& stencil,
-                       bool flat, SlotLayout* recycle, const std::vector<size_t>* leafOrder)
-    : plane(flat), slots(flat ? 64 : 512)
-{
-    build(topology, stencil, recycle, leafOrder);
-}
-
-SlotLayout::SlotLayout(const openvdb::tree::LeafManager<const openvdb::MaskTree>& topology, const Stencil& stencil,
-                       bool flat, SlotLayout* recycle, const std::vector<size_t>* leafOrder)
-    : plane(flat), slots(flat ? 64 : 512)
-{
-    build(topology, stencil, recycle, leafOrder);
-}
-
-SlotLayout::SlotLayout(const plane::PlaneLeaves& topology, const Stencil& stencil, bool flat, SlotLayout* recycle,
+template <typename LeavesT>
+SlotLayout::SlotLayout(const LeavesT& topology, const Stencil& stencil, bool flat, SlotLayout* recycle,
                        const std::vector<size_t>* leafOrder)
     : plane(flat), slots(flat ? 64 : 512)
 {
     build(topology, stencil, recycle, leafOrder);
 }
+
+template SlotLayout::SlotLayout(const openvdb::tree::LeafManager<openvdb::FloatTree>&, const Stencil&, bool,
+                                SlotLayout*, const std::vector<size_t>*);
+template SlotLayout::SlotLayout(const openvdb::tree::LeafManager<const openvdb::MaskTree>&, const Stencil&, bool,
+                                SlotLayout*, const std::vector<size_t>*);
+template SlotLayout::SlotLayout(const plane::PlaneLeaves&, const Stencil&, bool, SlotLayout*,
+                                const std::vector<size_t>*);
 
 template <typename LeafManagerT>
 void SlotLayout::build(const LeafManagerT& topology, const Stencil& stencil, SlotLayout* recycle,

@@ -65,15 +65,12 @@ public:
     /// @a recycle: last step's layout, whose arrays are taken over (the neighbour table is
     /// then not zero-filled and its pages not faulted in again; every entry is written).
     /// @a leafOrder: every leaf index once, the order rows are numbered in (null: leaf order).
-    SlotLayout(const openvdb::tree::LeafManager<openvdb::FloatTree>& topology, const Stencil& stencil, bool plane,
-               SlotLayout* recycle = nullptr, const std::vector<size_t>* leafOrder = nullptr);
-    /// The same rows from a mask's leaves (a region's plane leaves: no float topology copy needed,
-    /// the leaves' origins and value masks are all a layout reads).
-    SlotLayout(const openvdb::tree::LeafManager<const openvdb::MaskTree>& topology, const Stencil& stencil,
-               bool plane, SlotLayout* recycle = nullptr, const std::vector<size_t>* leafOrder = nullptr);
-    /// The same rows from a folded region's plane-leaf view (plane::PlaneLeaves in the plane
-    /// tree's order: the leaves and leaf indices the kernels and the write-back walk).
-    SlotLayout(const plane::PlaneLeaves& topology, const Stencil& stencil, bool plane, SlotLayout* recycle = nullptr,
+    /// @a topology: anything with leafCount() and leaf(i) (origin, value mask, offset to coordinate);
+    /// built for a float tree's LeafManager, a mask tree's (a region's plane leaves: no float
+    /// topology copy needed) and a folded region's plane-leaf view (plane::PlaneLeaves in the
+    /// plane tree's order: the leaves and leaf indices the kernels and the write-back walk).
+    template <typename LeavesT>
+    SlotLayout(const LeavesT& topology, const Stencil& stencil, bool plane, SlotLayout* recycle = nullptr,
                const std::vector<size_t>* leafOrder = nullptr);
 
     size_t rowCount() const { return rows; }
