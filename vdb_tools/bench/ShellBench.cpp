@@ -4,7 +4,9 @@
 // loop of the same equations on the same number of surface cells (same run).
 #include <frostvdb/core/Bench.h>
 #include <frostvdb/ice/PhaseFieldSolver.h>
+#include <frostvdb/io/Mesh.h>
 #include <frostvdb/shell/ShellPhaseField.h>
+#include <frostvdb/shell/SurfaceTapSums.h>
 
 #include <tbb/global_control.h>
 
@@ -19,6 +21,7 @@
 #include <filesystem>
 #include <fstream>
 #include <memory>
+#include <random>
 #include <string>
 #include <vector>
 
@@ -260,9 +263,71 @@ int benchPane(const BenchArgs& a)
     return 0;
 }
 
+/// `bench shell passes [VOXEL_MM]`: the surface step's two vector passes alone, on the pane's
+/// windshield band (as `pane` places it) with random p and T, one thread, 20 sweeps each: ns per
+/// node for pass 1 (sums, gradient, anisotropy) and for pass 2 with the update. What the kernel
+/// costs per node without walkers, output or the machine's two-thread scaling around it.
+int benchPasses(const BenchArgs& a)
+{
+    const std::string mesh = std::filesystem::absolute("scenes/meshes/windshield.obj").string();
+    if (!std::filesystem::exists(mesh)) {
+        std::fprintf(stderr, "bench shell passes: %s not found (run from the repository root)\n", mesh.c_str());
+        return 2;
+    }
+    MeshPlacement m;
+    m.rotateDegrees = openvdb::Vec3d(-60, 0, 0);
+    m.translate = openvdb::Vec3d(0, 0, 1.0);
+    shell::BandSettings bs;
+    bs.voxelSize = 1e-3 * (a.args.size() > 1 ? std::stod(a.args[1]) : 2.0);
+    bs.discretisation = shell::BandSettings::Discretisation::SurfaceNodes;
+    const auto band = shell::ShellBand::build(loadMesh(mesh, m), bs);
+    const size_t n = band->size();
+    std::mt19937 rng(1);
+    std::uniform_real_distribution<float> u(0.f, 1.f);
+    std::vector<float> P(n), T(n), gu(n), gv(n);
+    for (size_t i = 0; i < n; ++i) {
+        P[i] = u(rng);
+        T[i] = -0.5f + 0.1f * u(rng);
+    }
+    std::vector<shell::SurfaceCoefficients> C(n);
+    std::vector<shell::FieldSums> sums(n);
+    KobayashiParams kp;
+    kp.anisotropyMode = 6;
+    kp.delta = 0.05;
+    const Anisotropy an(kp);
+    const auto pass1 = shell::fastestSurfaceCoefficients4(an);
+    const auto pass2 = shell::fastestSurfacePass2();
+    const shell::SurfaceUpdateInputs in{P.data(), T.data(), C.data(), gu.data(), gv.data(), nullptr, &kp, 1.0, 1.0};
+    const int sweeps = a.quick ? 2 : 20;
+    double seconds1 = 0, seconds2 = 0;
+    float sink = 0; // keeps the second pass's results alive
+    for (int r = 0; r < sweeps; ++r) {
+        auto t0 = Clock::now();
+        for (const auto& l : band->leaves())
+            for (size_t i = l.begin; i + 4 <= l.end; i += 4)
+                pass1(*band, P.data(), T.data(), an, 1.0, i, C.data(), gu.data(), gv.data(), sums.data(), nullptr);
+        seconds1 += bench::since(t0);
+        t0 = Clock::now();
+        for (const auto& l : band->leaves())
+            for (size_t i = l.begin; i + 4 <= l.end; i += 4) {
+                const double chi[4] = {0, 0, 0, 0};
+                float pNew[4], tNew[4];
+                pass2(*band, in, sums.data(), i, chi, pNew, tNew);
+                sink += pNew[0];
+            }
+        seconds2 += bench::since(t0);
+    }
+    std::printf("surface passes on the windshield at %g mm: %zu nodes, one thread, %d sweeps: pass 1 %.1f ns a node, "
+                "pass 2 with the update %.1f ns a node (%s; checksum %g)\n",
+                bs.voxelSize * 1e3, n, sweeps, seconds1 / sweeps / double(n) * 1e9, seconds2 / sweeps / double(n) * 1e9,
+                pass1 == &shell::surfaceCoefficients4Plain ? "plain" : "AVX2", double(sink));
+    return 0;
+}
+
 int benchShell(const BenchArgs& a)
 {
     if (!a.args.empty() && a.args[0] == "pane") return benchPane(a);
+    if (!a.args.empty() && a.args[0] == "passes") return benchPasses(a);
     std::unique_ptr<tbb::global_control> threads;
     if (a.threads > 0)
         threads = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism, size_t(a.threads));
@@ -317,6 +382,7 @@ FROSTVDB_REGISTER_BENCH(shell, "shell",
     "lw_cn (implicit closest-point method) against euler on a sphere to the same time (word: schemes = only that), "
     "and the shell's update rate against the plane's; word pane [VOXEL_MM] [STEPS] [PAIRS]: the windshield against a plane "
     "of the same cell count with walkers and the phase field, as child runs, and the shell / plane ratios of "
-    "wall time and peak memory", benchShell);
+    "wall time and peak memory; word passes [VOXEL_MM]: the surface step's two vector passes alone on the "
+    "windshield's band, ns a node", benchShell);
 
 } // namespace frostvdb
