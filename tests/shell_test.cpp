@@ -996,8 +996,8 @@ TEST_CASE("Surface tap sums: the vector passes (AVX2) give the scalar passes bit
 {
     // Random fields on a sphere's and a tilted plate's surface nodes (taps of every count, a
     // ghost ring on the plate): pass 1's coefficients, gradients and sums of p and T (with and
-    // without a wind), pass 2's sums, and pass 2 through the update, of every group of four equal
-    // the scalar functions' exactly, including the sign of zero sums (half the nodes are flat,
+    // without a wind), pass 2's sums, and pass 2 through the update, of every group of four (and
+    // of eight, two fours side by side) equal the scalar functions' exactly, including the sign of zero sums (half the nodes are flat,
     // where every difference is 0).
     TriangleMesh plate = makePlate(40, 20);
     MeshPlacement m;
@@ -1027,6 +1027,7 @@ TEST_CASE("Surface tap sums: the vector passes (AVX2) give the scalar passes bit
         // branch), without a wind and with one (T's derivatives summed too)
         std::vector<shell::FieldSums> sums(n);
         std::vector<shell::WindSums> winds(n);
+        for (const size_t group : {4, 8}) // four nodes, or eight (two fours side by side)
         for (const bool withWind : {false, true})
             for (const double j : {6.0, 4.0}) {
                 KobayashiParams kp;
@@ -1034,19 +1035,20 @@ TEST_CASE("Surface tap sums: the vector passes (AVX2) give the scalar passes bit
                 kp.delta = 0.05;
                 kp.theta0 = j == 4.0 ? 0.3 : 0.0;
                 const Anisotropy an(kp);
-                const shell::SurfaceCoefficients4 fastC = shell::fastestSurfaceCoefficients4(an);
-                INFO((fastC == &shell::surfaceCoefficients4Plain ? "plain" : "AVX2") << ", j = " << j
-                                                                                     << (withWind ? ", wind" : ""));
+                const shell::SurfaceCoefficients4 fastC =
+                    group == 4 ? shell::fastestSurfaceCoefficients4(an) : shell::fastestSurfaceCoefficients8(an);
+                const bool plain = fastC == &shell::surfaceCoefficients4Plain || fastC == &shell::surfaceCoefficients8Plain;
+                INFO((plain ? "plain" : "AVX2") << ", " << group << " nodes, j = " << j << (withWind ? ", wind" : ""));
                 std::vector<shell::SurfaceCoefficients> c1(n), c2(n);
                 std::vector<float> gu1(n), gv1(n), gu2(n), gv2(n);
                 std::vector<shell::FieldSums> s1(n);
                 std::vector<shell::WindSums> w1(n);
                 size_t coefDiffer = 0, sumsDiffer = 0, flatNodes = 0;
                 for (const auto& leaf : band->leaves())
-                    for (size_t i = leaf.begin; i + 4 <= leaf.end; i += 4) {
+                    for (size_t i = leaf.begin; i + group <= leaf.end; i += group) {
                         fastC(*band, P.data(), T.data(), an, 0.5, i, c1.data(), gu1.data(), gv1.data(), s1.data(),
                               withWind ? w1.data() : nullptr);
-                        for (size_t k = 0; k < 4; ++k) {
+                        for (size_t k = 0; k < group; ++k) {
                             shell::surfaceCoefficients(*band, P.data(), T.data(), an, 0.5, i + k, c2.data(),
                                                        gu2.data(), gv2.data(), sums.data(), winds.data());
                             coefDiffer += std::memcmp(&c1[i + k], &c2[i + k], sizeof c1[0]) != 0 ||
@@ -1082,8 +1084,9 @@ TEST_CASE("Surface tap sums: the vector passes (AVX2) give the scalar passes bit
 
         // pass 2 without wind, the sums kept in lanes through the update (p across [0, 1] and
         // beyond, T around the melt temperature, with and without a melt map and noise draws)
-        const shell::SurfacePass2 pass2 = shell::fastestSurfacePass2();
+        const shell::SurfacePass2 pass2 = shell::fastestSurfacePass2(), pass2x8 = shell::fastestSurfacePass2x8();
         INFO((pass2 == &shell::surfacePass2Plain ? "plain" : "AVX2"));
+        CHECK((pass2 == &shell::surfacePass2Plain) == (pass2x8 == &shell::surfacePass2x8Plain));
         std::vector<float> Pu(n), Tu(n), gu(n), gv(n), melt(n);
         for (size_t i = 0; i < n; ++i) {
             Pu[i] = 0.5f + 0.7f * u(rng);
@@ -1095,16 +1098,17 @@ TEST_CASE("Surface tap sums: the vector passes (AVX2) give the scalar passes bit
         KobayashiParams kp;
         kp.noise = 0.01;
         size_t updated = 0, updateDiffer = 0;
+        for (const size_t group : {4, 8})
         for (const bool withMelt : {false, true}) {
             const shell::SurfaceUpdateInputs in{Pu.data(), Tu.data(), C.data(), gu.data(), gv.data(),
                                                 withMelt ? melt.data() : nullptr, &kp, 1.0 / 0.03, 1.0 / (0.03 * 0.03)};
             for (const auto& leaf : band->leaves())
-                for (size_t i = leaf.begin; i + 4 <= leaf.end; i += 4) {
-                    double chi[4];
-                    for (int k = 0; k < 4; ++k) chi[k] = (i / 4) % 2 ? 0.0 : 0.5 * u(rng);
-                    float p4[4], t4[4];
-                    pass2(*band, in, sums.data(), i, chi, p4, t4);
-                    for (size_t k = 0; k < 4; ++k, ++updated) {
+                for (size_t i = leaf.begin; i + group <= leaf.end; i += group) {
+                    double chi[8];
+                    for (size_t k = 0; k < group; ++k) chi[k] = (i / 4 + k / 4) % 2 ? 0.0 : 0.5 * u(rng);
+                    float p4[8], t4[8];
+                    (group == 4 ? pass2 : pass2x8)(*band, in, sums.data(), i, chi, p4, t4);
+                    for (size_t k = 0; k < group; ++k, ++updated) {
                         float p1, t1;
                         shell::surfaceUpdate(in, i + k, shell::tapSums(*band, C.data(), sums.data(), nullptr, i + k),
                                              chi[k], p1, t1);

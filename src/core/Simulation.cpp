@@ -56,11 +56,13 @@ uint64_t peakRss()
 /// FROSTVDB_MEMORY_TRACE=1: resident and peak memory (MiB) on stderr after each effect's
 /// initialisation, step (first steps, then every 100) and output, after a frame's PNGs and as
 /// each of its grids is made for the VDB, to see where a peak comes from
-/// (docs/performance.md "Where a shell's memory goes").
+/// (docs/performance.md "Where a shell's memory goes"), with the seconds since the first line
+/// (what each grid of a frame costs to make and write).
 void traceMemory(const char* what, const std::string& effect, int64_t step)
 {
     static const bool on = [] { const char* e = std::getenv("FROSTVDB_MEMORY_TRACE"); return e && *e && *e != '0'; }();
     if (!on) return;
+    static const auto start = std::chrono::steady_clock::now();
     long rssKb = 0, hwmKb = 0;
     if (FILE* f = std::fopen("/proc/self/status", "r")) {
         char line[256];
@@ -70,8 +72,9 @@ void traceMemory(const char* what, const std::string& effect, int64_t step)
         }
         std::fclose(f);
     }
-    std::fprintf(stderr, "memory: %-14s %-12s step %6lld  resident %8.1f MiB  peak %8.1f MiB\n", what, effect.c_str(),
-                 (long long)step, rssKb / 1024.0, hwmKb / 1024.0);
+    const double at = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    std::fprintf(stderr, "memory: %-14s %-12s step %6lld  resident %8.1f MiB  peak %8.1f MiB  at %8.3f s\n", what,
+                 effect.c_str(), (long long)step, rssKb / 1024.0, hwmKb / 1024.0, at);
 }
 
 /// Reads the core sections that belong to the driver.
@@ -913,10 +916,14 @@ void Simulation::simulateFrames(int64_t first, int64_t last, const RunOptions& o
             continue;
         }
         const auto t0 = Clock::now();
+        traceMemory("frame", "", mStep);
         returnFreePages(); // the output's copies then start from what the fields hold
+        traceMemory("trimmed", "", mStep);
         const size_t before = sum.files.size();
         writeFrameOutputs(f, last, dir, sum);
+        traceMemory("written", "", mStep);
         returnFreePages();
+        traceMemory("trimmed", "", mStep);
         sum.outputSeconds += seconds(t0, Clock::now());
         if (progress.json()) {
             std::string files;

@@ -69,6 +69,58 @@ void fromGrid(const ShellBand& band, const openvdb::FloatGrid& grid, std::vector
 }
 
 namespace {
+/// Calls @a f on every voxel of @a box within @a radius of the line through @a x along the unit
+/// vector @a n and between @a s0 and @a s1 along it (offsets from x), and on a few more (the
+/// caller tests both): slice by slice across n's dominant axis a, row by row along the next axis
+/// b, and in a row the interval of the third axis c where the squared distance to the line (a
+/// quadratic in c) and the offset along n (linear in c) are within bounds a little wider, so that
+/// rounding drops no voxel the caller keeps. On the pane's frames the slices' boxes of the
+/// line's disc visited 145 M voxels for 46 M values written; the rows' intervals visit far fewer.
+template <class F>
+void forEachNearSegment(const openvdb::CoordBBox& box, const openvdb::Vec3d& x, const openvdb::Vec3d& n, double radius,
+                        double s0, double s1, const F& f)
+{
+    const int a = std::fabs(n.x()) >= std::fabs(n.y()) && std::fabs(n.x()) >= std::fabs(n.z())
+                      ? 0 : (std::fabs(n.y()) >= std::fabs(n.z()) ? 1 : 2);
+    const int b = (a + 1) % 3, c = (a + 2) % 3;
+    const double reach = radius / std::fabs(n[a]) + 1e-9;
+    const double slack = 0.01, r = radius + slack, r2 = r * r;
+    const double quad = 1.0 - n[c] * n[c]; // at least 1/2: n[c] is not the dominant component
+    for (int ca = box.min()[a]; ca <= box.max()[a]; ++ca) {
+        const double t = (double(ca) - x[a]) / n[a]; // the line's point in this slice
+        const double lb = x[b] + n[b] * t;
+        const int b0 = std::max(box.min()[b], int(std::floor(lb - reach))), b1 = std::min(box.max()[b], int(std::ceil(lb + reach)));
+        openvdb::Coord v;
+        v[a] = ca;
+        for (v[b] = b0; v[b] <= b1; ++v[b]) {
+            // o = v - x with v's c at 0: |o + c e_c|^2 - ((o + c e_c) . n)^2 <= r^2
+            openvdb::Vec3d o;
+            o[a] = double(ca) - x[a];
+            o[b] = double(v[b]) - x[b];
+            o[c] = -x[c];
+            const double on = o.dot(n);
+            const double lin = 2.0 * (o[c] - on * n[c]), con = o.lengthSqr() - on * on - r2;
+            const double disc = lin * lin - 4.0 * quad * con;
+            if (disc < 0) continue;
+            const double root = std::sqrt(disc);
+            double lo = (-lin - root) / (2.0 * quad), hi = (-lin + root) / (2.0 * quad);
+            // the offset along n, on + c n[c], within [s0, s1]
+            if (std::fabs(n[c]) > 1e-9) {
+                double u0 = (s0 - slack - on) / n[c], u1 = (s1 + slack - on) / n[c];
+                if (u0 > u1) std::swap(u0, u1);
+                lo = std::max(lo, u0);
+                hi = std::min(hi, u1);
+            } else if (on < s0 - slack || on > s1 + slack) {
+                continue;
+            }
+            const int c0 = std::max(box.min()[c], int(std::floor(lo))), c1 = std::min(box.max()[c], int(std::ceil(hi)));
+            for (v[c] = c0; v[c] <= c1; ++v[c]) f(v);
+        }
+    }
+}
+} // namespace
+
+namespace {
 /// Surface nodes: the frost layer is not in the band (one voxel thick), so each icy node stamps
 /// the voxels around its normal segment, from half a voxel under the surface to half a voxel past
 /// its thickness, and within 0.75 voxels of its normal line (every surface point lies within
@@ -95,13 +147,13 @@ openvdb::FloatGrid::Ptr frostFogOnNodes(const ShellBand& band, const std::vector
                 seg.expand(cp + n * (th + 0.5));
                 const openvdb::CoordBBox box(openvdb::Coord::floor(seg.min() - openvdb::Vec3d(0.75)),
                                              openvdb::Coord::ceil(seg.max() + openvdb::Vec3d(0.75)));
-                for (auto it = box.begin(); it; ++it) {
-                    const openvdb::Vec3d off = openvdb::Vec3d((*it).x(), (*it).y(), (*it).z()) - cp;
+                forEachNearSegment(box, cp, n, 0.75, -0.5, th + 0.5, [&](const openvdb::Coord& c) {
+                    const openvdb::Vec3d off = openvdb::Vec3d(c.x(), c.y(), c.z()) - cp;
                     const double sn = off.dot(n);
-                    if ((off - n * sn).lengthSqr() > 0.75 * 0.75) continue;
+                    if ((off - n * sn).lengthSqr() > 0.75 * 0.75) return;
                     const float v = float(pi * ramp(sn + 0.5) * ramp(th - sn + 0.5));
-                    if (v > 0.f && v > acc.getValue(*it)) acc.setValueOn(*it, v);
-                }
+                    if (v > 0.f && v > acc.getValue(c)) acc.setValueOn(c, v);
+                });
             }
     });
     auto grid = openvdb::FloatGrid::create(0.f);
@@ -113,32 +165,6 @@ openvdb::FloatGrid::Ptr frostFogOnNodes(const ShellBand& band, const std::vector
     }
     grid->setGridClass(openvdb::GRID_FOG_VOLUME);
     return grid;
-}
-} // namespace
-
-namespace {
-/// Calls @a f on every voxel of @a box within @a radius of the line through @a x along the unit
-/// vector @a n, and on some more (the caller tests the distance): slice by slice across n's
-/// dominant axis, the box of the line's disc of that radius in the slice (half-width
-/// radius / |n_a|). A tilted prism's box is mostly empty: this visits about a sixth of it.
-template <class F>
-void forEachNearLine(const openvdb::CoordBBox& box, const openvdb::Vec3d& x, const openvdb::Vec3d& n, double radius,
-                     const F& f)
-{
-    const int a = std::fabs(n.x()) >= std::fabs(n.y()) && std::fabs(n.x()) >= std::fabs(n.z())
-                      ? 0 : (std::fabs(n.y()) >= std::fabs(n.z()) ? 1 : 2);
-    const int b = (a + 1) % 3, c = (a + 2) % 3;
-    const double reach = radius / std::fabs(n[a]) + 1e-9;
-    for (int ca = box.min()[a]; ca <= box.max()[a]; ++ca) {
-        const double t = (double(ca) - x[a]) / n[a]; // the line's point in this slice
-        const double lb = x[b] + n[b] * t, lc = x[c] + n[c] * t;
-        const int b0 = std::max(box.min()[b], int(std::floor(lb - reach))), b1 = std::min(box.max()[b], int(std::ceil(lb + reach)));
-        const int c0 = std::max(box.min()[c], int(std::floor(lc - reach))), c1 = std::min(box.max()[c], int(std::ceil(lc + reach)));
-        openvdb::Coord v;
-        v[a] = ca;
-        for (v[b] = b0; v[b] <= b1; ++v[b])
-            for (v[c] = c0; v[c] <= c1; ++v[c]) f(v);
-    }
 }
 } // namespace
 
@@ -183,7 +209,7 @@ openvdb::FloatGrid::Ptr frostLevelSetOnNodes(const ShellBand& band, const std::v
                     float old;
                     if (!acc.probeValue(c, old) || v < old) acc.setValueOn(c, v); // one probe for both
                 };
-                forEachNearLine(box, cp, n, side, stamp);
+                forEachNearSegment(box, cp, n, side, -hw, th + hw, stamp);
             }
     });
     auto grid = openvdb::FloatGrid::create(float(hw * h));

@@ -60,6 +60,21 @@ inline double tapSum(const ShellBand& b, const float* u, size_t i)
 }
 /// The noise draw chi in [-1/2, 1/2) at band voxel @a i: the plane's hash, keyed by the voxel's
 /// coordinate (0 without noise).
+/// f(first, n) over a leaf's nodes [begin, end) (at least 4) in groups of n = 8, then 4: a tail
+/// of 1-3 nodes as the leaf's last four again (each node's values depend on the fields only, so
+/// those written twice are written the same): the vector passes' cost.
+template <class F>
+inline void forEachGroup(size_t begin, size_t end, const F& f)
+{
+    size_t i = begin;
+    for (; i + 8 <= end; i += 8) f(i, 8);
+    if (i + 4 <= end) {
+        f(i, 4);
+        i += 4;
+    }
+    if (i < end) f(end - 4, 4);
+}
+
 inline double noiseChi(const KobayashiParams& k, const ShellBand& b, size_t i, uint64_t seed, int64_t stepIndex)
 {
     if (k.noise == 0) return 0.0;
@@ -507,6 +522,7 @@ void ShellPhaseField::stepSurface(double time, int64_t stepIndex, uint64_t seed,
     const auto& leaves = b.leaves();
     // stage 1, pass 1: the sums of p and T, the gradient and coefficients (shell/SurfaceTapSums.h)
     const SurfaceCoefficients4 coefficients4 = fastestSurfaceCoefficients4(mAniso);
+    const SurfaceCoefficients4 coefficients8 = fastestSurfaceCoefficients8(mAniso);
     // T's tangential derivatives only where a wind reads them
     if (mWind.empty()) std::vector<WindSums>().swap(mWindSums);
     else mWindSums.resize(b.size());
@@ -515,15 +531,14 @@ void ShellPhaseField::stepSurface(double time, int64_t stepIndex, uint64_t seed,
     float *gx = mGx.data(), *gy = mGy.data();
     auto coefficientsOf = [&](uint32_t slot) {
         const ShellBand::Leaf& l = leaves[slot];
-        for (size_t i = l.begin; i < l.end; i += 4) {
-            if (i + 4 <= l.end) {
-                coefficients4(b, P, T, mAniso, invH, i, coef, gx, gy, mFieldSums.data(), wind);
-            } else if (l.end - l.begin >= 4) { // the tail: the leaf's last four again (same values)
-                coefficients4(b, P, T, mAniso, invH, l.end - 4, coef, gx, gy, mFieldSums.data(), wind);
-            } else {
-                for (; i < l.end; ++i) surfaceCoefficients(b, P, T, mAniso, invH, i, coef, gx, gy, mFieldSums.data(), wind);
-            }
+        if (l.end - l.begin < 4) {
+            for (size_t i = l.begin; i < l.end; ++i)
+                surfaceCoefficients(b, P, T, mAniso, invH, i, coef, gx, gy, mFieldSums.data(), wind);
+            return;
         }
+        forEachGroup(l.begin, l.end, [&](size_t i, size_t n) {
+            (n == 8 ? coefficients8 : coefficients4)(b, P, T, mAniso, invH, i, coef, gx, gy, mFieldSums.data(), wind);
+        });
     };
     const SurfaceCoefficients* C = mCoef.data();
     const FieldSums* sums = mFieldSums.data();
@@ -550,30 +565,32 @@ void ShellPhaseField::stepSurface(double time, int64_t stepIndex, uint64_t seed,
     };
     const TapSums4 sums4 = fastestTapSums4();
     const SurfacePass2 pass2 = fastestSurfacePass2();
+    const SurfacePass2 pass2x8 = fastestSurfacePass2x8();
     auto updateOf = [&](uint32_t slot) {
         const ShellBand::Leaf& l = leaves[slot];
-        // a leaf's tail of 1-3 nodes as its last four again (each node's values depend on the
-        // fields only, so those written twice are written the same): the vector path's cost
-        const size_t vectorEnd = l.end - l.begin >= 4 ? l.end : l.begin;
-        for (size_t q = l.begin; q < vectorEnd; q += 4) {
-            const size_t i = std::min(q, size_t(l.end) - 4);
-            if (wind) {
-                TapSums s[4];
-                sums4(b, C, sums, wind, i, s);
-                for (size_t n = 0; n < 4; ++n) update(i + n, s[n]);
-                continue;
-            }
-            double chi[4];
-            float pNew[4], tNew[4];
-            for (size_t n = 0; n < 4; ++n) chi[n] = noiseChi(k, b, i + n, seed, stepIndex);
-            pass2(b, inputs, sums, i, chi, pNew, tNew);
-            for (size_t n = 0; n < 4; ++n) {
-                const bool ghost = b.ghost(i + n); // beyond an open border: the background
-                mPn[i + n] = ghost ? 0.f : pNew[n];
-                mTn[i + n] = ghost ? tInf : tNew[n];
-            }
+        if (l.end - l.begin < 4) {
+            for (size_t i = l.begin; i < l.end; ++i) update(i, tapSums(b, C, sums, wind, i));
+            return;
         }
-        for (size_t i = vectorEnd; i < l.end; ++i) update(i, tapSums(b, C, sums, wind, i));
+        forEachGroup(l.begin, l.end, [&](size_t i, size_t n) {
+            if (wind) {
+                for (size_t q = i; q < i + n; q += 4) {
+                    TapSums s[4];
+                    sums4(b, C, sums, wind, q, s);
+                    for (size_t m = 0; m < 4; ++m) update(q + m, s[m]);
+                }
+                return;
+            }
+            double chi[8];
+            float pNew[8], tNew[8];
+            for (size_t m = 0; m < n; ++m) chi[m] = noiseChi(k, b, i + m, seed, stepIndex);
+            (n == 8 ? pass2x8 : pass2)(b, inputs, sums, i, chi, pNew, tNew);
+            for (size_t m = 0; m < n; ++m) {
+                const bool ghost = b.ghost(i + m); // beyond an open border: the background
+                mPn[i + m] = ghost ? 0.f : pNew[m];
+                mTn[i + m] = ghost ? tInf : tNew[m];
+            }
+        });
     };
     // stage 3: the new values become the fields, growth and freeze time recorded, and per leaf
     // whether p crossed 1/2 anywhere in it ([dla] then rescans only those leaves)

@@ -211,9 +211,10 @@ FV_AVX2 void tapSums4Avx2(const ShellBand& b, const SurfaceCoefficients* C, cons
     }
 }
 
-FV_AVX2 void surfaceCoefficients4Avx2(const ShellBand& b, const float* P, const float* T, const Anisotropy& an,
-                                      double invH, std::size_t i, SurfaceCoefficients* C, float* gx, float* gy,
-                                      FieldSums* sums, WindSums* wind)
+/// Pass 1's sums of nodes i .. i + 3 (into sums, and wind unless null) and their tangential
+/// gradient (gu, gv) across the lanes.
+FV_AVX2 inline void gradient4(const ShellBand& b, const float* P, const float* T, double invH, std::size_t i,
+                              FieldSums* sums, WindSums* wind, __m256d& gu, __m256d& gv)
 {
     static_assert(sizeof(FieldSums) == 16 && sizeof(WindSums) == 16, "two doubles each");
     __m256d onP[4]; // (lap T or 0, lap p, du p, dv p) per node
@@ -230,68 +231,138 @@ FV_AVX2 void surfaceCoefficients4Avx2(const ShellBand& b, const float* P, const 
         _mm_storeu_pd(&wind[i + k].dtu, _mm256_extractf128_pd(onT, 1));
     }
     transpose4(onP); // du p and dv p across the four nodes in onP[2] and onP[3]
-    const __m256d su = onP[2], sv = onP[3];
-    const __m256d h = _mm256_set1_pd(invH), gu = mul(su, h), gv = mul(sv, h);
+    const __m256d h = _mm256_set1_pd(invH);
+    gu = mul(onP[2], h);
+    gv = mul(onP[3], h);
+}
+
+/// eps^2 and C of G groups of four nodes (i, i + 4, ...) from their gradients, each operation
+/// done for every group before the next, so that the groups' dependency chains (the square root,
+/// the division, the power loop: about half of pass 1's time with one group, measured) overlap.
+template <int G>
+FV_AVX2 inline void coefficientsOf(const ShellBand& b, const Anisotropy& an, std::size_t i, const __m256d (&gu)[G],
+                                   const __m256d (&gv)[G], SurfaceCoefficients* C, float* gx, float* gy)
+{
     // Anisotropy, integer mode (the plane's vector rows, EulerRows.cpp): w = (g / |g|)^j where
     // |g|^2 > 1e-30, else w = 1 (a select whose discarded lane multiplies by 1 and adds +0)
     const __m256d zero = _mm256_setzero_pd(), one = _mm256_set1_pd(1.0);
-    const __m256d r2 = add(mul(gu, gu), mul(gv, gv));
-    const __m256d big = _mm256_cmp_pd(r2, _mm256_set1_pd(1e-30), _CMP_GT_OQ);
-    const __m256d inv = _mm256_div_pd(one, _mm256_sqrt_pd(r2));
-    const __m256d zr = _mm256_blendv_pd(one, mul(gu, inv), big), zi = _mm256_blendv_pd(zero, mul(gv, inv), big);
-    __m256d wr = one, wi = zero;
-    for (int q = 0; q < an.integerMode; ++q) {
-        const __m256d t = sub(mul(wr, zr), mul(wi, zi));
-        wi = add(mul(wr, zi), mul(wi, zr));
-        wr = t;
+    __m256d zr[G], zi[G], wr[G], wi[G];
+    for (int g = 0; g < G; ++g) {
+        const __m256d r2 = add(mul(gu[g], gu[g]), mul(gv[g], gv[g]));
+        const __m256d big = _mm256_cmp_pd(r2, _mm256_set1_pd(1e-30), _CMP_GT_OQ);
+        const __m256d inv = _mm256_div_pd(one, _mm256_sqrt_pd(r2));
+        zr[g] = _mm256_blendv_pd(one, mul(gu[g], inv), big);
+        zi[g] = _mm256_blendv_pd(zero, mul(gv[g], inv), big);
+        wr[g] = one;
+        wi[g] = zero;
     }
+    for (int q = 0; q < an.integerMode; ++q)
+        for (int g = 0; g < G; ++g) {
+            const __m256d t = sub(mul(wr[g], zr[g]), mul(wi[g], zi[g]));
+            wi[g] = add(mul(wr[g], zi[g]), mul(wi[g], zr[g]));
+            wr[g] = t;
+        }
     const __m256d cj0 = _mm256_set1_pd(an.cj0), sj0 = _mm256_set1_pd(an.sj0);
-    const __m256d c = add(mul(cj0, wr), mul(sj0, wi)), s = sub(mul(sj0, wr), mul(cj0, wi));
-    const __m256d eps = mul(_mm256_set1_pd(an.epsBar), add(one, mul(_mm256_set1_pd(an.delta), c)));
-    const __m256d epsPrime = mul(_mm256_set1_pd(an.epsBar * an.delta * an.j), s); // ((eps_bar delta) j) s
-    const __m256d ee = mul(eps, epsPrime);
-    const FrameFloats* f[4] = {&b.frameFloats(i), &b.frameFloats(i + 1), &b.frameFloats(i + 2), &b.frameFloats(i + 3)};
-    __m128 out[4] = {_mm256_cvtpd_ps(mul(eps, eps)), {}, {}, {}};
-    for (int axis = 0; axis < 3; ++axis) // (b gu - t gv) (eps eps'), per component
-        out[1 + axis] = _mm256_cvtpd_ps(mul(sub(mul(lanes(f, &FrameFloats::bitangent, axis), gu),
-                                                mul(lanes(f, &FrameFloats::tangent, axis), gv)),
-                                            ee));
-    _MM_TRANSPOSE4_PS(out[0], out[1], out[2], out[3]); // a, cx, cy, cz per node
-    for (int k = 0; k < 4; ++k) _mm_storeu_ps(&C[i + std::size_t(k)].a, out[k]);
-    _mm_storeu_ps(gx + i, _mm256_cvtpd_ps(gu));
-    _mm_storeu_ps(gy + i, _mm256_cvtpd_ps(gv));
+    for (int g = 0; g < G; ++g) {
+        const std::size_t n = i + 4 * std::size_t(g);
+        const __m256d c = add(mul(cj0, wr[g]), mul(sj0, wi[g])), s = sub(mul(sj0, wr[g]), mul(cj0, wi[g]));
+        const __m256d eps = mul(_mm256_set1_pd(an.epsBar), add(one, mul(_mm256_set1_pd(an.delta), c)));
+        const __m256d epsPrime = mul(_mm256_set1_pd(an.epsBar * an.delta * an.j), s); // ((eps_bar delta) j) s
+        const __m256d ee = mul(eps, epsPrime);
+        const FrameFloats* f[4] = {&b.frameFloats(n), &b.frameFloats(n + 1), &b.frameFloats(n + 2),
+                                   &b.frameFloats(n + 3)};
+        __m128 out[4] = {_mm256_cvtpd_ps(mul(eps, eps)), {}, {}, {}};
+        for (int axis = 0; axis < 3; ++axis) // (b gu - t gv) (eps eps'), per component
+            out[1 + axis] = _mm256_cvtpd_ps(mul(sub(mul(lanes(f, &FrameFloats::bitangent, axis), gu[g]),
+                                                    mul(lanes(f, &FrameFloats::tangent, axis), gv[g])),
+                                                ee));
+        _MM_TRANSPOSE4_PS(out[0], out[1], out[2], out[3]); // a, cx, cy, cz per node
+        for (int k = 0; k < 4; ++k) _mm_storeu_ps(&C[n + std::size_t(k)].a, out[k]);
+        _mm_storeu_ps(gx + n, _mm256_cvtpd_ps(gu[g]));
+        _mm_storeu_ps(gy + n, _mm256_cvtpd_ps(gv[g]));
+    }
 }
 
-/// surfaceUpdate's operations, in its order, on four lanes of sums.
-FV_AVX2 void surfaceUpdateLanes(const SurfaceUpdateInputs& in, std::size_t i, __m256d lapP, __m256d lapT,
-                                const CoefficientLanes& cs, const double chi[4], float pNew[4], float tNew[4])
+FV_AVX2 void surfaceCoefficients4Avx2(const ShellBand& b, const float* P, const float* T, const Anisotropy& an,
+                                      double invH, std::size_t i, SurfaceCoefficients* C, float* gx, float* gy,
+                                      FieldSums* sums, WindSums* wind)
+{
+    __m256d gu[1], gv[1];
+    gradient4(b, P, T, invH, i, sums, wind, gu[0], gv[0]);
+    coefficientsOf<1>(b, an, i, gu, gv, C, gx, gy);
+}
+
+FV_AVX2 void surfaceCoefficients8Avx2(const ShellBand& b, const float* P, const float* T, const Anisotropy& an,
+                                      double invH, std::size_t i, SurfaceCoefficients* C, float* gx, float* gy,
+                                      FieldSums* sums, WindSums* wind)
+{
+    __m256d gu[2], gv[2];
+    gradient4(b, P, T, invH, i, sums, wind, gu[0], gv[0]);
+    gradient4(b, P, T, invH, i + 4, sums, wind, gu[1], gv[1]);
+    coefficientsOf<2>(b, an, i, gu, gv, C, gx, gy);
+}
+
+/// surfaceUpdate's operations, in its order, on G groups of four lanes of sums (nodes i, i + 4,
+/// ...), each operation for every group before the next (as coefficientsOf: atan's divisions
+/// and polynomials overlap).
+template <int G>
+FV_AVX2 void surfaceUpdateLanes(const SurfaceUpdateInputs& in, std::size_t i, const __m256d (&lapP)[G],
+                                const __m256d (&lapT)[G], const CoefficientLanes (&cs)[G], const double* chi,
+                                float* pNew, float* tNew)
 {
     const KobayashiParams& k = *in.k;
-    const __m256d p0 = load4(in.P + i), t0 = load4(in.T + i);
-    const __m256d a0 = _mm256_set_pd(in.C[i + 3].a, in.C[i + 2].a, in.C[i + 1].a, in.C[i].a);
     const __m256d invH = splat(in.invH), invH2 = splat(in.invH2);
-    const __m256d div = add(add(mul(mul(a0, lapP), invH2),
-                                mul(add(mul(cs.dau, load4(in.gu + i)), mul(cs.dav, load4(in.gv + i))), invH)),
-                            mul(cs.divC, invH));
-    const __m256d melt = in.melt ? load4(in.melt + i) : splat(1.0);
-    const __m256d Te = add(splat(k.farTemperature), mul(melt, splat(k.meltTemperature - k.farTemperature)));
-    const __m256d m = mul(splat(k.alpha / M_PI), atanCephes4(mul(splat(k.gamma), sub(Te, t0))));
+    __m256d p0[G], t0[G], div[G], x[G];
+    for (int g = 0; g < G; ++g) {
+        const std::size_t n = i + 4 * std::size_t(g);
+        p0[g] = load4(in.P + n);
+        t0[g] = load4(in.T + n);
+        const __m256d a0 = _mm256_set_pd(in.C[n + 3].a, in.C[n + 2].a, in.C[n + 1].a, in.C[n].a);
+        div[g] = add(add(mul(mul(a0, lapP[g]), invH2),
+                         mul(add(mul(cs[g].dau, load4(in.gu + n)), mul(cs[g].dav, load4(in.gv + n))), invH)),
+                     mul(cs[g].divC, invH));
+        const __m256d melt = in.melt ? load4(in.melt + n) : splat(1.0);
+        const __m256d Te = add(splat(k.farTemperature), mul(melt, splat(k.meltTemperature - k.farTemperature)));
+        x[g] = mul(splat(k.gamma), sub(Te, t0[g]));
+    }
+    __m256d atanX[G];
+    for (int g = 0; g < G; ++g) atanX[g] = atanCephes4(x[g]);
     const __m256d one = splat(1.0);
-    const __m256d reaction = mul(mul(p0, sub(one, p0)), add(add(sub(p0, splat(0.5)), m),
-                                                            mul(splat(k.noise), _mm256_loadu_pd(chi))));
-    const __m256d dp = mul(splat(k.dt / k.tau), add(div, reaction));
-    store4(pNew, add(p0, dp));
-    store4(tNew, add(add(t0, mul(splat(k.dt), mul(lapT, invH2))), mul(splat(k.latentHeat), dp)));
+    for (int g = 0; g < G; ++g) {
+        const __m256d m = mul(splat(k.alpha / M_PI), atanX[g]);
+        const __m256d reaction = mul(mul(p0[g], sub(one, p0[g])),
+                                     add(add(sub(p0[g], splat(0.5)), m), mul(splat(k.noise), _mm256_loadu_pd(chi + 4 * g))));
+        const __m256d dp = mul(splat(k.dt / k.tau), add(div[g], reaction));
+        store4(pNew + 4 * g, add(p0[g], dp));
+        store4(tNew + 4 * g, add(add(t0[g], mul(splat(k.dt), mul(lapT[g], invH2))), mul(splat(k.latentHeat), dp)));
+    }
+}
+
+/// The four nodes' (lap p, lap T) pairs, (p0, T0, p1, T1) and (p2, T2, p3, T3), into lanes.
+FV_AVX2 inline void laplacians4(const FieldSums* sums, std::size_t i, __m256d& lapP, __m256d& lapT)
+{
+    const __m256d s01 = _mm256_loadu_pd(&sums[i].lapP), s23 = _mm256_loadu_pd(&sums[i + 2].lapP);
+    lapP = _mm256_permute4x64_pd(_mm256_unpacklo_pd(s01, s23), 0xD8); // (0, 2, 1, 3) -> in order
+    lapT = _mm256_permute4x64_pd(_mm256_unpackhi_pd(s01, s23), 0xD8);
 }
 
 FV_AVX2 void surfacePass2Avx2(const ShellBand& b, const SurfaceUpdateInputs& in, const FieldSums* sums,
                               std::size_t i, const double chi[4], float pNew[4], float tNew[4])
 {
-    // the four nodes' (lap p, lap T) pairs: (p0, T0, p1, T1) and (p2, T2, p3, T3), into lanes
-    const __m256d s01 = _mm256_loadu_pd(&sums[i].lapP), s23 = _mm256_loadu_pd(&sums[i + 2].lapP);
-    const __m256d lapP = _mm256_permute4x64_pd(_mm256_unpacklo_pd(s01, s23), 0xD8); // (0, 2, 1, 3) -> in order
-    const __m256d lapT = _mm256_permute4x64_pd(_mm256_unpackhi_pd(s01, s23), 0xD8);
-    surfaceUpdateLanes(in, i, lapP, lapT, coefficientSums4(b, in.C, i), chi, pNew, tNew);
+    __m256d lapP[1], lapT[1];
+    laplacians4(sums, i, lapP[0], lapT[0]);
+    const CoefficientLanes cs[1] = {coefficientSums4(b, in.C, i)};
+    surfaceUpdateLanes<1>(in, i, lapP, lapT, cs, chi, pNew, tNew);
+}
+
+FV_AVX2 void surfacePass2x8Avx2(const ShellBand& b, const SurfaceUpdateInputs& in, const FieldSums* sums,
+                                std::size_t i, const double chi[8], float pNew[8], float tNew[8])
+{
+    __m256d lapP[2], lapT[2];
+    laplacians4(sums, i, lapP[0], lapT[0]);
+    laplacians4(sums, i + 4, lapP[1], lapT[1]);
+    const CoefficientLanes cs[2] = {coefficientSums4(b, in.C, i), coefficientSums4(b, in.C, i + 4)};
+    surfaceUpdateLanes<2>(in, i, lapP, lapT, cs, chi, pNew, tNew);
 }
 
 FV_AVX2 bool surfaceCommitAvx2(const SurfaceCommit& c, std::size_t begin, std::size_t end)
@@ -345,6 +416,20 @@ void surfaceCoefficients4Plain(const ShellBand& b, const float* P, const float* 
     for (std::size_t k = 0; k < 4; ++k) surfaceCoefficients(b, P, T, an, invH, i + k, C, gx, gy, sums, wind);
 }
 
+void surfaceCoefficients8Plain(const ShellBand& b, const float* P, const float* T, const Anisotropy& an, double invH,
+                               std::size_t i, SurfaceCoefficients* C, float* gx, float* gy, FieldSums* sums,
+                               WindSums* wind)
+{
+    for (std::size_t k = 0; k < 8; ++k) surfaceCoefficients(b, P, T, an, invH, i + k, C, gx, gy, sums, wind);
+}
+
+void surfacePass2x8Plain(const ShellBand& b, const SurfaceUpdateInputs& in, const FieldSums* sums, std::size_t i,
+                         const double chi[8], float pNew[8], float tNew[8])
+{
+    surfacePass2Plain(b, in, sums, i, chi, pNew, tNew);
+    surfacePass2Plain(b, in, sums, i + 4, chi + 4, pNew + 4, tNew + 4);
+}
+
 namespace {
 bool vectorsAllowed()
 {
@@ -386,6 +471,23 @@ SurfaceCommitRange fastestSurfaceCommit()
     if (vectorsAllowed()) return &surfaceCommitAvx2;
 #endif
     return &surfaceCommit;
+}
+
+SurfaceCoefficients4 fastestSurfaceCoefficients8(const Anisotropy& an)
+{
+#ifdef FROSTVDB_HAVE_AVX2_TAPS
+    if (vectorsAllowed() && an.integerMode >= 0) return &surfaceCoefficients8Avx2;
+#endif
+    (void)an;
+    return &surfaceCoefficients8Plain;
+}
+
+SurfacePass2 fastestSurfacePass2x8()
+{
+#ifdef FROSTVDB_HAVE_AVX2_TAPS
+    if (vectorsAllowed()) return &surfacePass2x8Avx2;
+#endif
+    return &surfacePass2x8Plain;
 }
 
 TapSums4 fastestTapSums4()

@@ -295,32 +295,38 @@ int benchPasses(const BenchArgs& a)
     kp.anisotropyMode = 6;
     kp.delta = 0.05;
     const Anisotropy an(kp);
-    const auto pass1 = shell::fastestSurfaceCoefficients4(an);
-    const auto pass2 = shell::fastestSurfacePass2();
     const shell::SurfaceUpdateInputs in{P.data(), T.data(), C.data(), gu.data(), gv.data(), nullptr, &kp, 1.0, 1.0};
     const int sweeps = a.quick ? 2 : 20;
-    double seconds1 = 0, seconds2 = 0;
     float sink = 0; // keeps the second pass's results alive
-    for (int r = 0; r < sweeps; ++r) {
-        auto t0 = Clock::now();
-        for (const auto& l : band->leaves())
-            for (size_t i = l.begin; i + 4 <= l.end; i += 4)
-                pass1(*band, P.data(), T.data(), an, 1.0, i, C.data(), gu.data(), gv.data(), sums.data(), nullptr);
-        seconds1 += bench::since(t0);
-        t0 = Clock::now();
-        for (const auto& l : band->leaves())
-            for (size_t i = l.begin; i + 4 <= l.end; i += 4) {
-                const double chi[4] = {0, 0, 0, 0};
-                float pNew[4], tNew[4];
-                pass2(*band, in, sums.data(), i, chi, pNew, tNew);
-                sink += pNew[0];
-            }
-        seconds2 += bench::since(t0);
-    }
-    std::printf("surface passes on the windshield at %g mm: %zu nodes, one thread, %d sweeps: pass 1 %.1f ns a node, "
-                "pass 2 with the update %.1f ns a node (%s; checksum %g)\n",
-                bs.voxelSize * 1e3, n, sweeps, seconds1 / sweeps / double(n) * 1e9, seconds2 / sweeps / double(n) * 1e9,
-                pass1 == &shell::surfaceCoefficients4Plain ? "plain" : "AVX2", double(sink));
+    // ns a node of pass 1 and of pass 2, the nodes taken @a group at a time (4, or 8: two groups
+    // of four side by side, as the step runs them)
+    auto timePasses = [&](size_t group, shell::SurfaceCoefficients4 pass1, shell::SurfacePass2 pass2) {
+        double seconds1 = 0, seconds2 = 0;
+        for (int r = 0; r < sweeps; ++r) {
+            auto t0 = Clock::now();
+            for (const auto& l : band->leaves())
+                for (size_t i = l.begin; i + group <= l.end; i += group)
+                    pass1(*band, P.data(), T.data(), an, 1.0, i, C.data(), gu.data(), gv.data(), sums.data(), nullptr);
+            seconds1 += bench::since(t0);
+            t0 = Clock::now();
+            for (const auto& l : band->leaves())
+                for (size_t i = l.begin; i + group <= l.end; i += group) {
+                    const double chi[8] = {};
+                    float pNew[8], tNew[8];
+                    pass2(*band, in, sums.data(), i, chi, pNew, tNew);
+                    sink += pNew[0];
+                }
+            seconds2 += bench::since(t0);
+        }
+        std::printf("; %zu at a time: pass 1 %.1f ns a node, pass 2 with the update %.1f ns a node", group,
+                    seconds1 / sweeps / double(n) * 1e9, seconds2 / sweeps / double(n) * 1e9);
+    };
+    const auto pass1 = shell::fastestSurfaceCoefficients4(an);
+    std::printf("surface passes on the windshield at %g mm: %zu nodes, one thread, %d sweeps (%s)", bs.voxelSize * 1e3, n,
+                sweeps, pass1 == &shell::surfaceCoefficients4Plain ? "plain" : "AVX2");
+    timePasses(4, pass1, shell::fastestSurfacePass2());
+    timePasses(8, shell::fastestSurfaceCoefficients8(an), shell::fastestSurfacePass2x8());
+    std::printf(" (checksum %g)\n", double(sink));
     return 0;
 }
 

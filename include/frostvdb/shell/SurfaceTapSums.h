@@ -58,6 +58,13 @@ void surfaceCoefficients4Plain(const ShellBand& band, const float* p, const floa
                                FieldSums* sums, WindSums* wind);
 /// The AVX2 version for an integer anisotropy mode (as fastestTapSums4), else the plain one.
 SurfaceCoefficients4 fastestSurfaceCoefficients4(const Anisotropy& an);
+/// Nodes i .. i + 7 (the same type: a SurfaceCoefficients4 over eight nodes), bit for bit
+/// surfaceCoefficients of each. The AVX2 version runs the two groups of four's anisotropy side by
+/// side, so that their dependency chains overlap (about 20 % of pass 1, bench shell passes).
+void surfaceCoefficients8Plain(const ShellBand& band, const float* p, const float* T, const Anisotropy& an,
+                               double invH, std::size_t i, SurfaceCoefficients* c, float* gu, float* gv,
+                               FieldSums* sums, WindSums* wind);
+SurfaceCoefficients4 fastestSurfaceCoefficients8(const Anisotropy& an);
 
 /// Everything the update reads from the taps: pass 1's sums, and pass 2's grad eps^2 = (dau,
 /// dav) and div C = t_i . SU + b_i . SV, where SU = sum du (C_j - C_i), SV = sum dv (C_j - C_i)
@@ -108,6 +115,12 @@ void surfacePass2Plain(const ShellBand& band, const SurfaceUpdateInputs& in, con
                        const double chi[4], float pNew[4], float tNew[4]);
 /// The AVX2 version (as fastestTapSums4), else the plain one.
 SurfacePass2 fastestSurfacePass2();
+/// Pass 2 for nodes i .. i + 7 (the same type over eight nodes: chi, pNew and tNew hold eight),
+/// bit for bit surfacePass2Plain of each four; the AVX2 version runs the two groups' updates side
+/// by side (as fastestSurfaceCoefficients8).
+void surfacePass2x8Plain(const ShellBand& band, const SurfaceUpdateInputs& in, const FieldSums* sums, std::size_t i,
+                         const double chi[8], float pNew[8], float tNew[8]);
+SurfacePass2 fastestSurfacePass2x8();
 
 /// The accumulated growth (positive dp) and the time p first exceeded 1/2, after a step.
 inline void recordGrowth(float& growth, float& freeze, float dp, float p, float time)
