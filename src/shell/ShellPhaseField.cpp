@@ -75,6 +75,18 @@ inline void forEachGroup(size_t begin, size_t end, const F& f)
     if (i < end) f(end - 4, 4);
 }
 
+/// Nodes i .. i + n - 1's new values into pn and tn, a ghost's the background (beyond an open
+/// border: 0 and the far temperature, as outside a plane).
+inline void storeUpdates(const ShellBand& b, size_t i, size_t n, const float* pNew, const float* tNew, float tInf,
+                         float* pn, float* tn)
+{
+    for (size_t m = 0; m < n; ++m) {
+        const bool ghost = b.ghost(i + m);
+        pn[i + m] = ghost ? 0.f : pNew[m];
+        tn[i + m] = ghost ? tInf : tNew[m];
+    }
+}
+
 inline double noiseChi(const KobayashiParams& k, const ShellBand& b, size_t i, uint64_t seed, int64_t stepIndex)
 {
     if (k.noise == 0) return 0.0;
@@ -585,11 +597,7 @@ void ShellPhaseField::stepSurface(double time, int64_t stepIndex, uint64_t seed,
             float pNew[8], tNew[8];
             for (size_t m = 0; m < n; ++m) chi[m] = noiseChi(k, b, i + m, seed, stepIndex);
             (n == 8 ? pass2x8 : pass2)(b, inputs, sums, i, chi, pNew, tNew);
-            for (size_t m = 0; m < n; ++m) {
-                const bool ghost = b.ghost(i + m); // beyond an open border: the background
-                mPn[i + m] = ghost ? 0.f : pNew[m];
-                mTn[i + m] = ghost ? tInf : tNew[m];
-            }
+            storeUpdates(b, i, n, pNew, tNew, tInf, mPn.data(), mTn.data());
         });
     };
     // stage 3: the new values become the fields, growth and freeze time recorded, and per leaf
