@@ -28,6 +28,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <type_traits>
 #include <vector>
 
 namespace frostvdb::shell {
@@ -44,35 +45,44 @@ public:
     int axis() const { return mAxis; }
 
     /// Runs stage1(slot), stage2(slot), stage3(slot) on every leaf slot of the schedule, in the
-    /// order the file comment gives.
-    template <class Stage1, class Stage2, class Stage3>
-    void run(const Stage1& stage1, const Stage2& stage2, const Stage3& stage3) const
+    /// order the file comment gives; ahead(slot) just before stage 1 of the slot before it in its
+    /// slab (its data asked for early: stage 1 is where a leaf's data comes from memory).
+    template <class Stage1, class Stage2, class Stage3, class Ahead = void (*)(uint32_t)>
+    void run(const Stage1& stage1, const Stage2& stage2, const Stage3& stage3,
+             const Ahead& ahead = [](uint32_t) {}) const
     {
         const size_t nr = ranges();
+        // stage 1 of a slab's slots, each after asking for the next one's data
+        auto firstStage = [&](size_t slab) {
+            for (size_t k = mSlabBegin[slab]; k < mSlabBegin[slab + 1]; ++k) {
+                if (k + 1 < mSlabBegin[slab + 1]) ahead(mOrder[k + 1]);
+                stage1(mOrder[k]);
+            }
+        };
         auto onSlab = [&](const auto& stage, size_t slab) {
             for (size_t k = mSlabBegin[slab]; k < mSlabBegin[slab + 1]; ++k) stage(mOrder[k]);
         };
-        auto onEnds = [&](const auto& stage) {
+        auto onEnds = [&](const auto& onEnd) {
             tbb::parallel_for(tbb::blocked_range<size_t>(0, nr, 1), [&](const tbb::blocked_range<size_t>& r) {
                 for (size_t q = r.begin(); q < r.end(); ++q) {
                     const size_t first = mRangeBegin[q], last = mRangeBegin[q + 1] - 1;
-                    onSlab(stage, first);
-                    if (last != first) onSlab(stage, last);
+                    onEnd(first);
+                    if (last != first) onEnd(last);
                 }
             }, tbb::simple_partitioner());
         };
-        onEnds(stage1); // phase A
+        onEnds(firstStage); // phase A
         tbb::parallel_for(tbb::blocked_range<size_t>(0, nr, 1), [&](const tbb::blocked_range<size_t>& r) {
             for (size_t q = r.begin(); q < r.end(); ++q) { // phase B
                 const size_t first = mRangeBegin[q], last = mRangeBegin[q + 1] - 1;
                 for (size_t s = first; s <= last; ++s) {
-                    if (s + 1 < last) onSlab(stage1, s + 1);
+                    if (s + 1 < last) firstStage(s + 1);
                     onSlab(stage2, s);
                     if (s > first + 1) onSlab(stage3, s - 1);
                 }
             }
         }, tbb::simple_partitioner());
-        onEnds(stage3); // phase C
+        onEnds([&](size_t slab) { onSlab(stage3, slab); }); // phase C
     }
 
 private:
