@@ -75,7 +75,7 @@ namespace {
 /// b, and in a row the interval of the third axis c where the squared distance to the line (a
 /// quadratic in c) and the offset along n (linear in c) are within bounds a little wider, so that
 /// rounding drops no voxel the caller keeps. On the pane's frames the slices' boxes of the
-/// line's disc visited 145 M voxels for 46 M values written; the rows' intervals visit far fewer.
+/// line's disc visited 145 M voxels for 46 M values written, and `ice_sdf` took a quarter longer.
 template <class F>
 void forEachNearSegment(const openvdb::CoordBBox& box, const openvdb::Vec3d& x, const openvdb::Vec3d& n, double radius,
                         double s0, double s1, const F& f)

@@ -238,7 +238,8 @@ FV_AVX2 inline void gradient4(const ShellBand& b, const float* P, const float* T
 
 /// eps^2 and C of G groups of four nodes (i, i + 4, ...) from their gradients, each operation
 /// done for every group before the next, so that the groups' dependency chains (the square root,
-/// the division, the power loop: about half of pass 1's time with one group, measured) overlap.
+/// the division, the power loop) overlap: pass 1 in cache (bench shell passes 16) went from
+/// about 25 to 20 ns a node.
 template <int G>
 FV_AVX2 inline void coefficientsOf(const ShellBand& b, const Anisotropy& an, std::size_t i, const __m256d (&gu)[G],
                                    const __m256d (&gv)[G], SurfaceCoefficients* C, float* gx, float* gy)

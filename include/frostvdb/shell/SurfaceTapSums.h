@@ -60,7 +60,7 @@ void surfaceCoefficients4Plain(const ShellBand& band, const float* p, const floa
 SurfaceCoefficients4 fastestSurfaceCoefficients4(const Anisotropy& an);
 /// Nodes i .. i + 7 (the same type: a SurfaceCoefficients4 over eight nodes), bit for bit
 /// surfaceCoefficients of each. The AVX2 version runs the two groups of four's anisotropy side by
-/// side, so that their dependency chains overlap (about 20 % of pass 1, bench shell passes).
+/// side, so that their dependency chains overlap (a fifth of pass 1 in cache, bench shell passes).
 void surfaceCoefficients8Plain(const ShellBand& band, const float* p, const float* T, const Anisotropy& an,
                                double invH, std::size_t i, SurfaceCoefficients* c, float* gu, float* gv,
                                FieldSums* sums, WindSums* wind);
