@@ -6,6 +6,7 @@
 #include <frostvdb/core/FieldWriters.h>
 #include <frostvdb/core/Error.h>
 #include <frostvdb/core/Progress.h>
+#include <frostvdb/core/Stopwatch.h>
 #include <frostvdb/io/AtomicFile.h>
 #include <frostvdb/core/Export.h>
 #include <frostvdb/io/InputFiles.h>
@@ -280,6 +281,7 @@ Simulation::Simulation(Scene scene) : mScene(std::move(scene))
         for (const auto& u : d.declaration.uses)
             if (u.key->role == FieldRole::Field && (u.access & kWrites)) writers.count[u.key->name] += 1;
     mEffectSeconds.assign(mEffects.size(), 0.0);
+    mEffectCpuSeconds.assign(mEffects.size(), 0.0);
     checkMemoryBudget();
     refuseDisplacementTiling(); // after the budget: a domain too large to hold is named as such
 }
@@ -430,8 +432,10 @@ void Simulation::step()
     info.frame = mStep / mWorld.stepsPerFrame + 1;
     for (size_t i : mOrder.step) {
         const auto t0 = Clock::now();
+        const double c0 = processCpuSeconds();
         atEffect(*mEffects[i], "step", [&] { mEffects[i]->step(mWorld, info); });
         mEffectSeconds[i] += seconds(t0, Clock::now());
+        mEffectCpuSeconds[i] += processCpuSeconds() - c0;
         if (mStep < 2 || mStep % 100 == 0) traceMemory("stepped", mEffects[i]->name(), mStep);
     }
     ++mStep;
@@ -916,6 +920,7 @@ void Simulation::simulateFrames(int64_t first, int64_t last, const RunOptions& o
             continue;
         }
         const auto t0 = Clock::now();
+        const double c0 = processCpuSeconds();
         traceMemory("frame", "", mStep);
         returnFreePages(); // the output's copies then start from what the fields hold
         traceMemory("trimmed", "", mStep);
@@ -925,6 +930,7 @@ void Simulation::simulateFrames(int64_t first, int64_t last, const RunOptions& o
         returnFreePages();
         traceMemory("trimmed", "", mStep);
         sum.outputSeconds += seconds(t0, Clock::now());
+        sum.outputCpuSeconds += processCpuSeconds() - c0;
         if (progress.json()) {
             std::string files;
             for (size_t i = before; i < sum.files.size(); ++i) files += (files.empty() ? "" : ",") + jsonQuote(sum.files[i]);
@@ -1035,10 +1041,12 @@ void Simulation::finishSummary(RunSummary& sum) const
 {
     sum.steps = mStep;
     sum.effectSeconds.clear();
+    sum.effectCpuSeconds.clear();
     sum.detailSeconds.clear();
     sum.detailCounts.clear();
     for (size_t i = 0; i < mEffects.size(); ++i) {
         sum.effectSeconds.emplace_back(mEffects[i]->name(), mEffectSeconds[i]);
+        sum.effectCpuSeconds.emplace_back(mEffects[i]->name(), mEffectCpuSeconds[i]);
         for (auto& [k, v] : mEffects[i]->timings()) sum.detailSeconds.emplace_back(mEffects[i]->name() + "." + k, v);
         for (auto& [k, v] : mEffects[i]->counters()) sum.detailCounts.emplace_back(mEffects[i]->name() + "." + k, v);
     }

@@ -7,6 +7,7 @@
 #include <frostvdb/core/Progress.h>
 #include <frostvdb/core/Error.h>
 #include <frostvdb/core/Random.h>
+#include <frostvdb/core/Stopwatch.h>
 #include <frostvdb/icephysics/IceState.h>
 #include <frostvdb/ice/DlaBackend.h>
 
@@ -494,8 +495,10 @@ void DlaEffect::step(World& world, const StepInfo& info)
     for (uint64_t first = 0; first < total; first += uint64_t(mParams.batch)) {
         const uint64_t count = std::min<uint64_t>(uint64_t(mParams.batch), total - first);
         t0 = Clock::now();
+        const double c0 = processCpuSeconds();
         mEngine->walkBatch(info.step, first, count, in, ends);
         mStats.walkSeconds += since(t0);
+        mStats.walkCpuSeconds += processCpuSeconds() - c0;
         t0 = Clock::now();
         frozenInBatch.clear();
         // The walks stuck next to the ice of the batch's start, never on it, so a stick cell is
@@ -613,6 +616,7 @@ void DlaEffect::loadState(World& world, const StateReader& in)
 std::vector<std::pair<std::string, double>> DlaEffect::timings() const
 {
     return {{"walkers", mStats.walkSeconds},
+            {"walkers_cpu", mStats.walkCpuSeconds},
             {"apply", mStats.applySeconds},
             {"distance", mStats.syncSeconds},
             {"steam", mStats.steamSeconds},

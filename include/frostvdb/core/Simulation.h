@@ -93,6 +93,10 @@ struct RunSummary {
     int64_t framesWritten = 0;
     double totalSeconds = 0, outputSeconds = 0;
     std::vector<std::pair<std::string, double>> effectSeconds;          ///< per effect step()
+    /// The process's CPU seconds (all threads) in each effect's step() and in the output, for
+    /// benchmarks: CPU / wall is how parallel a phase ran. Not in run.json.
+    std::vector<std::pair<std::string, double>> effectCpuSeconds;
+    double outputCpuSeconds = 0;
     std::vector<std::pair<std::string, double>> detailSeconds;          ///< effect sub-timings
     std::vector<std::pair<std::string, double>> detailCounts;           ///< effect counters (no unit)
     std::vector<std::pair<int64_t, uint64_t>> activeVoxels;             ///< (step, voxels) per frame
@@ -222,6 +226,7 @@ private:
     std::vector<std::unique_ptr<Effect>> mEffects;
     EffectOrder mOrder;                    ///< derived from the effects' declarations
     std::vector<double> mEffectSeconds;
+    std::vector<double> mEffectCpuSeconds; ///< the process's CPU in each effect's step()
     int64_t mStep = 0;
     bool mInitialized = false;
 };

@@ -134,6 +134,7 @@ struct DlaStats {
     double latticeSteps = 0; ///< equivalent lattice steps (a jump counts its mean exit time)
     double dpDla = 0;        ///< sum of (1 - p_before) over DLA freezes
     double walkSeconds = 0, applySeconds = 0, syncSeconds = 0, steamSeconds = 0, tableSeconds = 0;
+    double walkCpuSeconds = 0; ///< the process's CPU (all threads) in the walks: / walkSeconds, their parallelism
     double clearanceSeconds = 0; ///< shells: the ice's distance bounds brought up to date before a batch
 };
 
