@@ -1329,6 +1329,8 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
         mEditsT->clear();
     }
     if (rebuild) rebuildRegionOf(*p, *T, ours, inputGeneration, stats);
+    if (stats) stats->regionBuildSeconds += since(t0);
+    auto tPart = Clock::now();
     // Forward Euler updates p and T in place (its new values staged until the kernel is done),
     // so the fields exist once; the second-order scheme writes new grids (it keeps the start
     // values as history anyway).
@@ -1344,6 +1346,8 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
         pNew = outputGrid(mSpareP, mSpareGeneration, *p);
         tNew = outputGrid(mSpareT, mSpareGeneration, *T);
     }
+    if (stats) stats->regionMatchSeconds += since(tPart);
+    tPart = Clock::now();
 
     openvdb::tree::LeafManager<openvdb::FloatTree> pLeaves(pNew->tree());
     openvdb::tree::LeafManager<openvdb::FloatTree> tLeaves(tNew->tree());
@@ -1359,6 +1363,7 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
         stats->regionVoxels = mRegionVoxels;
         stats->voxelUpdates += mRegionVoxels;
         stats->regionSeconds += since(t0);
+        stats->regionLayoutSeconds += since(tPart);
     }
 
     t0 = Clock::now();
