@@ -845,6 +845,14 @@ struct LeafKernel {
                 for (int y = 0; y < kDim; ++y)
                     if ((crossed >> (8 * y + x)) & 1) cross->push_back(openvdb::Coord(lo.x() + x, lo.y() + y, lo.z()));
     }
+    /// Asks for the 8 rows of the plane leaf at @a lo in the folded accumulator leaf @a leaf
+    /// while the group's rows are computed: the growth update's loads missed the cache and were
+    /// a sixth of the writer's samples (perf annotate).
+    static void prefetchChunk(const FloatLeaf& leaf, const openvdb::Coord& lo)
+    {
+        const float* v = leaf.buffer().data() + (lo.x() & 63);
+        for (int y = 0; y < kDim; ++y) __builtin_prefetch(v + (y << 6), 1);
+    }
     /// Sets @a bits in mask word @a y of a folded leaf atomically (plane::setOnAtomic, a row at
     /// once). The locked OR only when a bit is still off: a growing region's accumulator cells are
     /// on after their first step, and the lock cost a third of the writer (perf).
@@ -999,6 +1007,14 @@ struct LeafKernel {
                 }
                 markNeeded(b, go, full, nFull);
                 if (byRows) { // folded fields: rows in, rows out
+                    FloatLeaf* gl[kPlaneGroup * kPlaneGroup];
+                    FloatLeaf* fl[kPlaneGroup * kPlaneGroup];
+                    for (size_t q = 0; q < count; ++q) {
+                        const openvdb::Coord fo = plane::foldedLeafOrigin(present[q]->origin());
+                        gl[q] = gAcc ? gAcc->probeLeaf(fo) : nullptr;
+                        fl[q] = fAcc ? fAcc->probeLeaf(fo) : nullptr;
+                        if (gl[q] && !heatOnly[q]) prefetchChunk(*gl[q], present[q]->origin());
+                    }
                     if (nFull) {
                         auxRuns(b, st, an, rows);
                         planeRows(b, go, z0, st, rows, full, nFull);
@@ -1007,11 +1023,8 @@ struct LeafKernel {
                     for (size_t q = 0; q < count; ++q) {
                         const size_t li = groups.leaves[first + q];
                         const LeafT& pl = *present[q];
-                        const openvdb::Coord fo = plane::foldedLeafOrigin(pl.origin());
-                        FloatLeaf* gl = gAcc ? gAcc->probeLeaf(fo) : nullptr;
-                        FloatLeaf* fl = fAcc ? fAcc->probeLeaf(fo) : nullptr;
-                        foldedLeafRows(b, go, pl, heatOnly[q], out(li, pl.origin(), pLeaves, tLeaves), gl, fl, tn1,
-                                       pending, cross);
+                        foldedLeafRows(b, go, pl, heatOnly[q], out(li, pl.origin(), pLeaves, tLeaves), gl[q], fl[q],
+                                       tn1, pending, cross);
                     }
                     continue;
                 }
