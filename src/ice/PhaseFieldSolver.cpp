@@ -1159,6 +1159,7 @@ void PhaseFieldSolver::layRegionOut(bool folded)
 void PhaseFieldSolver::rebuildRegionOf(openvdb::FloatGrid& p, openvdb::FloatGrid& T, bool ours,
                                        uint64_t& inputGeneration, PhaseFieldStepStats* stats)
 {
+    const auto t0 = Clock::now();
     if (!mRegion.dense && !mInputsTruncated) {
         // Values within the tolerance since the last truncation (an out-of-turn rebuild).
         truncateToTolerance(p, mRegion.tolerance);
@@ -1183,7 +1184,10 @@ void PhaseFieldSolver::rebuildRegionOf(openvdb::FloatGrid& p, openvdb::FloatGrid
         mRegionMask = region;
         mRegionVoxels = voxels;
     }
-    if (stats) stats->rebuilds += 1;
+    if (stats) {
+        stats->rebuilds += 1;
+        stats->regionBuildSeconds += since(t0);
+    }
 }
 
 openvdb::MaskGrid::Ptr PhaseFieldSolver::rebuildRegion(const openvdb::FloatGrid& p, const openvdb::FloatGrid& T, int steps,
@@ -1307,14 +1311,17 @@ namespace {
 
 /// Forward Euler writes p and T in place: the trees are made this solver's own (a frame may
 /// share them) and given the region's topology when they do not have it yet.
-void prepareInPlace(openvdb::FloatGrid& p, openvdb::FloatGrid& T, const openvdb::MaskGrid& region, bool match, bool ours)
+void prepareInPlace(openvdb::FloatGrid& p, openvdb::FloatGrid& T, const openvdb::MaskGrid& region, bool match, bool ours,
+                    PhaseFieldStepStats* stats)
 {
+    const auto t0 = Clock::now();
     ownTree(p);
     ownTree(T);
     if (match) {
         matchTopology(p, region, ours);
         matchTopology(T, region, ours);
     }
+    if (stats) stats->regionMatchSeconds += since(t0);
 }
 
 /// The accumulators written in place by the step (a frame may share their trees).
@@ -1392,15 +1399,13 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
         mEditsT->clear();
     }
     if (rebuild) rebuildRegionOf(*p, *T, ours, inputGeneration, stats);
-    if (stats) stats->regionBuildSeconds += since(t0);
-    auto tPart = Clock::now();
     // Forward Euler updates p and T in place (its new values staged until the kernel is done),
     // so the fields exist once; the second-order scheme writes new grids (it keeps the start
     // values as history anyway).
     const bool inPlace = mParams.scheme == PhaseFieldScheme::Euler;
     openvdb::FloatGrid::Ptr pNew, tNew;
     if (inPlace) {
-        prepareInPlace(*p, *T, *mRegionMask, inputGeneration != mGeneration, ours);
+        prepareInPlace(*p, *T, *mRegionMask, inputGeneration != mGeneration, ours, stats);
         pNew = p;
         tNew = T;
         mSpareP.reset();
@@ -1409,8 +1414,7 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
         pNew = outputGrid(mSpareP, mSpareGeneration, *p);
         tNew = outputGrid(mSpareT, mSpareGeneration, *T);
     }
-    if (stats) stats->regionMatchSeconds += since(tPart);
-    tPart = Clock::now();
+    const auto tLayout = Clock::now();
 
     openvdb::tree::LeafManager<openvdb::FloatTree> pLeaves(pNew->tree());
     openvdb::tree::LeafManager<openvdb::FloatTree> tLeaves(tNew->tree());
@@ -1426,7 +1430,7 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
         stats->regionVoxels = mRegionVoxels;
         stats->voxelUpdates += mRegionVoxels;
         stats->regionSeconds += since(t0);
-        stats->regionLayoutSeconds += since(tPart);
+        stats->regionLayoutSeconds += since(tLayout);
     }
 
     t0 = Clock::now();
