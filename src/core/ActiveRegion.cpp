@@ -155,6 +155,7 @@ bool anyActiveTile(const std::vector<const GridT*>& fields)
 struct LeafTable {
     std::vector<uint8_t> marks;
     int lx0, ly0, nx, ny, zLeaf;
+    size_t marked = 0; ///< leaves marked (counted as the marks are set)
     uint8_t* at(const openvdb::Coord& origin)
     {
         auto floorDiv = [](int v) { return v >= 0 ? v / kLeafDim : -((-v + kLeafDim - 1) / kLeafDim); };
@@ -164,32 +165,86 @@ struct LeafTable {
     }
 };
 
-/// Folds into @a folded the table's leaves whose mark @a keep accepts, each a whole plane leaf
-/// clipped to the support as a fresh plane build makes it (fillLeaves, clipToSupport), through
-/// a transient plane-layout tree of 16 leaf rows at a time (a plane-layout tree's internal nodes
-/// cost about 2 bytes a plane cell: a whole region's were 15x the folded mask); lists them in
-/// @a added.
-template <typename Keep>
-void foldMarkedLeaves(const LeafTable& t, const Keep& keep, const Domain& domain, openvdb::MaskTree& folded,
+/// Calls f(x) for each of the @a n marks of @a row that has a bit of @a keepBits, eight marks at
+/// a time: most of a table is 0 (or, when a region is edited, held), and a byte loop over the
+/// whole table was most of an edit's time.
+template <typename F>
+void forKeptMarks(const uint8_t* row, int n, uint8_t keepBits, F&& f)
+{
+    const uint64_t wordBits = 0x0101010101010101ull * keepBits;
+    int x = 0;
+    for (; x + 8 <= n; x += 8) {
+        uint64_t w;
+        std::memcpy(&w, row + x, 8);
+        if (!(w & wordBits)) continue;
+        for (int k = 0; k < 8; ++k)
+            if (row[x + k] & keepBits) f(x + k);
+    }
+    for (; x < n; ++x)
+        if (row[x] & keepBits) f(x);
+}
+
+/// The cells of the plane leaf at @a lo as a region build makes it: a whole leaf (fillLeaves)
+/// clipped to the domain's box (clipToSupport; a lattice plane's support is its box, and only
+/// lattice planes have folded fields, plane::foldsPlaneFields). Byte dy, bit dx.
+uint64_t clippedLeafRows(const openvdb::Coord& lo, const openvdb::CoordBBox& box)
+{
+    const int x0 = std::max(0, box.min().x() - lo.x()), x1 = std::min(kLeafDim - 1, box.max().x() - lo.x());
+    const int y0 = std::max(0, box.min().y() - lo.y()), y1 = std::min(kLeafDim - 1, box.max().y() - lo.y());
+    if (x0 > x1 || y0 > y1) return 0;
+    const uint64_t row = ((uint64_t(2) << x1) - 1) & ~((uint64_t(1) << x0) - 1);
+    uint64_t rows = 0;
+    for (int dy = y0; dy <= y1; ++dy) rows |= row << (8 * dy);
+    return rows;
+}
+
+/// Folds into @a folded the table's leaves whose mark has a bit of @a keepBits, each as
+/// clippedLeafRows makes it, and lists them in @a added. Written straight into their folded
+/// leaves: transient plane-layout trees, 16 leaf rows at a time, allocated and cleared about
+/// 1 MB of internal nodes a band, which was most of an edit's time.
+void foldMarkedLeaves(const LeafTable& t, uint8_t keepBits, const openvdb::CoordBBox& box, openvdb::MaskTree& folded,
                       std::vector<openvdb::Coord>* added)
 {
-    constexpr int kBand = 16;
-    for (int y0 = 0; y0 < t.ny; y0 += kBand) {
-        openvdb::MaskTree band(false);
-        {
-            openvdb::tree::ValueAccessor<openvdb::MaskTree> acc(band);
-            for (int y = y0; y < std::min(y0 + kBand, t.ny); ++y)
-                for (int x = 0; x < t.nx; ++x)
-                    if (keep(t.marks[size_t(y) * size_t(t.nx) + size_t(x)]))
-                        acc.touchLeaf(openvdb::Coord((t.lx0 + x) * kLeafDim, (t.ly0 + y) * kLeafDim, t.zLeaf));
+    openvdb::tree::ValueAccessor<openvdb::MaskTree> acc(folded);
+    for (int y = 0; y < t.ny; ++y)
+        forKeptMarks(&t.marks[size_t(y) * size_t(t.nx)], t.nx, keepBits, [&](int x) {
+            const openvdb::Coord lo((t.lx0 + x) * kLeafDim, (t.ly0 + y) * kLeafDim, t.zLeaf);
+            const uint64_t rows = clippedLeafRows(lo, box);
+            if (!rows) return; // no cell in the domain: the clip drops the leaf
+            auto& mask = acc.touchLeaf(plane::foldedLeafOrigin(lo))->getValueMask();
+            for (int dy = 0; dy < kLeafDim; ++dy)
+                mask.template getWord<uint64_t>(openvdb::Index(dy)) |= ((rows >> (8 * dy)) & 0xffu) << (lo.x() & 63);
+            if (added) added->push_back(lo);
+        });
+}
+
+constexpr uint8_t kMarked = 1, kHeld = 2; // a table's marks: marked; marked and already in the region
+
+/// Marks kHeld the table's leaves that the folded region @a previous holds, in parallel (each of
+/// its chunks is a distinct plane leaf, so a distinct mark); returns how many, and lists in
+/// @a gone, in @a previous's leaf order, the plane leaves it holds that are not marked.
+size_t markHeld(LeafTable& t, const openvdb::MaskTree& previous, std::vector<openvdb::Coord>& gone)
+{
+    openvdb::tree::LeafManager<const openvdb::MaskTree> leaves(previous);
+    std::vector<uint8_t> lost(leaves.leafCount(), 0); // per folded leaf: bit g, its chunk g is gone
+    std::atomic<size_t> held{0};
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, leaves.leafCount(), 256), [&](const tbb::blocked_range<size_t>& r) {
+        size_t n = 0;
+        for (size_t i = r.begin(); i != r.end(); ++i) {
+            const MaskLeaf& leaf = leaves.leaf(i);
+            for (int g = 0; g < 8; ++g) {
+                if (!plane::chunkRows(leaf.getValueMask(), g)) continue;
+                uint8_t* m = t.at(plane::planeLeafOfChunk(leaf.origin(), g));
+                if (m && *m) { *m = kHeld; ++n; }
+                else lost[i] |= uint8_t(1u << g);
+            }
         }
-        if (band.leafCount() == 0) continue;
-        fillLeaves(band, domain);
-        domain.clipToSupport(band);
-        if (added)
-            for (auto it = band.cbeginLeaf(); it; ++it) added->push_back(it->origin());
-        plane::foldLeavesInto(folded, band);
-    }
+        held += n;
+    });
+    for (size_t i = 0; i < lost.size(); ++i)
+        for (unsigned b = lost[i]; b; b &= b - 1)
+            gone.push_back(plane::planeLeafOfChunk(leaves.leaf(i).origin(), __builtin_ctz(b)));
+    return held;
 }
 
 /// The leaf table's region as a folded mask (plane::foldTopology of the plane region): @a previous
@@ -198,32 +253,19 @@ void foldMarkedLeaves(const LeafTable& t, const Keep& keep, const Domain& domain
 openvdb::MaskGrid::Ptr foldedRegionOf(LeafTable& t, const Domain& domain, const openvdb::MaskGrid::Ptr& previous,
                                       RegionEdit* edit)
 {
-    constexpr uint8_t kHeld = 2; // marked and already in the region
     std::vector<openvdb::Coord> gone;
-    size_t held = 0;
-    if (previous) {
-        for (auto it = previous->tree().cbeginLeaf(); it; ++it)
-            for (int g = 0; g < 8; ++g) {
-                if (!plane::chunkRows(it->getValueMask(), g)) continue;
-                const openvdb::Coord lo = plane::planeLeafOfChunk(it->origin(), g);
-                uint8_t* m = t.at(lo);
-                if (m && *m) { *m = kHeld; ++held; }
-                else gone.push_back(lo);
-            }
-    }
-    size_t marked = 0;
-    for (uint8_t m : t.marks) marked += m != 0;
-    if (previous && gone.empty() && held == marked) return previous; // the same plane leaves
+    const size_t held = previous ? markHeld(t, previous->tree(), gone) : 0;
+    if (previous && gone.empty() && held == t.marked) return previous; // the same plane leaves
     if (edit && previous) {
         plane::clearFoldedChunks(previous->tree(), gone);
-        foldMarkedLeaves(t, [](uint8_t m) { return m == 1; }, domain, previous->tree(), &edit->added);
+        foldMarkedLeaves(t, kMarked, domain.bbox(), previous->tree(), &edit->added);
         edit->removed = std::move(gone);
         return previous;
     }
     auto region = openvdb::MaskGrid::create(false);
     region->setTransform(domain.transform()->copy());
     plane::markFolded(*region);
-    foldMarkedLeaves(t, [](uint8_t m) { return m != 0; }, domain, region->tree(), nullptr);
+    foldMarkedLeaves(t, kMarked | kHeld, domain.bbox(), region->tree(), nullptr);
     return region;
 }
 
@@ -302,6 +344,7 @@ openvdb::MaskGrid::Ptr planeRegionByLeaves(const std::vector<const GridT*>& fiel
     // gap from local coordinate v (0..7) to the cells of the leaf d leaves away along that axis
     auto gap = [](int v, int d) { return d == 0 ? 0 : d > 0 ? d * kLeafDim - v : v + 1 + (-d - 1) * kLeafDim; };
     std::vector<uint8_t> table(size_t(nx) * size_t(ny), 0);
+    size_t marked = 0;
     for (const auto* f : fields) {
         using TreeT = typename GridT::TreeType;
         openvdb::tree::LeafManager<const TreeT> leaves(f->tree());
@@ -350,16 +393,17 @@ openvdb::MaskGrid::Ptr planeRegionByLeaves(const std::vector<const GridT*>& fiel
             for (uint64_t b = reached[i]; b; b &= b - 1) {
                 const int k = __builtin_ctzll(b);
                 const int x = lx + k % kSide - kMaxLeaves - lx0, y = ly + k / kSide - kMaxLeaves - ly0;
-                if (x >= 0 && y >= 0 && x < nx && y < ny) table[size_t(y) * size_t(nx) + size_t(x)] = 1;
+                if (x < 0 || y < 0 || x >= nx || y >= ny) continue;
+                uint8_t& m = table[size_t(y) * size_t(nx) + size_t(x)];
+                marked += m == 0;
+                m = kMarked;
             }
         }
     }
     if (folded) {
-        LeafTable t{std::move(table), lx0, ly0, nx, ny, zLeaf};
+        LeafTable t{std::move(table), lx0, ly0, nx, ny, zLeaf, marked};
         return foldedRegionOf(t, domain, previous, edit);
     }
-    size_t marked = 0;
-    for (uint8_t t : table) marked += t;
     if (previous && previous->tree().leafCount() == marked) { // unchanged? (whole leaves: same set, same mask)
         bool same = true;
         for (auto it = previous->tree().cbeginLeaf(); it && same; ++it) {
@@ -509,27 +553,41 @@ bool regionFillsDomain(const openvdb::MaskGrid& region, const Domain& domain)
     return region.tree().activeVoxelCount() == domain.voxelCount();
 }
 
+namespace {
+
+/// The origins of the leaves of @a tree that @a other does not have, in @a tree's leaf order,
+/// looked up in parallel (a serial walk over both trees was most of matchTopology).
+template <typename TreeT, typename OtherT>
+std::vector<openvdb::Coord> leavesMissingFrom(const TreeT& tree, const OtherT& other)
+{
+    openvdb::tree::LeafManager<const TreeT> leaves(tree);
+    std::vector<uint8_t> missing(leaves.leafCount(), 0);
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, leaves.leafCount(), 512), [&](const tbb::blocked_range<size_t>& r) {
+        const openvdb::tree::ValueAccessor<const OtherT, /*IsSafe=*/false> acc(other); // neither tree changes here
+        for (size_t i = r.begin(); i != r.end(); ++i) missing[i] = acc.probeConstLeaf(leaves.leaf(i).origin()) == nullptr;
+    });
+    std::vector<openvdb::Coord> out;
+    for (size_t i = 0; i < missing.size(); ++i)
+        if (missing[i]) out.push_back(leaves.leaf(i).origin());
+    return out;
+}
+
+} // namespace
+
 void matchTopology(openvdb::FloatGrid& grid, const openvdb::MaskGrid& region, bool offHoldsBackground)
 {
     using FloatLeaf = openvdb::FloatTree::LeafNodeType;
     auto& tree = grid.tree();
     const float bg = grid.background();
-    // Leaves the region no longer has.
-    {
-        openvdb::tree::ValueAccessor<const openvdb::MaskTree> racc(region.tree());
-        std::vector<openvdb::Coord> gone;
-        for (auto it = tree.cbeginLeaf(); it; ++it)
-            if (!racc.probeConstLeaf(it->origin())) gone.push_back(it->origin());
-        for (const auto& o : gone) delete tree.stealNode<FloatLeaf>(o, bg, false);
-    }
+    // Leaves the region no longer has (found in parallel; only the changes are serial).
+    for (const auto& o : leavesMissingFrom(tree, region.tree())) delete tree.stealNode<FloatLeaf>(o, bg, false);
     // Tiles are not expected (kernels write leaves); a tile would hide voxels, so voxelize
     // (looking first: the voxelize pass visits every internal node).
     if (anyActiveTile(std::vector<const openvdb::FloatGrid*>{&grid})) tree.voxelizeActiveTiles();
-    // Leaves it gains (serial: topology changes), then masks and background values in parallel.
+    // Leaves it gains (added serially: topology changes), then masks and background values in parallel.
     {
         openvdb::tree::ValueAccessor<openvdb::FloatTree> acc(tree);
-        for (auto it = region.tree().cbeginLeaf(); it; ++it)
-            if (!acc.probeLeaf(it->origin())) acc.touchLeaf(it->origin());
+        for (const auto& o : leavesMissingFrom(region.tree(), tree)) acc.touchLeaf(o);
     }
     openvdb::tree::LeafManager<openvdb::FloatTree> leaves(tree);
     leaves.foreach([&](FloatLeaf& leaf, size_t) {

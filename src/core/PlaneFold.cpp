@@ -5,6 +5,11 @@
 
 #include <frostvdb/core/RemoveLeaves.h>
 
+#include <openvdb/tree/LeafManager.h>
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
 #include <algorithm>
 #include <stdexcept>
 #include <string>
@@ -185,15 +190,24 @@ PlaneLeaves::PlaneLeaves(const openvdb::MaskGrid& foldedRegion, Order order)
         }
         return;
     }
-    size_t chunks = 0;
-    for (auto it = foldedRegion.tree().cbeginLeaf(); it; ++it)
-        for (int g = 0; g < 8; ++g) chunks += chunkRows(it->getValueMask(), g) != 0;
-    mLeaves.reserve(chunks);
-    for (auto it = foldedRegion.tree().cbeginLeaf(); it; ++it) {
-        if (!isFoldedLeafOrigin(it->origin())) throw std::logic_error("PlaneLeaves: a folded region has a leaf off its layers");
-        for (int g = 0; g < 8; ++g)
-            if (const uint64_t rows = chunkRows(it->getValueMask(), g)) mLeaves.push_back({planeLeafOfChunk(it->origin(), g), rows});
+    // folded leaf by folded leaf, chunk by chunk: counted, placed, then filled in parallel
+    openvdb::tree::LeafManager<const openvdb::MaskTree> folded(foldedRegion.tree());
+    std::vector<size_t> first(folded.leafCount() + 1, 0);
+    for (size_t i = 0; i < folded.leafCount(); ++i) {
+        if (!isFoldedLeafOrigin(folded.leaf(i).origin())) throw std::logic_error("PlaneLeaves: a folded region has a leaf off its layers");
+        size_t chunks = 0;
+        for (int g = 0; g < 8; ++g) chunks += chunkRows(folded.leaf(i).getValueMask(), g) != 0;
+        first[i + 1] = first[i] + chunks;
     }
+    mLeaves.resize(first.back());
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, folded.leafCount(), 256), [&](const tbb::blocked_range<size_t>& r) {
+        for (size_t i = r.begin(); i != r.end(); ++i) {
+            PlaneLeafView* out = &mLeaves[first[i]];
+            for (int g = 0; g < 8; ++g)
+                if (const uint64_t rows = chunkRows(folded.leaf(i).getValueMask(), g))
+                    *out++ = {planeLeafOfChunk(folded.leaf(i).origin(), g), rows};
+        }
+    });
 }
 
 template <typename GridT>

@@ -127,7 +127,9 @@ public:
     std::vector<std::pair<std::string, double>> timings() const override
     {
         std::vector<std::pair<std::string, double>> t{
-            {"region", mStats.regionSeconds}, {"kernel", mStats.kernelSeconds}, {"truncate", mStats.truncateSeconds}};
+            {"region", mStats.regionSeconds}, {"kernel", mStats.kernelSeconds}, {"truncate", mStats.truncateSeconds},
+            {"region_build", mStats.regionBuildSeconds}, {"region_match", mStats.regionMatchSeconds},
+            {"region_layout", mStats.regionLayoutSeconds}};
         if (secondOrder()) {
             t.push_back({"solve", mStats.solveSeconds});
             t.push_back({"heat", mStats.heatSeconds});

@@ -85,6 +85,7 @@ struct LeafGroups {
     template <typename LeafManagerT>
     LeafGroups(const LeafManagerT& lm, bool plane)
     {
+        if (plane && countedInto(lm)) return;
         const int span = (plane ? kPlaneGroup : 1) * kDim;
         auto groupOf = [span, plane](const openvdb::Coord& o) {
             auto fl = [span](int v) { return (v >= 0 ? v / span : -((-v + span - 1) / span)) * span; };
@@ -105,6 +106,45 @@ struct LeafGroups {
         start.push_back(keyed.size());
     }
     size_t count() const { return origin.size(); }
+
+private:
+    /// Plane groups by a counting sort over the dense box of group keys: the order the sort above
+    /// gives (groups by origin, x first; leaves by index), in time linear in the leaves (the sort
+    /// was serial, 10 % of a region rebuild at 8192^2). False, with nothing done, when the box is
+    /// much larger than the leaves (a few scattered seeds) or the leaves are not on one layer.
+    template <typename LeafManagerT>
+    bool countedInto(const LeafManagerT& lm)
+    {
+        constexpr int kSpan = kPlaneGroup * kDim;
+        const size_t n = lm.leafCount();
+        if (n == 0) return false;
+        auto key = [](int v) { return v >= 0 ? v / kSpan : -((-v + kSpan - 1) / kSpan); };
+        const int z = lm.leaf(0).origin().z();
+        openvdb::CoordBBox box; // group keys
+        for (size_t i = 0; i < n; ++i) {
+            const openvdb::Coord& o = lm.leaf(i).origin();
+            if (o.z() != z) return false;
+            box.expand(openvdb::Coord(key(o.x()), key(o.y()), 0));
+        }
+        const size_t w = size_t(box.dim().x()), h = size_t(box.dim().y());
+        if (w * h > 4 * n + 4096) return false;
+        auto slotOf = [&](const openvdb::Coord& o) {
+            return size_t(key(o.x()) - box.min().x()) * h + size_t(key(o.y()) - box.min().y());
+        };
+        std::vector<uint32_t> next(w * h + 1, 0); // per slot: its count, then its next position
+        for (size_t i = 0; i < n; ++i) ++next[slotOf(lm.leaf(i).origin()) + 1];
+        for (size_t k = 0; k < w * h; ++k) {
+            if (next[k + 1]) {
+                start.push_back(next[k]);
+                origin.emplace_back((box.min().x() + int(k / h)) * kSpan, (box.min().y() + int(k % h)) * kSpan, z);
+            }
+            next[k + 1] += next[k];
+        }
+        start.push_back(n);
+        leaves.resize(n);
+        for (size_t i = 0; i < n; ++i) leaves[next[slotOf(lm.leaf(i).origin())]++] = i;
+        return true;
+    }
 };
 
 namespace {
@@ -149,6 +189,16 @@ void gather(const ConstAcc& acc, const Block& b, const openvdb::Coord& groupOrig
             }
 }
 
+/// Copies @a n floats (a row run of a folded leaf) in constant-size pieces that compile to
+/// vector moves: a variable-length std::copy_n was a call to memmove per run, 7 % of the samples
+/// of `bench scale` (perf --call-graph dwarf).
+inline void copyRun(const float* src, float* dst, int n)
+{
+    for (; n >= 8; n -= 8, src += 8, dst += 8) std::memcpy(dst, src, 8 * sizeof(float));
+    if (n >= 4) { std::memcpy(dst, src, 4 * sizeof(float)); n -= 4; src += 4; dst += 4; }
+    for (; n > 0; --n) *dst++ = *src++;
+}
+
 /// gather() from a folded plane field (core/PlaneFold.h) over block cells [bx0, bx1) x [by0, by1)
 /// (the whole block by default), folded leaf by folded leaf (a 64 x 8 tile: one probe, then up to
 /// 8 runs of contiguous x).
@@ -167,7 +217,7 @@ void gatherFolded(const ConstAcc& acc, const Block& b, const openvdb::Coord& gro
             float* dst = &out[b.index(x0 - bo.x(), y0 - bo.y(), 0)];
             if (const FloatLeaf* leaf = acc.probeConstLeaf(f)) {
                 const float* src = leaf->buffer().data() + (((y0 & 7) << 6) | (x0 & 63));
-                for (int y = y0; y < y1; ++y, src += 64, dst += b.bx) std::copy_n(src, x1 - x0, dst);
+                for (int y = y0; y < y1; ++y, src += 64, dst += b.bx) copyRun(src, dst, x1 - x0);
             } else {
                 const float v = acc.getValue(f);
                 for (int y = y0; y < y1; ++y, dst += b.bx) std::fill_n(dst, x1 - x0, v);
@@ -795,6 +845,14 @@ struct LeafKernel {
                 for (int y = 0; y < kDim; ++y)
                     if ((crossed >> (8 * y + x)) & 1) cross->push_back(openvdb::Coord(lo.x() + x, lo.y() + y, lo.z()));
     }
+    /// Asks for the 8 rows of the plane leaf at @a lo in the folded accumulator leaf @a leaf
+    /// while the group's rows are computed: the growth update's loads missed the cache and were
+    /// a sixth of the writer's samples (perf annotate).
+    static void prefetchChunk(const FloatLeaf& leaf, const openvdb::Coord& lo)
+    {
+        const float* v = leaf.buffer().data() + (lo.x() & 63);
+        for (int y = 0; y < kDim; ++y) __builtin_prefetch(v + (y << 6), 1);
+    }
     /// Sets @a bits in mask word @a y of a folded leaf atomically (plane::setOnAtomic, a row at
     /// once). The locked OR only when a bit is still off: a growing region's accumulator cells are
     /// on after their first step, and the lock cost a third of the writer (perf).
@@ -949,6 +1007,14 @@ struct LeafKernel {
                 }
                 markNeeded(b, go, full, nFull);
                 if (byRows) { // folded fields: rows in, rows out
+                    FloatLeaf* gl[kPlaneGroup * kPlaneGroup];
+                    FloatLeaf* fl[kPlaneGroup * kPlaneGroup];
+                    for (size_t q = 0; q < count; ++q) {
+                        const openvdb::Coord fo = plane::foldedLeafOrigin(present[q]->origin());
+                        gl[q] = gAcc ? gAcc->probeLeaf(fo) : nullptr;
+                        fl[q] = fAcc ? fAcc->probeLeaf(fo) : nullptr;
+                        if (gl[q] && !heatOnly[q]) prefetchChunk(*gl[q], present[q]->origin());
+                    }
                     if (nFull) {
                         auxRuns(b, st, an, rows);
                         planeRows(b, go, z0, st, rows, full, nFull);
@@ -957,11 +1023,8 @@ struct LeafKernel {
                     for (size_t q = 0; q < count; ++q) {
                         const size_t li = groups.leaves[first + q];
                         const LeafT& pl = *present[q];
-                        const openvdb::Coord fo = plane::foldedLeafOrigin(pl.origin());
-                        FloatLeaf* gl = gAcc ? gAcc->probeLeaf(fo) : nullptr;
-                        FloatLeaf* fl = fAcc ? fAcc->probeLeaf(fo) : nullptr;
-                        foldedLeafRows(b, go, pl, heatOnly[q], out(li, pl.origin(), pLeaves, tLeaves), gl, fl, tn1,
-                                       pending, cross);
+                        foldedLeafRows(b, go, pl, heatOnly[q], out(li, pl.origin(), pLeaves, tLeaves), gl[q], fl[q],
+                                       tn1, pending, cross);
                     }
                     continue;
                 }
@@ -1096,6 +1159,7 @@ void PhaseFieldSolver::layRegionOut(bool folded)
 void PhaseFieldSolver::rebuildRegionOf(openvdb::FloatGrid& p, openvdb::FloatGrid& T, bool ours,
                                        uint64_t& inputGeneration, PhaseFieldStepStats* stats)
 {
+    const auto t0 = Clock::now();
     if (!mRegion.dense && !mInputsTruncated) {
         // Values within the tolerance since the last truncation (an out-of-turn rebuild).
         truncateToTolerance(p, mRegion.tolerance);
@@ -1120,7 +1184,10 @@ void PhaseFieldSolver::rebuildRegionOf(openvdb::FloatGrid& p, openvdb::FloatGrid
         mRegionMask = region;
         mRegionVoxels = voxels;
     }
-    if (stats) stats->rebuilds += 1;
+    if (stats) {
+        stats->rebuilds += 1;
+        stats->regionBuildSeconds += since(t0);
+    }
 }
 
 openvdb::MaskGrid::Ptr PhaseFieldSolver::rebuildRegion(const openvdb::FloatGrid& p, const openvdb::FloatGrid& T, int steps,
@@ -1244,14 +1311,17 @@ namespace {
 
 /// Forward Euler writes p and T in place: the trees are made this solver's own (a frame may
 /// share them) and given the region's topology when they do not have it yet.
-void prepareInPlace(openvdb::FloatGrid& p, openvdb::FloatGrid& T, const openvdb::MaskGrid& region, bool match, bool ours)
+void prepareInPlace(openvdb::FloatGrid& p, openvdb::FloatGrid& T, const openvdb::MaskGrid& region, bool match, bool ours,
+                    PhaseFieldStepStats* stats)
 {
+    const auto t0 = Clock::now();
     ownTree(p);
     ownTree(T);
     if (match) {
         matchTopology(p, region, ours);
         matchTopology(T, region, ours);
     }
+    if (stats) stats->regionMatchSeconds += since(t0);
 }
 
 /// The accumulators written in place by the step (a frame may share their trees).
@@ -1335,7 +1405,7 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
     const bool inPlace = mParams.scheme == PhaseFieldScheme::Euler;
     openvdb::FloatGrid::Ptr pNew, tNew;
     if (inPlace) {
-        prepareInPlace(*p, *T, *mRegionMask, inputGeneration != mGeneration, ours);
+        prepareInPlace(*p, *T, *mRegionMask, inputGeneration != mGeneration, ours, stats);
         pNew = p;
         tNew = T;
         mSpareP.reset();
@@ -1344,6 +1414,7 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
         pNew = outputGrid(mSpareP, mSpareGeneration, *p);
         tNew = outputGrid(mSpareT, mSpareGeneration, *T);
     }
+    const auto tLayout = Clock::now();
 
     openvdb::tree::LeafManager<openvdb::FloatTree> pLeaves(pNew->tree());
     openvdb::tree::LeafManager<openvdb::FloatTree> tLeaves(tNew->tree());
@@ -1359,6 +1430,7 @@ void PhaseFieldSolver::stepOnce(openvdb::FloatGrid::Ptr& p, openvdb::FloatGrid::
         stats->regionVoxels = mRegionVoxels;
         stats->voxelUpdates += mRegionVoxels;
         stats->regionSeconds += since(t0);
+        stats->regionLayoutSeconds += since(tLayout);
     }
 
     t0 = Clock::now();

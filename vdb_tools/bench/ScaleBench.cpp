@@ -104,6 +104,8 @@ int runOne(int n, int rebuildEvery, const BenchArgs& args, const std::string& re
     std::printf("| phase field (incl. heat) | %.2f |\n", eff["phase_field"]);
     std::printf("| - region / kernel / truncation | %.2f / %.2f / %.2f |\n", detail["phase_field.region"],
                 detail["phase_field.kernel"], detail["phase_field.truncate"]);
+    std::printf("| - region: rebuilt / p and T matched / leaf view, groups, leaf managers | %.2f / %.2f / %.2f |\n",
+                detail["phase_field.region_build"], detail["phase_field.region_match"], detail["phase_field.region_layout"]);
     std::printf("| - region rebuilds / grown around walker writes (counts) | %.0f / %.0f |\n",
                 detail["phase_field.region_rebuilds"], detail["phase_field.region_growths"]);
     std::printf("| - memory at the end (MiB): region mask (folded with folded fields) / its plane-leaf view / Euler staging at its peak | %.1f / %.1f / %.1f |\n",

@@ -31,6 +31,10 @@ struct PhaseFieldStepStats {
     uint64_t regionVoxels = 0; ///< the last step's region
     uint64_t voxelUpdates = 0; ///< region voxels summed over steps (the shell's voxel_updates)
     double regionSeconds = 0, kernelSeconds = 0, truncateSeconds = 0;
+    /// Parts of regionSeconds: the region rebuilt (growths around other writers' cells are in
+    /// regionSeconds only), p and T matched to it (forward Euler), and its plane-leaf view, leaf
+    /// groups and leaf managers made.
+    double regionBuildSeconds = 0, regionMatchSeconds = 0, regionLayoutSeconds = 0;
     // Second-order scheme: implicit solves (time is part of kernelSeconds).
     double solveSeconds = 0;
     double heatSeconds = 0; ///< the T system alone (latent heat + Crank-Nicolson solve)
