@@ -1,4 +1,5 @@
 #include <frostvdb/core/Bench.h>
+#include <frostvdb/core/Stopwatch.h>
 
 #include <fstream>
 #include <map>
@@ -31,12 +32,7 @@ std::vector<const BenchInfo*> BenchRegistry::all()
 
 namespace bench {
 
-double cpuSeconds()
-{
-    rusage u{};
-    getrusage(RUSAGE_SELF, &u);
-    return u.ru_utime.tv_sec + u.ru_stime.tv_sec + 1e-6 * (u.ru_utime.tv_usec + u.ru_stime.tv_usec);
-}
+double cpuSeconds() { return processCpuSeconds(); } // the run summary's clock (core/Stopwatch.h)
 
 double peakRssMiB()
 {
