@@ -373,8 +373,14 @@ struct StencilCandidate {
 
 /// Weights w_j of least sum w_j^2 / phi_j, exact on (s, t, s^2, st, t^2) for @a rhs (one column
 /// per operator); false for a degenerate layout (collinear).
+/// A fit's weights per candidate: the Laplacian's, and d/ds and d/dt's (fixed column counts:
+/// Eigen's dynamic-width solve went through its blocked matrix kernels for one or two columns).
+using LapWeights = Eigen::Matrix<double, Eigen::Dynamic, 1>;
+using GradWeights = Eigen::Matrix<double, Eigen::Dynamic, 2>;
+
+template <int Cols>
 bool fitStencil(const std::vector<StencilCandidate>& cand, double StencilCandidate::*phiOf,
-                const Eigen::Matrix<double, 5, Eigen::Dynamic>& rhs, Eigen::MatrixXd& w)
+                const Eigen::Matrix<double, 5, Cols>& rhs, Eigen::Matrix<double, Eigen::Dynamic, Cols>& w)
 {
     Eigen::Matrix<double, 5, 5> g = Eigen::Matrix<double, 5, 5>::Zero();
     for (const StencilCandidate& c : cand) {
@@ -386,7 +392,7 @@ bool fitStencil(const std::vector<StencilCandidate>& cand, double StencilCandida
     const Eigen::LDLT<Eigen::Matrix<double, 5, 5>> ldlt(g);
     const auto d = ldlt.vectorD().cwiseAbs();
     if (ldlt.info() != Eigen::Success || !ldlt.isPositive() || !(d.minCoeff() > 1e-9 * d.maxCoeff())) return false;
-    const Eigen::Matrix<double, 5, Eigen::Dynamic> y = ldlt.solve(rhs);
+    const Eigen::Matrix<double, 5, Cols> y = ldlt.solve(rhs);
     w.resize(Eigen::Index(cand.size()), rhs.cols());
     for (size_t k = 0; k < cand.size(); ++k) {
         const StencilCandidate& c = cand[k];
@@ -400,7 +406,7 @@ bool fitStencil(const std::vector<StencilCandidate>& cand, double StencilCandida
 /// steep layer) fits the quadratic with large weights of both signs, and negative Laplacian
 /// weights beyond a tenth of the centre weight made a 0.5 mm windshield unstable at a corner
 /// after 1,600 steps.
-bool stencilAcceptable(const Eigen::MatrixXd& wl, const Eigen::MatrixXd& wg)
+bool stencilAcceptable(const LapWeights& wl, const GradWeights& wg)
 {
     double centre = 0, spread = 0, gradSpread = 0;
     for (Eigen::Index k = 0; k < wl.rows(); ++k) {
@@ -418,8 +424,8 @@ bool stencilAcceptable(const Eigen::MatrixXd& wl, const Eigen::MatrixXd& wg)
 /// taps carry little and cost as much as the strong ones in every step (docs/shells.md "The
 /// step"); on a flat axis-aligned layer every tap is strong (the corners carry 1/8 of the
 /// Laplacian), so its stencil is unchanged.
-std::vector<StencilCandidate> strongCandidates(const std::vector<StencilCandidate>& cand, const Eigen::MatrixXd& wl,
-                                               const Eigen::MatrixXd& wg)
+std::vector<StencilCandidate> strongCandidates(const std::vector<StencilCandidate>& cand, const LapWeights& wl,
+                                               const GradWeights& wg)
 {
     const Eigen::Index n = wl.rows();
     const double part = kStrongTapFraction, mL = wl.col(0).cwiseAbs().maxCoeff(),
@@ -449,8 +455,8 @@ void ShellBand::surfaceStencil(size_t i, BandIndex::Accessor& acc,
     const VoxelFrame f = frame(i);
     std::vector<Cand> cand;
     const double minD = kMinTapDistance, pLap = kLaplacianWeightPower, pGrad = kGradientWeightPower;
-    Eigen::Matrix<double, 5, Eigen::Dynamic> lapRhs = Eigen::Matrix<double, 5, 1>::Zero(), gradRhs =
-                                                        Eigen::Matrix<double, 5, 2>::Zero();
+    Eigen::Matrix<double, 5, 1> lapRhs = Eigen::Matrix<double, 5, 1>::Zero();
+    Eigen::Matrix<double, 5, 2> gradRhs = Eigen::Matrix<double, 5, 2>::Zero();
     lapRhs(2, 0) = lapRhs(4, 0) = 2.0; // Laplacian: 2 (c_ss + c_tt)
     gradRhs(0, 0) = 1.0;               // d/ds
     gradRhs(1, 1) = 1.0;               // d/dt
@@ -470,13 +476,15 @@ void ShellBand::surfaceStencil(size_t i, BandIndex::Accessor& acc,
                     cand.push_back({id, s, t, r2, std::pow(r2, -0.5 * pLap), std::pow(r2, -0.5 * pGrad)});
                 }
         if (cand.size() < 5) continue;
-        Eigen::MatrixXd wl, wg;
+        LapWeights wl;
+        GradWeights wg;
         if (!fitStencil(cand, &Cand::phiLap, lapRhs, wl) || !fitStencil(cand, &Cand::phiGrad, gradRhs, wg) ||
             !stencilAcceptable(wl, wg))
             continue; // a wider ring
         // the weak taps dropped and the rest refitted, kept when the refit passes the same checks
         std::vector<Cand> strong = strongCandidates(cand, wl, wg);
-        Eigen::MatrixXd sl, sg;
+        LapWeights sl;
+        GradWeights sg;
         if (strong.size() >= 5 && strong.size() < cand.size() && fitStencil(strong, &Cand::phiLap, lapRhs, sl) &&
             fitStencil(strong, &Cand::phiGrad, gradRhs, sg) && stencilAcceptable(sl, sg)) {
             cand.swap(strong);

@@ -136,15 +136,21 @@ int32_t nodeOfStick(const ShellBand& b, IndexAccessor& acc, const Vec3d& x)
 /// the surface, the direction carried to the new tangent plane (a discrete geodesic). A sub-step
 /// of s leaves the surface by about s^2 kappa / 2: its length follows the curvature kappa measured
 /// by the last sub-step's turn of the normal, so that this stays below one voxel, where the
-/// nearest node is still found and its tangent plane is within O(kappa h^2) of the surface (from
-/// kShootStep voxels up to kShootStepMax where the surface is flat; a sub-step that finds no
-/// surface, across a crease, is taken again at kShootStep). Half a voxel cost 40 % more
-/// sub-steps for the same walks (docs/shells.md "Walkers").
+/// nearest node is still found and its tangent plane is within O(kappa h^2) of the surface (up to
+/// kShootStepMax voxels where the surface is flat). The first sub-step is taken long, as if the
+/// surface were flat, and retaken at kShootStep when its turn says it was not (a jump on a gently
+/// curved mesh, the windshield's, is then one projection instead of two: the projections' cache
+/// misses were half a jump's cost). A sub-step that finds no surface, across a crease, is taken
+/// again at kShootStep. Half a voxel cost 40 % more sub-steps for the same walks (docs/shells.md
+/// "Walkers"). @a start: the frame at x; @a lastNode (surface nodes): the node whose tangent plane
+/// the end point was projected on, as a lattice step leaves it.
 constexpr double kShootStep = 3.0, kShootStepMax = 32.0;
-bool shootWith(const ShellBand& b, IndexAccessor& acc, Vec3d& x, Vec3d dir, double length, bool open)
+bool shootWith(const ShellBand& b, IndexAccessor& acc, Vec3d& x, Vec3d dir, double length, bool open,
+               const VoxelFrame& start, int32_t& lastNode)
 {
-    double left = length, next = kShootStep;
-    std::optional<VoxelFrame> last = frameWith(b, acc, x);
+    double left = length, next = kShootStepMax;
+    bool first = true;
+    std::optional<VoxelFrame> last = start;
     while (left > 1e-12) {
         double s = std::min(next, left);
         Vec3d q;
@@ -162,15 +168,22 @@ bool shootWith(const ShellBand& b, IndexAccessor& acc, Vec3d& x, Vec3d dir, doub
         if (open && lat > 0.5) return false;
         const std::optional<VoxelFrame> f = node >= 0 ? b.frame(size_t(node)) : frameWith(b, acc, q);
         if (!f) return false;
+        // kappa ~ the normal's turn over this sub-step; the next keeps s^2 kappa / 2 <= 1
+        const double turn = last ? std::acos(std::clamp(last->normal.dot(f->normal), -1.0, 1.0)) : 1.0;
+        if (first && s > kShootStep && s * turn > 2.0) { // too curved for the long first sub-step
+            first = false;
+            next = kShootStep;
+            continue;
+        }
+        first = false;
         Vec3d nd = q - x;
         nd -= f->normal * nd.dot(f->normal);
         if (nd.length() < 1e-9) nd = dir - f->normal * dir.dot(f->normal);
         if (nd.length() < 1e-9) return false;
         dir = nd.unit();
         x = q;
+        lastNode = node;
         left -= s;
-        // kappa ~ the normal's turn over this sub-step; the next keeps s^2 kappa / 2 <= 1
-        const double turn = last ? std::acos(std::clamp(last->normal.dot(f->normal), -1.0, 1.0)) : 1.0;
         next = turn > 1e-9 ? std::clamp(std::sqrt(2.0 * s / turn), kShootStep, kShootStepMax) : kShootStepMax;
         last = f;
     }
@@ -184,6 +197,7 @@ bool shootWith(const ShellBand& b, IndexAccessor& acc, Vec3d& x, Vec3d dir, doub
 
 void SurfacePointIndex::clear()
 {
+    mEditor.reset(); // its accessors point into the trees replaced here
     mBuckets.clear();
     mFreeSlots.clear();
     mSlots = std::make_shared<CountTree>(0);
@@ -215,9 +229,31 @@ void SurfacePointIndex::raiseBlockMax(size_t k, float v) const
     }
 }
 
-void SurfacePointIndex::addNear(int k, const Coord& b, int32_t delta)
+struct SurfacePointIndex::Editor {
+    explicit Editor(SurfacePointIndex& index) : slots(*index.mSlots)
+    {
+        for (int k = 0; k < kLevels; ++k) {
+            counts.emplace_back(*index.mCounts[size_t(k)]);
+            near.emplace_back(*index.mNear[size_t(k)]);
+        }
+    }
+    openvdb::tree::ValueAccessor<CountTree, false> slots;
+    std::vector<openvdb::tree::ValueAccessor<CountTree, false>> counts;
+    std::vector<openvdb::tree::ValueAccessor<NearTree, false>> near;
+};
+
+SurfacePointIndex::SurfacePointIndex() { clear(); }
+SurfacePointIndex::~SurfacePointIndex() = default;
+
+SurfacePointIndex::Editor& SurfacePointIndex::editor()
 {
-    openvdb::tree::ValueAccessor<NearTree, false> acc(*mNear[size_t(k)]);
+    if (!mEditor) mEditor = std::make_unique<Editor>(*this);
+    return *mEditor;
+}
+
+void SurfacePointIndex::addNear(Editor& e, int k, const Coord& b, int32_t delta)
+{
+    auto& acc = e.near[size_t(k)];
     for (int dz = -1; dz <= 1; ++dz)
         for (int dy = -1; dy <= 1; ++dy)
             for (int dx = -1; dx <= 1; ++dx) {
@@ -374,6 +410,26 @@ double SurfacePointIndex::clearance(const Coord& b, CountAccessor& slots, CountA
     // of the slot tree, read in place (a ring scan's 13^3 accessor probes, mostly of empty
     // buckets, cost more than the points).
     double best2 = kClearCap * kClearCap;
+    // Nearest first: the buckets of the first kNearRings rings around b by look-ups, stopping
+    // once the next ring cannot hold a nearer point (ring k lies at least kBucket (k - 1) from
+    // b's box). Near the ice, where most clearances are read, that is the first ring or two.
+    constexpr int kNearRings = 2;
+    auto scanBucket = [&](const Coord& f) {
+        const int32_t slot = slots.getValue(f) - 1;
+        if (slot >= 0)
+            for (const Vec3d& q : mBuckets[size_t(slot)]) best2 = std::min(best2, boxDistance2(b, q));
+    };
+    scanBucket(b);
+    if (best2 == 0.0) return rememberClearance(s, best2);
+    for (int k = 1; k <= kNearRings; ++k) {
+        for (int dz = -k; dz <= k; ++dz)
+            for (int dy = -k; dy <= k; ++dy)
+                for (int dx = -k; dx <= k; dx += (std::abs(dz) == k || std::abs(dy) == k) ? 1 : 2 * k)
+                    scanBucket(b + Coord(dx, dy, dz));
+        const double beyond = kBucket * double(k);
+        if (best2 <= beyond * beyond) return rememberClearance(s, best2);
+    }
+    // The rest: every point in reach, by the slot tree's leaves.
     const int reach = int(std::ceil(kClearCap / kBucket)); // fine buckets
     const openvdb::CoordBBox cube(b.offsetBy(-reach), b.offsetBy(reach));
     using Leaf = CountTree::LeafNodeType;
@@ -395,9 +451,14 @@ double SurfacePointIndex::clearance(const Coord& b, CountAccessor& slots, CountA
                     for (const Vec3d& q : mBuckets[size_t(*it - 1)]) best2 = std::min(best2, boxDistance2(b, q));
                 }
             }
+    return rememberClearance(s, best2);
+}
+
+double SurfacePointIndex::rememberClearance(int32_t slot, double best2) const
+{
     const float value = float(std::sqrt(best2));
-    mClear[size_t(s)].store(value, std::memory_order_relaxed);
-    raiseBlockMax(size_t(mClearBlockOf[size_t(s)]), value);
+    mClear[size_t(slot)].store(value, std::memory_order_relaxed);
+    raiseBlockMax(size_t(mClearBlockOf[size_t(slot)]), value);
     return double(value);
 }
 
@@ -409,9 +470,9 @@ SurfacePointIndex::NearAccessors SurfacePointIndex::nearAccessors() const
     return out;
 }
 
-std::vector<Vec3d>& SurfacePointIndex::bucketAt(const Coord& b)
+std::vector<Vec3d>& SurfacePointIndex::bucketAt(Editor& e, const Coord& b)
 {
-    int32_t slot = mSlots->getValue(b) - 1;
+    int32_t slot = e.slots.getValue(b) - 1;
     if (slot < 0) {
         if (mFreeSlots.empty()) {
             slot = int32_t(mBuckets.size());
@@ -420,19 +481,28 @@ std::vector<Vec3d>& SurfacePointIndex::bucketAt(const Coord& b)
             slot = mFreeSlots.back();
             mFreeSlots.pop_back();
         }
-        mSlots->setValue(b, slot + 1);
+        e.slots.setValue(b, slot + 1);
     }
     return mBuckets[size_t(slot)];
 }
 
-void SurfacePointIndex::insert(const Vec3d& q)
+void SurfacePointIndex::insert(const Vec3d& q) { insertWith(editor(), q); }
+
+void SurfacePointIndex::insertAll(const std::vector<Vec3d>& points)
 {
-    bucketAt(bucketOf(q, 0)).push_back(q);
+    Editor& e = editor();
+    for (const Vec3d& q : points) insertWith(e, q);
+}
+
+void SurfacePointIndex::insertWith(Editor& e, const Vec3d& q)
+{
+    bucketAt(e, bucketOf(q, 0)).push_back(q);
     for (int k = 0; k < kLevels; ++k) {
         const Coord b = bucketOf(q, k);
-        const int32_t n = mCounts[size_t(k)]->getValue(b) + 1;
-        mCounts[size_t(k)]->setValue(b, n);
-        if (n == 1) addNear(k, b, 1);
+        auto& counts = e.counts[size_t(k)];
+        const int32_t n = counts.getValue(b) + 1;
+        counts.setValue(b, n);
+        if (n == 1) addNear(e, k, b, 1);
     }
     ++mCount;
     if (!mClearBucket.empty()) mPendingInserts.push_back(q);
@@ -454,7 +524,7 @@ void SurfacePointIndex::assign(const std::vector<Vec3d>& points)
     for (size_t a = 0; a < keyed.size();) {
         size_t e = a;
         while (e < keyed.size() && keyed[e].first == keyed[a].first) ++e;
-        auto& v = bucketAt(bucketOf(points[keyed[a].second], 0));
+        auto& v = bucketAt(editor(), bucketOf(points[keyed[a].second], 0));
         v.reserve(e - a);
         for (size_t k = a; k < e; ++k) v.push_back(points[keyed[k].second]);
         // a level's bucket is the fine bucket's coordinates halved k times (floor: exact, as
@@ -481,26 +551,35 @@ void SurfacePointIndex::assign(const std::vector<Vec3d>& points)
     mCount = points.size();
 }
 
-bool SurfacePointIndex::erase(const Vec3d& q)
+bool SurfacePointIndex::erase(const Vec3d& q) { return eraseWith(editor(), q); }
+
+void SurfacePointIndex::eraseAll(const std::vector<Vec3d>& points)
+{
+    Editor& e = editor();
+    for (const Vec3d& q : points) eraseWith(e, q);
+}
+
+bool SurfacePointIndex::eraseWith(Editor& e, const Vec3d& q)
 {
     const Coord fine = bucketOf(q, 0);
-    const int32_t slot = mSlots->getValue(fine) - 1;
+    const int32_t slot = e.slots.getValue(fine) - 1;
     if (slot < 0) return false;
     auto& v = mBuckets[size_t(slot)];
     const auto at = std::find(v.begin(), v.end(), q);
     if (at == v.end()) return false;
     v.erase(at); // keeps the others' order: distances are minima anyway
     if (v.empty()) {
-        mSlots->setValueOff(fine, 0);
+        e.slots.setValueOff(fine, 0);
         mFreeSlots.push_back(slot);
     }
     for (int k = 0; k < kLevels; ++k) {
         const Coord b = bucketOf(q, k);
-        const int32_t n = mCounts[size_t(k)]->getValue(b) - 1;
-        if (n > 0) mCounts[size_t(k)]->setValue(b, n);
+        auto& counts = e.counts[size_t(k)];
+        const int32_t n = counts.getValue(b) - 1;
+        if (n > 0) counts.setValue(b, n);
         else {
-            mCounts[size_t(k)]->setValueOff(b, 0);
-            addNear(k, b, -1);
+            counts.setValueOff(b, 0);
+            addNear(e, k, b, -1);
         }
     }
     --mCount;
@@ -647,8 +726,8 @@ void ShellWalkers::addIce(const Vec3d& x)
 void ShellWalkers::forgetSticks(const std::vector<Vec3d>& sticks, const std::vector<float>& p)
 {
     BandIndex::Accessor acc = mBand->index().accessor();
+    mIce.eraseAll(sticks); // one copy each: a stick on a node's closest point leaves the node's own
     for (const Vec3d& x : sticks) {
-        mIce.erase(x); // one copy: a stick on a node's closest point leaves the node's own
         if (mIceNode.empty()) continue;
         if (const int32_t k = nodeOfStick(*mBand, acc, x); k >= 0)
             mIceNode[size_t(k)] = inLayer(size_t(k)) && p[size_t(k)] > 0.5f;
@@ -664,20 +743,24 @@ void ShellWalkers::restoreIce(const std::vector<double>& xyz)
 
 void ShellWalkers::removeIceVoxels(const std::vector<size_t>& voxels)
 {
+    std::vector<Vec3d> points;
     for (size_t i : voxels)
         if (inLayer(i)) {
-            mIce.erase(mBand->closestPoint(i));
+            points.push_back(mBand->closestPoint(i));
             if (!mIceNode.empty()) mIceNode[i] = 0;
         }
+    mIce.eraseAll(points);
 }
 
 void ShellWalkers::addIceVoxels(const std::vector<size_t>& voxels)
 {
+    std::vector<Vec3d> points;
     for (size_t i : voxels)
         if (inLayer(i)) {
-            mIce.insert(mBand->closestPoint(i));
+            points.push_back(mBand->closestPoint(i));
             if (!mIceNode.empty()) mIceNode[i] = 1;
         }
+    mIce.insertAll(points);
 }
 
 /// The most moves (steps and jumps) a walker makes: about 1,000 times a typical walk's.
@@ -905,7 +988,9 @@ ShellWalkers::Move ShellWalkers::jump(Walk& w, const VoxelFrame& f, const Vec3d&
     if (vm > 0) r = std::min(r, std::sqrt(0.5 / vm)); // the drift over the jump stays < 1/2
     if (r < double(mParams.jumpMinRadius)) return Move::NotTaken;
     const double a = 2.0 * M_PI * w.rng.uniform();
-    if (!shootWith(w.b, w.acc, w.x, f.tangent * std::cos(a) + f.bitangent * std::sin(a), r, mOpen)) return Move::Left;
+    int32_t landed = -1;
+    if (!shootWith(w.b, w.acc, w.x, f.tangent * std::cos(a) + f.bitangent * std::sin(a), r, mOpen, f, landed))
+        return Move::Left;
     w.steps += r * r; // mean exit time of the unit-step walk from a disc of radius r
     ++w.end.jumps;
     w.end.hasPrev = false;
@@ -914,8 +999,9 @@ ShellWalkers::Move ShellWalkers::jump(Walk& w, const VoxelFrame& f, const Vec3d&
         double lat = 0;
         if (!projectWith(w.b, w.acc, w.x + v * (r * r), q, &lat) || (mOpen && lat > 0.5)) return Move::Left;
         w.x = q;
+        landed = -1; // moved on by the drift
     }
-    if (w.onNodes) w.node = nodeNear(w.b, w.acc, w.x);
+    if (w.onNodes) w.node = landed >= 0 ? landed : nodeNear(w.b, w.acc, w.x);
     w.d = w.ice.distance(w.x);
     return Move::Moved;
 }
