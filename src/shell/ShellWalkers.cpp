@@ -197,7 +197,6 @@ bool shootWith(const ShellBand& b, IndexAccessor& acc, Vec3d& x, Vec3d dir, doub
 
 void SurfacePointIndex::clear()
 {
-    mEditor.reset(); // its accessors point into the trees replaced here
     mBuckets.clear();
     mFreeSlots.clear();
     mSlots = std::make_shared<CountTree>(0);
@@ -229,31 +228,9 @@ void SurfacePointIndex::raiseBlockMax(size_t k, float v) const
     }
 }
 
-struct SurfacePointIndex::Editor {
-    explicit Editor(SurfacePointIndex& index) : slots(*index.mSlots)
-    {
-        for (int k = 0; k < kLevels; ++k) {
-            counts.emplace_back(*index.mCounts[size_t(k)]);
-            near.emplace_back(*index.mNear[size_t(k)]);
-        }
-    }
-    openvdb::tree::ValueAccessor<CountTree, false> slots;
-    std::vector<openvdb::tree::ValueAccessor<CountTree, false>> counts;
-    std::vector<openvdb::tree::ValueAccessor<NearTree, false>> near;
-};
-
-SurfacePointIndex::SurfacePointIndex() { clear(); }
-SurfacePointIndex::~SurfacePointIndex() = default;
-
-SurfacePointIndex::Editor& SurfacePointIndex::editor()
+void SurfacePointIndex::addNear(int k, const Coord& b, int32_t delta)
 {
-    if (!mEditor) mEditor = std::make_unique<Editor>(*this);
-    return *mEditor;
-}
-
-void SurfacePointIndex::addNear(Editor& e, int k, const Coord& b, int32_t delta)
-{
-    auto& acc = e.near[size_t(k)];
+    openvdb::tree::ValueAccessor<NearTree, false> acc(*mNear[size_t(k)]);
     for (int dz = -1; dz <= 1; ++dz)
         for (int dy = -1; dy <= 1; ++dy)
             for (int dx = -1; dx <= 1; ++dx) {
@@ -410,26 +387,6 @@ double SurfacePointIndex::clearance(const Coord& b, CountAccessor& slots, CountA
     // of the slot tree, read in place (a ring scan's 13^3 accessor probes, mostly of empty
     // buckets, cost more than the points).
     double best2 = kClearCap * kClearCap;
-    // Nearest first: the buckets of the first kNearRings rings around b by look-ups, stopping
-    // once the next ring cannot hold a nearer point (ring k lies at least kBucket (k - 1) from
-    // b's box). Near the ice, where most clearances are read, that is the first ring or two.
-    constexpr int kNearRings = 2;
-    auto scanBucket = [&](const Coord& f) {
-        const int32_t slot = slots.getValue(f) - 1;
-        if (slot >= 0)
-            for (const Vec3d& q : mBuckets[size_t(slot)]) best2 = std::min(best2, boxDistance2(b, q));
-    };
-    scanBucket(b);
-    if (best2 == 0.0) return rememberClearance(s, best2);
-    for (int k = 1; k <= kNearRings; ++k) {
-        for (int dz = -k; dz <= k; ++dz)
-            for (int dy = -k; dy <= k; ++dy)
-                for (int dx = -k; dx <= k; dx += (std::abs(dz) == k || std::abs(dy) == k) ? 1 : 2 * k)
-                    scanBucket(b + Coord(dx, dy, dz));
-        const double beyond = kBucket * double(k);
-        if (best2 <= beyond * beyond) return rememberClearance(s, best2);
-    }
-    // The rest: every point in reach, by the slot tree's leaves.
     const int reach = int(std::ceil(kClearCap / kBucket)); // fine buckets
     const openvdb::CoordBBox cube(b.offsetBy(-reach), b.offsetBy(reach));
     using Leaf = CountTree::LeafNodeType;
@@ -451,14 +408,9 @@ double SurfacePointIndex::clearance(const Coord& b, CountAccessor& slots, CountA
                     for (const Vec3d& q : mBuckets[size_t(*it - 1)]) best2 = std::min(best2, boxDistance2(b, q));
                 }
             }
-    return rememberClearance(s, best2);
-}
-
-double SurfacePointIndex::rememberClearance(int32_t slot, double best2) const
-{
     const float value = float(std::sqrt(best2));
-    mClear[size_t(slot)].store(value, std::memory_order_relaxed);
-    raiseBlockMax(size_t(mClearBlockOf[size_t(slot)]), value);
+    mClear[size_t(s)].store(value, std::memory_order_relaxed);
+    raiseBlockMax(size_t(mClearBlockOf[size_t(s)]), value);
     return double(value);
 }
 
@@ -470,9 +422,9 @@ SurfacePointIndex::NearAccessors SurfacePointIndex::nearAccessors() const
     return out;
 }
 
-std::vector<Vec3d>& SurfacePointIndex::bucketAt(Editor& e, const Coord& b)
+std::vector<Vec3d>& SurfacePointIndex::bucketAt(const Coord& b)
 {
-    int32_t slot = e.slots.getValue(b) - 1;
+    int32_t slot = mSlots->getValue(b) - 1;
     if (slot < 0) {
         if (mFreeSlots.empty()) {
             slot = int32_t(mBuckets.size());
@@ -481,28 +433,19 @@ std::vector<Vec3d>& SurfacePointIndex::bucketAt(Editor& e, const Coord& b)
             slot = mFreeSlots.back();
             mFreeSlots.pop_back();
         }
-        e.slots.setValue(b, slot + 1);
+        mSlots->setValue(b, slot + 1);
     }
     return mBuckets[size_t(slot)];
 }
 
-void SurfacePointIndex::insert(const Vec3d& q) { insertWith(editor(), q); }
-
-void SurfacePointIndex::insertAll(const std::vector<Vec3d>& points)
+void SurfacePointIndex::insert(const Vec3d& q)
 {
-    Editor& e = editor();
-    for (const Vec3d& q : points) insertWith(e, q);
-}
-
-void SurfacePointIndex::insertWith(Editor& e, const Vec3d& q)
-{
-    bucketAt(e, bucketOf(q, 0)).push_back(q);
+    bucketAt(bucketOf(q, 0)).push_back(q);
     for (int k = 0; k < kLevels; ++k) {
         const Coord b = bucketOf(q, k);
-        auto& counts = e.counts[size_t(k)];
-        const int32_t n = counts.getValue(b) + 1;
-        counts.setValue(b, n);
-        if (n == 1) addNear(e, k, b, 1);
+        const int32_t n = mCounts[size_t(k)]->getValue(b) + 1;
+        mCounts[size_t(k)]->setValue(b, n);
+        if (n == 1) addNear(k, b, 1);
     }
     ++mCount;
     if (!mClearBucket.empty()) mPendingInserts.push_back(q);
@@ -524,7 +467,7 @@ void SurfacePointIndex::assign(const std::vector<Vec3d>& points)
     for (size_t a = 0; a < keyed.size();) {
         size_t e = a;
         while (e < keyed.size() && keyed[e].first == keyed[a].first) ++e;
-        auto& v = bucketAt(editor(), bucketOf(points[keyed[a].second], 0));
+        auto& v = bucketAt(bucketOf(points[keyed[a].second], 0));
         v.reserve(e - a);
         for (size_t k = a; k < e; ++k) v.push_back(points[keyed[k].second]);
         // a level's bucket is the fine bucket's coordinates halved k times (floor: exact, as
@@ -551,35 +494,26 @@ void SurfacePointIndex::assign(const std::vector<Vec3d>& points)
     mCount = points.size();
 }
 
-bool SurfacePointIndex::erase(const Vec3d& q) { return eraseWith(editor(), q); }
-
-void SurfacePointIndex::eraseAll(const std::vector<Vec3d>& points)
-{
-    Editor& e = editor();
-    for (const Vec3d& q : points) eraseWith(e, q);
-}
-
-bool SurfacePointIndex::eraseWith(Editor& e, const Vec3d& q)
+bool SurfacePointIndex::erase(const Vec3d& q)
 {
     const Coord fine = bucketOf(q, 0);
-    const int32_t slot = e.slots.getValue(fine) - 1;
+    const int32_t slot = mSlots->getValue(fine) - 1;
     if (slot < 0) return false;
     auto& v = mBuckets[size_t(slot)];
     const auto at = std::find(v.begin(), v.end(), q);
     if (at == v.end()) return false;
     v.erase(at); // keeps the others' order: distances are minima anyway
     if (v.empty()) {
-        e.slots.setValueOff(fine, 0);
+        mSlots->setValueOff(fine, 0);
         mFreeSlots.push_back(slot);
     }
     for (int k = 0; k < kLevels; ++k) {
         const Coord b = bucketOf(q, k);
-        auto& counts = e.counts[size_t(k)];
-        const int32_t n = counts.getValue(b) - 1;
-        if (n > 0) counts.setValue(b, n);
+        const int32_t n = mCounts[size_t(k)]->getValue(b) - 1;
+        if (n > 0) mCounts[size_t(k)]->setValue(b, n);
         else {
-            counts.setValueOff(b, 0);
-            addNear(e, k, b, -1);
+            mCounts[size_t(k)]->setValueOff(b, 0);
+            addNear(k, b, -1);
         }
     }
     --mCount;
@@ -726,8 +660,8 @@ void ShellWalkers::addIce(const Vec3d& x)
 void ShellWalkers::forgetSticks(const std::vector<Vec3d>& sticks, const std::vector<float>& p)
 {
     BandIndex::Accessor acc = mBand->index().accessor();
-    mIce.eraseAll(sticks); // one copy each: a stick on a node's closest point leaves the node's own
     for (const Vec3d& x : sticks) {
+        mIce.erase(x); // one copy: a stick on a node's closest point leaves the node's own
         if (mIceNode.empty()) continue;
         if (const int32_t k = nodeOfStick(*mBand, acc, x); k >= 0)
             mIceNode[size_t(k)] = inLayer(size_t(k)) && p[size_t(k)] > 0.5f;
@@ -743,24 +677,20 @@ void ShellWalkers::restoreIce(const std::vector<double>& xyz)
 
 void ShellWalkers::removeIceVoxels(const std::vector<size_t>& voxels)
 {
-    std::vector<Vec3d> points;
     for (size_t i : voxels)
         if (inLayer(i)) {
-            points.push_back(mBand->closestPoint(i));
+            mIce.erase(mBand->closestPoint(i));
             if (!mIceNode.empty()) mIceNode[i] = 0;
         }
-    mIce.eraseAll(points);
 }
 
 void ShellWalkers::addIceVoxels(const std::vector<size_t>& voxels)
 {
-    std::vector<Vec3d> points;
     for (size_t i : voxels)
         if (inLayer(i)) {
-            points.push_back(mBand->closestPoint(i));
+            mIce.insert(mBand->closestPoint(i));
             if (!mIceNode.empty()) mIceNode[i] = 1;
         }
-    mIce.insertAll(points);
 }
 
 /// The most moves (steps and jumps) a walker makes: about 1,000 times a typical walk's.

@@ -50,19 +50,14 @@ public:
     /// Clearances are exact below this (voxels) and read kClearCap beyond.
     static constexpr double kClearCap = 24.0;
 
-    SurfacePointIndex();
-    ~SurfacePointIndex();
+    SurfacePointIndex() { clear(); }
     void clear();
     void insert(const openvdb::Vec3d& q);
-    /// insert() of each point in order.
-    void insertAll(const std::vector<openvdb::Vec3d>& points);
     /// The index of exactly these points, as clear() and insert() in this order would leave it,
     /// built by sorting (a full sync of millions of ice nodes: 2.5 M inserts took 1.5 s).
     void assign(const std::vector<openvdb::Vec3d>& points);
     /// Removes one point equal to @a q (false when there is none).
     bool erase(const openvdb::Vec3d& q);
-    /// erase() of each point in order.
-    void eraseAll(const std::vector<openvdb::Vec3d>& points);
     size_t size() const { return mCount; }
     /// Every point as x, y, z triples, bucket by bucket in key order.
     std::vector<double> pointList() const;
@@ -132,8 +127,6 @@ private:
     double coarseBound(const openvdb::Vec3d& x, NearAccessors& near) const;
     /// The clearance of fine bucket @a b (-1 when it holds no site), computed when unknown.
     double clearance(const openvdb::Coord& b, CountAccessor& slots, CountAccessor& clearSlots) const;
-    /// Stores the clearance of slot @a slot from the squared distance @a best2 and returns it.
-    double rememberClearance(int32_t slot, double best2) const;
     /// Calls @a f(slot, its clearance, distance from its box to @a q) for each known clearance
     /// whose bucket is nearer than kClearCap to @a q.
     template<typename F> void forEachClearanceNear(const openvdb::Vec3d& q, F&& f) const;
@@ -166,18 +159,8 @@ private:
     std::vector<std::vector<openvdb::Vec3d>> mBuckets;
     std::vector<int32_t> mFreeSlots; ///< slots of buckets that emptied
     CountTree::Ptr mSlots;
-    /// Cached accessors of the bucket trees for inserts and erases, kept from one to the next
-    /// (unregistered: edits only set values and turn them off, which deletes no tree node, so
-    /// they stay valid until clear() makes new trees). The phase field's new ice comes leaf by
-    /// leaf: most look-ups hit the nodes of the last, where each level's tree was searched from
-    /// its root.
-    struct Editor;
-    std::unique_ptr<Editor> mEditor;
-    Editor& editor();
-    void insertWith(Editor& e, const openvdb::Vec3d& q);
-    bool eraseWith(Editor& e, const openvdb::Vec3d& q);
     /// The points of bucket @a b (made when absent).
-    std::vector<openvdb::Vec3d>& bucketAt(Editor& e, const openvdb::Coord& b);
+    std::vector<openvdb::Vec3d>& bucketAt(const openvdb::Coord& b);
     /// level k: points per bucket of 4 * 2^k, as a sparse grid of bucket coordinates (counts,
     /// so points can be removed)
     std::array<CountTree::Ptr, kLevels> mCounts;
@@ -185,7 +168,7 @@ private:
     /// empty), so the coarse bound reads one value per level instead of 27
     std::array<NearTree::Ptr, kLevels> mNear;
     /// Adds @a delta to the neighbourhood counts around bucket @a b of level @a k.
-    void addNear(Editor& e, int k, const openvdb::Coord& b, int32_t delta);
+    void addNear(int k, const openvdb::Coord& b, int32_t delta);
     size_t mCount = 0;
 };
 
