@@ -574,19 +574,40 @@ double SurfacePointIndex::coarseBound(const Vec3d& x, NearAccessors& near) const
     return kBucket * double(1 << (lo - 1));
 }
 
+void SurfacePointIndex::Cursor::enter(const Vec3d& x, const Coord& b)
+{
+    const uint64_t key = packBucket(b);
+    if (key == mKey) return;
+    mKey = key;
+    mNearCount = -1; // gathered when first needed
+    // the bucket's lower bound: its clearance (exact below the cap, where it is the largest
+    // bound any point of the box has), else the pyramid's too
+    const double c = mIndex.clearance(b, mSlotAcc, mClearAcc);
+    mLower = c >= 0.0 && c < kClearCap ? c : std::max(c, mIndex.coarseBound(x, mNearAcc));
+}
+
+double SurfacePointIndex::Cursor::walkDistance(const Vec3d& x, double near)
+{
+    if (mIndex.mCount == 0) return kFar;
+    enter(x, bucketOf(x, 0));
+    if (mLower > kBucket) return mLower;
+    const Coord lo = bucketOf(x - Vec3d(near), 0), hi = bucketOf(x + Vec3d(near), 0);
+    for (int z = lo.z(); z <= hi.z(); ++z)
+        for (int y = lo.y(); y <= hi.y(); ++y)
+            for (int xb = lo.x(); xb <= hi.x(); ++xb) {
+                const int32_t slot = mSlotAcc.getValue(Coord(xb, y, z)) - 1;
+                if (slot < 0) continue;
+                for (const Vec3d& q : mIndex.mBuckets[size_t(slot)])
+                    if (std::sqrt((q - x).lengthSqr()) <= near) return near; // as distance() rounds it
+            }
+    return std::nextafter(near, kFar);
+}
+
 double SurfacePointIndex::Cursor::distance(const Vec3d& x)
 {
     if (mIndex.mCount == 0) return kFar;
     const Coord b = bucketOf(x, 0);
-    const uint64_t key = packBucket(b);
-    if (key != mKey) {
-        mKey = key;
-        mNearCount = -1; // gathered when first needed
-        // the bucket's lower bound: its clearance (exact below the cap, where it is the
-        // largest bound any point of the box has), else the pyramid's too
-        const double c = mIndex.clearance(b, mSlotAcc, mClearAcc);
-        mLower = c >= 0.0 && c < kClearCap ? c : std::max(c, mIndex.coarseBound(x, mNearAcc));
-    }
+    enter(x, b);
     // no point within kBucket: the nearest fine buckets' points would not give the distance
     if (mLower > kBucket) return mLower;
     if (mNearCount < 0) {
@@ -635,6 +656,7 @@ ShellWalkers::ShellWalkers(std::shared_ptr<const ShellBand> band, const ice::Dla
     mIce.enableClearance(b.size(), site);
     mBorder.enableClearance(b.size(), site);
     if (b.surfaceNodes()) mIceNode.assign(b.size(), 0);
+    mCoarseNear = !mParams.jumps || double(mParams.jumpMinRadius) + 2.0 > SurfacePointIndex::kBucket;
 }
 
 void ShellWalkers::sync(const std::vector<float>& p)
@@ -834,6 +856,12 @@ struct ShellWalkers::Walk {
         const int32_t id = acc.getValue(Coord::round(p));
         return id < 0 ? Vec3d(0.0) : Vec3d((*in.drift)[size_t(id)]);
     }
+    /// The distance to the ice after a release, a jump or a burst: below the smallest distance
+    /// a jump takes (jump_min_radius + 2), the walk only compares it with kStickRadius.
+    double iceDistance(bool onlyStickMatters)
+    {
+        return onlyStickMatters ? ice.walkDistance(x, kStickRadius) : ice.distance(x);
+    }
     bool projectStep(const Vec3d& y, Vec3d& q, double* lat)
     {
         return onNodes ? projectOnNodes(b, acc, y, q, lat, &node) : projectWith(b, acc, y, q, lat);
@@ -867,7 +895,7 @@ ShellWalkEnd ShellWalkers::walk(int64_t step, uint64_t walker, uint64_t salt, co
     if (start) w.x = *start;
     else if (!releaseSite(w, walker)) return w.end;
     if (w.onNodes) w.node = nodeNear(w.b, w.acc, w.x);
-    w.d = w.ice.distance(w.x);
+    w.d = w.iceDistance(mCoarseNear);
     for (;;) {
         if (w.d <= kStickRadius && w.sticks()) return w.finish(ShellWalkEnd::Stuck);
         // max_steps, and a safety cap on the work (moves and jumps): a walker enclosed by ice it
@@ -932,7 +960,7 @@ ShellWalkers::Move ShellWalkers::jump(Walk& w, const VoxelFrame& f, const Vec3d&
         landed = -1; // moved on by the drift
     }
     if (w.onNodes) w.node = landed >= 0 ? landed : nodeNear(w.b, w.acc, w.x);
-    w.d = w.ice.distance(w.x);
+    w.d = w.iceDistance(mCoarseNear);
     return Move::Moved;
 }
 
@@ -960,7 +988,7 @@ ShellWalkers::Move ShellWalkers::graphBurst(Walk& w) const
         w.x = w.b.closestPoint(size_t(w.node));
         if (mParams.maxSteps > 0 && w.steps >= double(mParams.maxSteps)) break;
     }
-    w.d = w.ice.distance(w.x);
+    w.d = w.iceDistance(mCoarseNear);
     return Move::Moved;
 }
 

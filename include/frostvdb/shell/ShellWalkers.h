@@ -109,6 +109,13 @@ public:
         {
         }
         double distance(const openvdb::Vec3d& x);
+        /// What a walk needs of distance(x) where it is at most kBucket: only whether a point
+        /// lies within @a near (inclusive), with an early exit. Returns distance(x) where that
+        /// is more than kBucket; else @a near when a point lies within it, and otherwise the
+        /// next double above @a near (a lower bound still). A walker compares a distance below
+        /// jumpMinRadius + 2 (> kBucket) with the sticking radius alone, so its walk is the same
+        /// as with distance(), without the minimum over the hundreds of points near the ice.
+        double walkDistance(const openvdb::Vec3d& x, double near);
 
     private:
         const SurfacePointIndex& mIndex;
@@ -120,6 +127,8 @@ public:
         std::array<const std::vector<openvdb::Vec3d>*, 27> mNear{};
         int mNearCount = -1; ///< -1: not gathered yet
         double mLower = -1;  ///< the bucket's lower bound (clearance, or the pyramid's beyond the cap)
+        /// Moves the cursor to fine bucket @a b (holding @a x): its lower bound mLower.
+        void enter(const openvdb::Vec3d& x, const openvdb::Coord& b);
     };
 
 private:
@@ -275,6 +284,9 @@ private:
     uint64_t mSeed;
     int mMaxJump;
     bool mOpen; ///< the mesh has a border (walkers beyond it are removed)
+    /// Whether a walk may read its distance to the ice as Cursor::walkDistance (no jump is as
+    /// short as SurfacePointIndex::kBucket + 2).
+    bool mCoarseNear = false;
     std::vector<size_t> mLayer, mBorderLayer;
     SurfacePointIndex mIce, mBorder;
     /// Surface nodes: 1 where the node is ice (its closest point is in mIce), for the graph step.
