@@ -207,6 +207,7 @@ private:
     std::function<float(const ShellBand&, size_t)> mMeltSource;
     std::vector<openvdb::CoordBBox> mOff;        ///< per leaf slot: box of its off-background voxels
     std::vector<char> mInStepped;                 ///< per leaf slot
+    std::vector<uint8_t> mBlocker;                ///< per leaf slot: the neighbour that last kept it unsaturated
     std::vector<uint32_t> mStepped;               ///< leaf slots stepped (sorted)
     std::vector<uint32_t> mTouched;               ///< leaf slots written by others since the last scan
     std::vector<uint8_t> mCrossed;                ///< per leaf slot: p crossed 1/2 since takeCrossedLeaves
