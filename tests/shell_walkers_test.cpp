@@ -494,3 +494,38 @@ TEST_CASE("Surface point index: bucket clearances are lower bounds, exact below 
     CHECK(worstGap <= shell::SurfacePointIndex::kBucket * std::sqrt(3.0));
     CHECK(meanGap < 0.5 * pyramidGap);
 }
+
+TEST_CASE("Surface point index: a walk's distance is distance() beyond a bucket, and below it says only "
+          "whether a point lies within the sticking radius",
+          "[fast][shell][dla]")
+{
+    // ice: a random cluster on a plane z = 0.3 (the walkers' points lie on the surface)
+    std::mt19937 gen(11);
+    std::uniform_real_distribution<double> u(-30.0, 30.0);
+    std::vector<Vec3d> ice, queries;
+    for (int k = 0; k < 400; ++k) ice.emplace_back(0.5 * u(gen), 0.5 * u(gen), 0.3);
+    for (int k = 0; k < 20000; ++k) queries.emplace_back(u(gen), u(gen), 0.3 + 0.01 * u(gen));
+    shell::SurfacePointIndex index;
+    index.enableClearance(queries.size(), [&](size_t i) { return queries[i]; });
+    index.assign(ice);
+    index.flushClearances();
+    shell::SurfacePointIndex::Cursor exact(index), walk(index);
+    const double stick = shell::ShellWalkers::kStickRadius;
+    size_t within = 0, near = 0, far = 0;
+    for (const Vec3d& x : queries) {
+        const double d = exact.distance(x), w = walk.walkDistance(x, stick);
+        if (d > shell::SurfacePointIndex::kBucket) {
+            ++far;
+            REQUIRE(w == d);
+            continue;
+        }
+        ++near;
+        within += d <= stick;
+        REQUIRE((w <= stick) == (d <= stick)); // the one comparison a walk makes there
+        REQUIRE(w <= d);                       // still a lower bound
+    }
+    INFO("far " << far << ", near " << near << ", within the sticking radius " << within);
+    CHECK(far > 1000);
+    CHECK(near > 1000);
+    CHECK(within > 100);
+}

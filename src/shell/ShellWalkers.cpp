@@ -598,7 +598,7 @@ double SurfacePointIndex::Cursor::walkDistance(const Vec3d& x, double near)
                 const int32_t slot = mSlotAcc.getValue(Coord(xb, y, z)) - 1;
                 if (slot < 0) continue;
                 for (const Vec3d& q : mIndex.mBuckets[size_t(slot)])
-                    if (std::sqrt((q - x).lengthSqr()) <= near) return near; // as distance() rounds it
+                    if (std::sqrt((q - x).lengthSqr()) <= near) return 0.0; // as distance() rounds it
             }
     return std::nextafter(near, kFar);
 }

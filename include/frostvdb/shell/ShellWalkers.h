@@ -111,8 +111,8 @@ public:
         double distance(const openvdb::Vec3d& x);
         /// What a walk needs of distance(x) where it is at most kBucket: only whether a point
         /// lies within @a near (inclusive), with an early exit. Returns distance(x) where that
-        /// is more than kBucket; else @a near when a point lies within it, and otherwise the
-        /// next double above @a near (a lower bound still). A walker compares a distance below
+        /// is more than kBucket; else 0 when a point lies within @a near, and otherwise the next
+        /// double above @a near (both lower bounds still). A walker compares a distance below
         /// jumpMinRadius + 2 (> kBucket) with the sticking radius alone, so its walk is the same
         /// as with distance(), without the minimum over the hundreds of points near the ice.
         double walkDistance(const openvdb::Vec3d& x, double near);
