@@ -371,13 +371,13 @@ struct StencilCandidate {
     double phiLap, phiGrad;
 };
 
-/// Weights w_j of least sum w_j^2 / phi_j, exact on (s, t, s^2, st, t^2) for @a rhs (one column
-/// per operator); false for a degenerate layout (collinear).
 /// A fit's weights per candidate: the Laplacian's, and d/ds and d/dt's (fixed column counts:
 /// Eigen's dynamic-width solve went through its blocked matrix kernels for one or two columns).
 using LapWeights = Eigen::Matrix<double, Eigen::Dynamic, 1>;
 using GradWeights = Eigen::Matrix<double, Eigen::Dynamic, 2>;
 
+/// Weights w_j of least sum w_j^2 / phi_j, exact on (s, t, s^2, st, t^2) for @a rhs (one column
+/// per operator); false for a degenerate layout (collinear).
 template <int Cols>
 bool fitStencil(const std::vector<StencilCandidate>& cand, double StencilCandidate::*phiOf,
                 const Eigen::Matrix<double, 5, Cols>& rhs, Eigen::Matrix<double, Eigen::Dynamic, Cols>& w)
