@@ -19,27 +19,23 @@ namespace frostvdb::shell {
 openvdb::FloatGrid::Ptr toGrid(const ShellBand& band, const std::vector<float>& values, float background,
                                const std::string& name)
 {
-    // Leaf by leaf from the band's leaves (each holds its voxels as one index range), in parallel:
-    // no topology union, no index look-up per voxel and no prune after (0.05 s a grid on the
-    // pane's last frame). Nodes at the background stay off, and a leaf with none off it is not
-    // made: a grid costs what its off-background values do (p, growth and freeze time away from
-    // the ice were 3 full copies of the band).
-    using Leaf = openvdb::FloatTree::LeafNodeType;
-    const auto& leaves = band.leaves();
-    std::vector<Leaf*> built(leaves.size(), nullptr);
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, leaves.size(), 16), [&](const tbb::blocked_range<size_t>& r) {
-        for (size_t s = r.begin(); s < r.end(); ++s)
-            for (size_t i = leaves[s].begin; i < leaves[s].end; ++i) {
-                if (values[i] == background) continue;
-                if (!built[s]) built[s] = new Leaf(leaves[s].origin, background, false);
-                built[s]->setValueOn(band.coord(i), values[i]);
-            }
-    });
     auto grid = openvdb::FloatGrid::create(background);
     grid->setTransform(band.transform()->copy());
     grid->setName(name);
-    for (Leaf* leaf : built)
-        if (leaf) grid->tree().addLeaf(leaf); // the tree owns it
+    grid->tree().topologyUnion(band.mask().tree());
+    openvdb::tree::LeafManager<openvdb::FloatTree> leaves(grid->tree());
+    leaves.foreach([&](openvdb::FloatTree::LeafNodeType& leaf, size_t) {
+        BandIndex::Accessor index = band.index().accessor(); // same voxels: one band leaf per leaf
+        for (auto it = leaf.beginValueOn(); it; ++it) {
+            const int32_t i = index.getValue(it.getCoord());
+            const float v = i >= 0 ? values[size_t(i)] : background;
+            // nodes at the background stay off: a grid costs what its off-background values do
+            // (p, growth and freeze time away from the ice were 3 full copies of the band)
+            if (v == background) leaf.setValueOff(it.pos(), background);
+            else it.setValue(v);
+        }
+    });
+    openvdb::tools::pruneInactive(grid->tree());
     return grid;
 }
 
