@@ -69,27 +69,39 @@ void fromGrid(const ShellBand& band, const openvdb::FloatGrid& grid, std::vector
 }
 
 namespace {
-/// Calls @a f on every voxel of @a box within @a radius of the line through @a x along the unit
-/// vector @a n and between @a s0 and @a s1 along it (offsets from x), and on a few more (the
-/// caller tests both): slice by slice across n's dominant axis a, row by row along the next axis
-/// b, and in a row the interval of the third axis c where the squared distance to the line (a
-/// quadratic in c) and the offset along n (linear in c) are within bounds a little wider, so that
-/// rounding drops no voxel the caller keeps. On the pane's frames the slices' boxes of the
-/// line's disc visited 145 M voxels for 46 M values written, and `ice_sdf` took a quarter longer.
+/// Calls @a f on every voxel within @a radius of the line through @a x along the unit vector
+/// @a n and between @a s0 and @a s1 along it (offsets from x), and on a few more (the caller
+/// tests both): slice by slice across n's dominant axis a, row by row along the next axis b, and
+/// in a row the interval of the third axis c where the squared distance to the line (a quadratic
+/// in c) and the offset along n (linear in c) are within bounds a little wider (0.01 voxels), so
+/// that rounding (and n's length, 1 within a float's rounding) drops no voxel the caller keeps.
+/// Slices, rows and intervals are rounded inward (ceil of the low end, floor of the high end):
+/// a voxel past a widened bound is out of reach. A slice's rows are those of the ellipse the
+/// widened cylinder cuts from it (half-width r sqrt(1 - n_c^2) / |n_a| along b). On the pane's
+/// frames the slices' boxes of the line's disc visited 145 M voxels for 46 M values written, and
+/// `ice_sdf` took a quarter longer.
 template <class F>
-void forEachNearSegment(const openvdb::CoordBBox& box, const openvdb::Vec3d& x, const openvdb::Vec3d& n, double radius,
-                        double s0, double s1, const F& f)
+void forEachNearSegment(const openvdb::Vec3d& x, const openvdb::Vec3d& n, double radius, double s0, double s1, const F& f)
 {
     const int a = std::fabs(n.x()) >= std::fabs(n.y()) && std::fabs(n.x()) >= std::fabs(n.z())
                       ? 0 : (std::fabs(n.y()) >= std::fabs(n.z()) ? 1 : 2);
     const int b = (a + 1) % 3, c = (a + 2) % 3;
-    const double reach = radius / std::fabs(n[a]) + 1e-9;
     const double slack = 0.01, r = radius + slack, r2 = r * r;
     const double quad = 1.0 - n[c] * n[c]; // at least 1/2: n[c] is not the dominant component
+    const double reach = r * std::sqrt(quad) / std::fabs(n[a]);
+    // Reciprocals instead of 4 divisions a row: they move the bounds by rounding only, far inside
+    // the slack, so the voxels the caller keeps are the same.
+    const double perA = 1.0 / n[a], perQuad = 0.5 / quad;
+    const bool alongC = std::fabs(n[c]) > 1e-9;
+    const double perC = alongC ? 1.0 / n[c] : 0.0;
+    openvdb::BBoxd seg(x + n * (s0 - slack), x + n * (s0 - slack)); // the segment's box, grown by r
+    seg.expand(x + n * (s1 + slack));
+    const openvdb::CoordBBox box(openvdb::Coord::ceil(seg.min() - openvdb::Vec3d(r)),
+                                 openvdb::Coord::floor(seg.max() + openvdb::Vec3d(r)));
     for (int ca = box.min()[a]; ca <= box.max()[a]; ++ca) {
-        const double t = (double(ca) - x[a]) / n[a]; // the line's point in this slice
+        const double t = (double(ca) - x[a]) * perA; // the line's point in this slice
         const double lb = x[b] + n[b] * t;
-        const int b0 = std::max(box.min()[b], int(std::floor(lb - reach))), b1 = std::min(box.max()[b], int(std::ceil(lb + reach)));
+        const int b0 = std::max(box.min()[b], int(std::ceil(lb - reach))), b1 = std::min(box.max()[b], int(std::floor(lb + reach)));
         openvdb::Coord v;
         v[a] = ca;
         for (v[b] = b0; v[b] <= b1; ++v[b]) {
@@ -103,17 +115,17 @@ void forEachNearSegment(const openvdb::CoordBBox& box, const openvdb::Vec3d& x, 
             const double disc = lin * lin - 4.0 * quad * con;
             if (disc < 0) continue;
             const double root = std::sqrt(disc);
-            double lo = (-lin - root) / (2.0 * quad), hi = (-lin + root) / (2.0 * quad);
+            double lo = (-lin - root) * perQuad, hi = (-lin + root) * perQuad;
             // the offset along n, on + c n[c], within [s0, s1]
-            if (std::fabs(n[c]) > 1e-9) {
-                double u0 = (s0 - slack - on) / n[c], u1 = (s1 + slack - on) / n[c];
+            if (alongC) {
+                double u0 = (s0 - slack - on) * perC, u1 = (s1 + slack - on) * perC;
                 if (u0 > u1) std::swap(u0, u1);
                 lo = std::max(lo, u0);
                 hi = std::min(hi, u1);
             } else if (on < s0 - slack || on > s1 + slack) {
                 continue;
             }
-            const int c0 = std::max(box.min()[c], int(std::floor(lo))), c1 = std::min(box.max()[c], int(std::ceil(hi)));
+            const int c0 = std::max(box.min()[c], int(std::ceil(lo))), c1 = std::min(box.max()[c], int(std::floor(hi)));
             for (v[c] = c0; v[c] <= c1; ++v[c]) f(v);
         }
     }
@@ -143,11 +155,7 @@ openvdb::FloatGrid::Ptr frostFogOnNodes(const ShellBand& band, const std::vector
                 const double th = band.frostThickness() * std::min(1.0, double(std::max({0.f, growth[i], p[i]})));
                 const openvdb::Vec3d& cp = band.closestPoint(i);
                 const openvdb::Vec3d n = band.normal(i);
-                openvdb::BBoxd seg(cp - n * 0.5, cp - n * 0.5);
-                seg.expand(cp + n * (th + 0.5));
-                const openvdb::CoordBBox box(openvdb::Coord::floor(seg.min() - openvdb::Vec3d(0.75)),
-                                             openvdb::Coord::ceil(seg.max() + openvdb::Vec3d(0.75)));
-                forEachNearSegment(box, cp, n, 0.75, -0.5, th + 0.5, [&](const openvdb::Coord& c) {
+                forEachNearSegment(cp, n, 0.75, -0.5, th + 0.5, [&](const openvdb::Coord& c) {
                     const openvdb::Vec3d off = openvdb::Vec3d(c.x(), c.y(), c.z()) - cp;
                     const double sn = off.dot(n);
                     if ((off - n * sn).lengthSqr() > 0.75 * 0.75) return;
@@ -194,10 +202,6 @@ openvdb::FloatGrid::Ptr frostLevelSetOnNodes(const ShellBand& band, const std::v
                 const double side = edge ? hw + 0.5 : 0.75;
                 const openvdb::Vec3d& cp = band.closestPoint(i);
                 const openvdb::Vec3d n = band.normal(i);
-                openvdb::BBoxd seg(cp - n * hw, cp - n * hw);
-                seg.expand(cp + n * (th + hw));
-                const openvdb::CoordBBox box(openvdb::Coord::floor(seg.min() - openvdb::Vec3d(side)),
-                                             openvdb::Coord::ceil(seg.max() + openvdb::Vec3d(side)));
                 auto stamp = [&](const openvdb::Coord& c) {
                     const openvdb::Vec3d off = openvdb::Vec3d(c.x(), c.y(), c.z()) - cp;
                     const double sn = off.dot(n), lat = (off - n * sn).length();
@@ -209,7 +213,7 @@ openvdb::FloatGrid::Ptr frostLevelSetOnNodes(const ShellBand& band, const std::v
                     float old;
                     if (!acc.probeValue(c, old) || v < old) acc.setValueOn(c, v); // one probe for both
                 };
-                forEachNearSegment(box, cp, n, side, -hw, th + hw, stamp);
+                forEachNearSegment(cp, n, side, -hw, th + hw, stamp);
             }
     });
     auto grid = openvdb::FloatGrid::create(float(hw * h));
