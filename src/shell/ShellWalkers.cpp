@@ -827,7 +827,7 @@ void ShellWalkers::walkBatch(int64_t step, uint64_t first, uint64_t count, const
 struct ShellWalkers::Walk {
     Walk(const ShellWalkers& w, const Inputs& inputs, ice::WalkerRng r)
         : b(*w.mBand), in(inputs), rng(r), acc(b.index().accessor()), ice(w.mIce), border(w.mBorder),
-          onNodes(b.surfaceNodes())
+          onNodes(b.surfaceNodes()), onlyStickNear(w.mCoarseNear)
     {
     }
     const ShellBand& b;
@@ -838,6 +838,8 @@ struct ShellWalkers::Walk {
     /// Surface nodes: the node whose tangent plane x was last projected on gives its frame (no
     /// look-up per step); the closest-point band reads the frame of the voxel holding x.
     const bool onNodes;
+    /// Below a jump's reach the walk only compares its distance with kStickRadius (mCoarseNear).
+    const bool onlyStickNear;
     int32_t node = -1;
     Vec3d x{0.0};
     double d = 0;     ///< distance to the ice (a lower bound)
@@ -856,12 +858,8 @@ struct ShellWalkers::Walk {
         const int32_t id = acc.getValue(Coord::round(p));
         return id < 0 ? Vec3d(0.0) : Vec3d((*in.drift)[size_t(id)]);
     }
-    /// The distance to the ice after a release, a jump or a burst: below the smallest distance
-    /// a jump takes (jump_min_radius + 2), the walk only compares it with kStickRadius.
-    double iceDistance(bool onlyStickMatters)
-    {
-        return onlyStickMatters ? ice.walkDistance(x, kStickRadius) : ice.distance(x);
-    }
+    /// The distance to the ice after a release, a jump or a burst.
+    double iceDistance() { return onlyStickNear ? ice.walkDistance(x, kStickRadius) : ice.distance(x); }
     bool projectStep(const Vec3d& y, Vec3d& q, double* lat)
     {
         return onNodes ? projectOnNodes(b, acc, y, q, lat, &node) : projectWith(b, acc, y, q, lat);
@@ -895,7 +893,7 @@ ShellWalkEnd ShellWalkers::walk(int64_t step, uint64_t walker, uint64_t salt, co
     if (start) w.x = *start;
     else if (!releaseSite(w, walker)) return w.end;
     if (w.onNodes) w.node = nodeNear(w.b, w.acc, w.x);
-    w.d = w.iceDistance(mCoarseNear);
+    w.d = w.iceDistance();
     for (;;) {
         if (w.d <= kStickRadius && w.sticks()) return w.finish(ShellWalkEnd::Stuck);
         // max_steps, and a safety cap on the work (moves and jumps): a walker enclosed by ice it
@@ -960,7 +958,7 @@ ShellWalkers::Move ShellWalkers::jump(Walk& w, const VoxelFrame& f, const Vec3d&
         landed = -1; // moved on by the drift
     }
     if (w.onNodes) w.node = landed >= 0 ? landed : nodeNear(w.b, w.acc, w.x);
-    w.d = w.iceDistance(mCoarseNear);
+    w.d = w.iceDistance();
     return Move::Moved;
 }
 
@@ -988,7 +986,7 @@ ShellWalkers::Move ShellWalkers::graphBurst(Walk& w) const
         w.x = w.b.closestPoint(size_t(w.node));
         if (mParams.maxSteps > 0 && w.steps >= double(mParams.maxSteps)) break;
     }
-    w.d = w.iceDistance(mCoarseNear);
+    w.d = w.iceDistance();
     return Move::Moved;
 }
 
